@@ -1,0 +1,156 @@
+"""Build unit folders ``fmus/<unit>/`` into FMI 2.0 co-simulation FMUs with pythonfmu.
+
+A unit folder holds one wrapper script ``<unit>_fmu.py`` (a :class:`TableSlave` subclass),
+its README and reference output. The FMU packs the script, ``immersim.fmus.common`` and the
+whole ``immersim.models`` package into ``resources/`` so that, at run time, the FMU needs only
+the third-party packages. Builds are incremental: an FMU is rebuilt only when the sha256 of
+its sources (and of the pythonfmu version) changes.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import shutil
+import sys
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, List, Optional
+
+from .errors import BuildError
+
+log = logging.getLogger(__name__)
+
+def _models_dir() -> Path:
+    import immersim.models  # the installed location, editable or not
+
+    return Path(immersim.models.__file__).resolve().parent
+
+
+def _fmus_dir() -> Path:
+    import immersim.fmus
+
+    return Path(immersim.fmus.__file__).resolve().parent
+
+
+def default_build_dir() -> Path:
+    """Where built FMUs go: ``$IMMERSIM_BUILD_DIR``, else ``build/fmus`` of the checkout,
+    else ``~/.cache/immersim/fmus`` for a non-editable install."""
+    env = os.environ.get("IMMERSIM_BUILD_DIR")
+    if env:
+        return Path(env)
+    root = _fmus_dir().parent
+    if (root / "pyproject.toml").exists():
+        return root / "build" / "fmus"
+    return Path.home() / ".cache" / "immersim" / "fmus"
+
+
+def unit_names() -> List[str]:
+    """Names of the built-in units (folders ``fmus/<unit>/`` with a ``<unit>_fmu.py``)."""
+    return sorted(p.parent.name for p in _fmus_dir().glob("*/*_fmu.py") if p.stem == f"{p.parent.name}_fmu")
+
+
+def _py_files(folder: Path) -> Iterable[Path]:
+    return sorted(p for p in folder.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+@dataclass
+class UnitSources:
+    """The files one FMU is made of, relative to the FMU's ``resources/`` folder."""
+
+    script: Path
+    files: List[tuple]  # (source path, archive path relative to resources)
+
+    def digest(self) -> str:
+        import pythonfmu
+
+        h = hashlib.sha256(f"pythonfmu {pythonfmu.__version__}\n".encode())
+        for src, arc in sorted(self.files, key=lambda f: str(f[1])):
+            h.update(str(arc).encode() + b"\0" + src.read_bytes() + b"\0")
+        return h.hexdigest()
+
+
+def unit_sources(unit_dir: Path) -> UnitSources:
+    """Collect the script of ``unit_dir`` and the immersim packages it is packed with."""
+    unit_dir = Path(unit_dir).resolve()
+    script = unit_dir / f"{unit_dir.name}_fmu.py"
+    if not script.exists():
+        raise BuildError(f"unit folder {unit_dir}: no wrapper script {script.name}")
+    files = [(script, Path(script.name))]
+    for extra in sorted(unit_dir.glob("*.py")):
+        if extra != script:
+            files.append((extra, Path(extra.name)))
+    common = _fmus_dir() / "common"
+    files.append((_fmus_dir() / "__init__.py", Path("immersim/fmus/__init__.py")))
+    files += [(p, Path("immersim/fmus/common") / p.relative_to(common)) for p in _py_files(common)]
+    models = _models_dir()
+    files += [(p, Path("immersim/models") / p.relative_to(models)) for p in _py_files(models)]
+    for data in sorted(models.rglob("*.json")):
+        files.append((data, Path("immersim/models") / data.relative_to(models)))
+    return UnitSources(script, files)
+
+
+def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: bool = False) -> Path:
+    """Build ``unit_dir`` into ``dest_dir/<unit>.fmu`` unless it is up to date.
+
+    Returns the FMU path. Raises :class:`BuildError` naming the unit on any failure.
+    """
+    from pythonfmu.builder import FmuBuilder
+
+    unit_dir = Path(unit_dir).resolve()
+    dest_dir = Path(dest_dir) if dest_dir is not None else default_build_dir()
+    dest_dir.mkdir(parents=True, exist_ok=True)
+    sources = unit_sources(unit_dir)
+    digest = sources.digest()
+    fmu = dest_dir / f"{unit_dir.name}.fmu"
+    stamp = dest_dir / f"{unit_dir.name}.fmu.sha256"
+    if not force and fmu.exists() and stamp.exists() and stamp.read_text().strip() == digest:
+        log.info("unit %s: up to date (%s)", unit_dir.name, fmu)
+        return fmu
+    with tempfile.TemporaryDirectory(prefix=f"immersim_build_{unit_dir.name}_") as tmp:
+        stage = Path(tmp) / "stage"
+        for src, arc in sources.files:
+            target = stage / arc
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, target)
+        script = stage / sources.script.name
+        extra = [stage / "immersim"] + [stage / arc for _, arc in sources.files[1:] if arc.parent == Path(".")]
+        out = Path(tmp) / "out"
+        # pythonfmu imports the script by module name: keep sys.path and sys.modules clean
+        saved_path = list(sys.path)
+        try:
+            built = FmuBuilder.build_FMU(script, dest=out, project_files=extra)
+        except Exception as exc:
+            raise BuildError(f"unit {unit_dir.name}: pythonfmu build of {sources.script} failed: {exc}") from exc
+        finally:
+            sys.path[:] = saved_path
+            sys.modules.pop(script.stem, None)
+        if built.stem != unit_dir.name:
+            raise BuildError(
+                f"unit {unit_dir.name}: the wrapper's modelName is {built.stem!r}; it must equal the folder name")
+        _check_archive(built, unit_dir.name)
+        shutil.move(str(built), fmu)
+    stamp.write_text(digest + "\n")
+    log.info("unit %s: built %s", unit_dir.name, fmu)
+    return fmu
+
+
+def _check_archive(fmu: Path, unit: str) -> None:
+    with zipfile.ZipFile(fmu) as z:
+        names = set(z.namelist())
+    for needed in ("modelDescription.xml", f"resources/{unit}_fmu.py", "resources/immersim/models/__init__.py"):
+        if needed not in names:
+            raise BuildError(f"unit {unit}: built FMU lacks {needed}")
+
+
+def build_all(units: Optional[Iterable[str]] = None, dest_dir: Path | str | None = None,
+              force: bool = False) -> List[Path]:
+    """Build the named built-in units (all by default)."""
+    names = list(units) if units else unit_names()
+    known = unit_names()
+    for name in names:
+        if name not in known:
+            raise BuildError(f"unknown unit {name!r}; built-in units are {', '.join(known) or 'none'}")
+    return [build_unit(_fmus_dir() / name, dest_dir, force) for name in names]
