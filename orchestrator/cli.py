@@ -1,0 +1,164 @@
+"""``immersim`` command line: build, run, info, plot, sweep.
+
+User errors print one line ``immersim: error: ...`` and exit with status 2 (bad input) or 1
+(a run that failed); SIGINT exits with 130. No traceback for user errors (``--debug`` shows it).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+from typing import List, Optional
+
+from .errors import ImmersimError
+
+log = logging.getLogger("immersim")
+
+EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
+
+
+def _cmd_build(args: argparse.Namespace) -> int:
+    from .build import build_all
+
+    for path in build_all(args.units or None, args.dest, force=args.force):
+        log.info("%s", path)
+        sys.stdout.write(f"{path}\n")
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .execution import RunFailed, RunInterrupted, run_scenario
+
+    scenario = Path(args.scenario)
+    out = Path(args.output) if args.output else Path("results") / "runs" / f"{scenario.stem}.mcap"
+    overrides = _parse_sets(args.set)
+    try:
+        res = run_scenario(scenario, out, progress=not args.quiet, overrides=overrides)
+    except RunInterrupted as exc:
+        sys.stderr.write(f"immersim: {exc}\n")
+        return EXIT_INTERRUPTED
+    except RunFailed as exc:
+        sys.stderr.write(f"immersim: error: {exc}\n")
+        return EXIT_FAILED
+    sys.stdout.write(f"{res.scenario}: {res.steps_done} steps to t = {res.t_ns / 1e9:.6g} s -> {out}\n")
+    if res.skipped_units:
+        sys.stdout.write(f"not loaded (nothing uses their outputs): {', '.join(res.skipped_units)}\n")
+    return 0
+
+
+def _parse_sets(items: Optional[List[str]]):
+    """``unit.param=VALUE`` pairs, VALUE read as a TOML value (a bare word is a string)."""
+    from .errors import ScenarioError
+    from .scenario import tomllib
+
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ScenarioError(f"--set {item!r}: expected UNIT.PARAM=VALUE")
+        key, raw = item.split("=", 1)
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = raw
+    return out
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from .mcapio import read_info
+
+    info = read_info(args.file)
+    lines = [f"{info.path}"]
+    run = info.metadata.get("run", {})
+    if run:
+        lines.append(f"run: {run.get('status')} after {run.get('steps_done')} of {run.get('steps_total')} steps"
+                     + (f" ({run.get('reason')})" if run.get("reason") else ""))
+    meta = info.metadata.get("immersim", {})
+    if meta:
+        lines.append(f"immersim {meta.get('version')}, {meta.get('algorithm')}, step {int(meta.get('step_ns', 0)) / 1e9:g} s")
+    for topic, ch in info.channels.items():
+        span = f"{ch.first_ns / 1e9:.6g} .. {ch.last_ns / 1e9:.6g} s"
+        lines.append(f"channel {topic}: {ch.count} messages, {span}, {len(ch.signals)} signals")
+        if args.signals or len(ch.signals) <= 12:
+            for s in ch.signals:
+                u = ch.unit_of(s)
+                lines.append(f"  {topic}.{s}" + (f" [{u}]" if u else ""))
+    sys.stdout.write("\n".join(lines) + "\n")
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from .plotting import plot_signals
+
+    out = plot_signals(args.file, args.patterns, args.output)
+    sys.stdout.write(f"{out}\n")
+    return 0
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from .sweep import run_sweep
+
+    table = run_sweep(args.sweepfile, args.output_dir, workers=args.workers, scheduler=args.scheduler)
+    sys.stdout.write(f"{table}\n")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="immersim", description=__doc__.splitlines()[0])
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    p.add_argument("--debug", action="store_true", help="show tracebacks of user errors")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    b = sub.add_parser("build", help="build unit folders fmus/<unit>/ into FMUs (incremental)")
+    b.add_argument("units", nargs="*", help="units to build (default: all)")
+    b.add_argument("-d", "--dest", default=None, help="output folder (default: build/fmus)")
+    b.add_argument("--force", action="store_true", help="rebuild even when up to date")
+    b.set_defaults(fn=_cmd_build)
+
+    r = sub.add_parser("run", help="run a scenario file and log every signal to MCAP")
+    r.add_argument("scenario", help="scenario TOML file")
+    r.add_argument("-o", "--output", help="MCAP file (default: results/runs/<scenario>.mcap)")
+    r.add_argument("--set", action="append", metavar="UNIT.PARAM=VALUE",
+                   help="override a parameter or simulation.stop/step/algorithm (TOML value)")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(fn=_cmd_run)
+
+    i = sub.add_parser("info", help="show what an MCAP log holds")
+    i.add_argument("file")
+    i.add_argument("--signals", action="store_true", help="list every signal of every channel")
+    i.set_defaults(fn=_cmd_info)
+
+    pl = sub.add_parser("plot", help="plot signals of an MCAP log into a PNG")
+    pl.add_argument("file")
+    pl.add_argument("patterns", nargs="+", help="glob patterns over unit.variable, e.g. 'platform.stroke*'")
+    pl.add_argument("-o", "--output", required=True, help="PNG file")
+    pl.set_defaults(fn=_cmd_plot)
+
+    s = sub.add_parser("sweep", help="run a grid of scenario variants (ablation) in parallel")
+    s.add_argument("sweepfile", help="sweep TOML file")
+    s.add_argument("-o", "--output-dir", default=None, help="folder for the MCAPs and summary.csv")
+    s.add_argument("-j", "--workers", type=int, default=None, help="local worker processes (default: cores)")
+    s.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
+    s.set_defaults(fn=_cmd_sweep)
+    return p
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return args.fn(args)
+    except ImmersimError as exc:
+        if args.debug:
+            raise
+        sys.stderr.write(f"immersim: error: {exc}\n")
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        sys.stderr.write("immersim: interrupted\n")
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,200 @@
+"""The execution: set up units, master and observers; run the step loop; always close the log.
+
+The loop itself is a few lines (:meth:`Execution.run`): manipulate, step, observe. Failures
+(an FMU error or discard, a NaN output, SIGINT) stop the loop; the MCAP file is closed
+properly and holds every completed step, and a :class:`RunFailed` says where and why.
+"""
+from __future__ import annotations
+
+import logging
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Optional
+
+from .errors import ImmersimError
+from .fmu import RealSetter
+from .master import Master, Slot
+from .observers import McapObserver, write_parameters
+from .scenario import Scenario, load_scenario
+from .system import System, check_system, fmu_hashes
+
+log = logging.getLogger(__name__)
+
+
+class RunFailed(ImmersimError, RuntimeError):
+    """A run stopped before its end; ``result`` tells how far it got."""
+
+    def __init__(self, message: str, result: "RunResult") -> None:
+        super().__init__(message)
+        self.result = result
+
+
+class RunInterrupted(RunFailed):
+    """The run was interrupted by SIGINT."""
+
+
+@dataclass
+class RunResult:
+    scenario: Path
+    output: Optional[Path]
+    steps_done: int
+    steps_total: int
+    t_ns: int
+    status: str = "completed"
+    reason: str = ""
+    skipped_units: List[str] = field(default_factory=list)
+    delayed_connections: List[str] = field(default_factory=list)
+    values: Dict[str, Dict[str, Any]] = field(default_factory=dict)
+
+
+class Execution:
+    """A scenario ready to run.
+
+    Parameters
+    ----------
+    scenario : Scenario or path
+    output : path, optional
+        MCAP file; no log when None.
+    progress : bool
+        Show a tqdm progress bar on stderr.
+    """
+
+    def __init__(self, scenario: Scenario | Path | str, output: Optional[Path | str] = None,
+                 progress: bool = False, overrides: Optional[Dict[str, Any]] = None) -> None:
+        self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario, overrides)
+        self.output = Path(output) if output else None
+        self.progress = progress
+        self.system: System = check_system(self.scenario)
+        self._tmp = tempfile.TemporaryDirectory(prefix="immersim_run_")
+        self.observer: Optional[McapObserver] = None
+        self.observers: List[Callable[[int, int], None]] = []
+
+    # -- set-up --------------------------------------------------------------------------
+    def _setup(self) -> Master:
+        sc, system = self.scenario, self.system
+        system.instantiate(Path(self._tmp.name))
+        conns = system.connections()
+        slots: Dict[str, Slot] = {}
+        for name in system.needed:
+            inst = system.instances[name]
+            sources = [c.src_var for c in conns if c.src_unit == name]
+            read = list(dict.fromkeys(system.logged[name] + sources))
+            slot = Slot(name, inst, read)
+            slot.reader = inst.reader(read)
+            real_in = [c.dst_var for c in conns if c.dst_unit == name and inst.var(c.dst_var).family == "float"]
+            real_in += [s.var for s in sc.inputs if s.unit == name]
+            real_in += [f.var for f in sc.faults if f.unit == name and inst.var(f.var).family == "float"
+                        and inst.var(f.var).causality == "input"]
+            slot.real_inputs = list(dict.fromkeys(real_in))
+            if slot.real_inputs:
+                slot.setter = RealSetter(inst, slot.real_inputs)
+                slot.in_vals = [float(inst.var(n).start or 0.0) for n in slot.real_inputs]
+            slots[name] = slot
+        for name in system.needed:
+            spec = sc.unit(name)
+            params = dict(spec.parameters)
+            for s in sc.inputs:  # initial value of each scenario signal
+                if s.unit == name:
+                    from .manipulators import signal
+                    params[s.var] = signal(s)(sc.start_ns * 1e-9)
+            system.instances[name].initialize(sc.start_ns, sc.stop_ns, params, sc.tolerance)
+        master = Master(sc, slots, conns)
+        master.initial(sc.start_ns)
+        return master
+
+    def _open_log(self, master: Master) -> None:
+        from importlib.metadata import version
+
+        sc, system = self.scenario, self.system
+        obs = self.observer = McapObserver(self.output)
+        obs.add_metadata("scenario", {"file": str(sc.file), "text": sc.text})
+        obs.add_metadata("fmus", {u: f"{system.paths[u]} sha256={h}" for u, h in fmu_hashes(system).items()})
+        obs.add_metadata("immersim", {
+            "version": version("immersim"), "algorithm": sc.algorithm, "extrapolation": sc.extrapolation,
+            "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
+            "skipped_units": ",".join(system.skipped),
+            "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})
+        self._log_index: Dict[str, List[int]] = {}
+        for name, slot in master.slots.items():
+            logged = system.logged[name]
+            if logged:
+                obs.add_channel(name, [slot.inst.var(n) for n in logged])
+                self._log_index[name] = [slot.index(n) for n in logged]
+            if sc.log.parameters:
+                pnames = [n for n, v in slot.inst.variables.items() if v.causality in ("parameter", "structuralParameter")]
+                if pnames:
+                    infos = [slot.inst.var(n) for n in pnames]
+                    write_parameters(obs, name, infos, slot.inst.get_values(pnames), sc.start_ns)
+
+    def _observe(self, master: Master, k: int, t_ns: int) -> None:
+        obs = self.observer
+        if obs is not None:
+            for name, idx in self._log_index.items():
+                cur = master.slots[name].cur
+                obs.write(name, t_ns, [cur[i] for i in idx], k)
+            obs.step_done()
+        for fn in self.observers:
+            fn(k, t_ns)
+
+    # -- the loop ------------------------------------------------------------------------
+    def run(self) -> RunResult:
+        """Run to the stop time. Raises :class:`RunFailed` after closing the log on failure."""
+        sc = self.scenario
+        n = sc.n_steps
+        result = RunResult(sc.file, self.output, 0, n, sc.start_ns, skipped_units=list(self.system.skipped))
+        master: Optional[Master] = None
+        bar = None
+        try:
+            master = self._setup()
+            result.delayed_connections = [str(c) for c in master.delayed] if sc.algorithm == "gauss-seidel" else []
+            if self.output is not None:
+                self._open_log(master)
+            self._observe(master, 0, sc.start_ns)
+            if self.progress:
+                from tqdm import tqdm
+                bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None)
+            for k in range(n):
+                t_ns, t_next = sc.step_time_ns(k), sc.step_time_ns(k + 1)
+                master.step(t_ns, t_next - t_ns)
+                self._observe(master, k + 1, t_next)
+                result.steps_done, result.t_ns = k + 1, t_next
+                if bar is not None:
+                    bar.update(1)
+        except KeyboardInterrupt:
+            result.status, result.reason = "interrupted", "interrupted by SIGINT"
+            raise RunInterrupted(self._stop_message(result), result) from None
+        except ImmersimError as exc:
+            result.status, result.reason = "failed", str(exc)
+            raise RunFailed(self._stop_message(result), result) from exc
+        finally:
+            if bar is not None:
+                bar.close()
+            if master is not None:
+                result.values = {name: dict(zip(s.read_names, s.cur)) for name, s in master.slots.items()}
+            self._finish(result)
+        return result
+
+    def _stop_message(self, r: RunResult) -> str:
+        where = f"; the log {r.output} holds steps 0..{r.steps_done}" if r.output else ""
+        return (f"run of {r.scenario} {r.status} at t = {r.t_ns / 1e9:.9g} s after {r.steps_done} of "
+                f"{r.steps_total} steps: {r.reason}{where}")
+
+    def _finish(self, result: RunResult) -> None:
+        try:
+            if self.observer is not None:
+                try:
+                    self.observer.add_metadata("run", {"status": result.status, "steps_done": result.steps_done,
+                                                       "steps_total": result.steps_total, "t_ns": result.t_ns,
+                                                       "reason": result.reason})
+                finally:
+                    self.observer.close()
+        finally:
+            self.system.terminate()
+            self._tmp.cleanup()
+
+
+def run_scenario(scenario: Scenario | Path | str, output: Optional[Path | str] = None,
+                 progress: bool = False, overrides: Optional[Dict[str, Any]] = None) -> RunResult:
+    """Load, check and run a scenario; see :class:`Execution`."""
+    return Execution(scenario, output, progress, overrides).run()

@@ -1,0 +1,134 @@
+"""Observers only read values. The MCAP observer logs every selected signal.
+
+Layout of the file (see ``immersim info``):
+
+* one channel per unit instance, topic ``<instance>``, JSON messages with a JSON schema
+  (each property carries the FMU's unit and description), one message per macro step with
+  ``log_time`` = ``publish_time`` = simulation time in nanoseconds;
+* one channel ``<instance>/parameters`` with a single message at the start time;
+* metadata ``scenario`` (file name and text), ``fmus`` (sha256 per instance), ``immersim``
+  (package version, algorithm, step) and, when the run ends, ``run`` (status, completed
+  steps, last time, reason).
+
+Messages are JSON objects with the variable names as keys. They are formatted from a
+template prepared once per channel, not by ``json.dumps`` per step: the logging cost of a
+step is one string format and one append to the current chunk.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any, Dict, List, Sequence
+
+from .fmu import VarInfo
+
+log = logging.getLogger(__name__)
+
+_JSON_TYPE = {"float": "number", "int": "integer", "bool": "boolean", "string": "string"}
+
+
+def _json_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value) if math.isfinite(value) else "null"
+    if isinstance(value, int):
+        return str(value)
+    return json.dumps(value if not isinstance(value, bytes) else value.decode())
+
+
+def json_schema(unit: str, infos: Sequence[VarInfo]) -> Dict[str, Any]:
+    props = {}
+    for v in infos:
+        p: Dict[str, Any] = {"type": _JSON_TYPE.get(v.family, "string")}
+        if v.description:
+            p["description"] = v.description
+        if v.unit:
+            p["unit"] = v.unit
+        p["causality"] = v.causality
+        props[v.name] = p
+    return {"type": "object", "title": unit, "properties": props}
+
+
+class ChannelEncoder:
+    """Formats one unit's values into a JSON object with a prepared template."""
+
+    def __init__(self, infos: Sequence[VarInfo]) -> None:
+        self.infos = list(infos)
+        self.all_float = all(v.family == "float" for v in self.infos)
+        keys = [json.dumps(v.name) for v in self.infos]
+        self.template = "{" + ",".join(f"{k}:%s" for k in keys) + "}"
+
+    def encode(self, values: Sequence[Any]) -> bytes:
+        if self.all_float:
+            # repr of a finite float is valid JSON; non-finite values are stopped before logging
+            return (self.template % tuple(map(repr, values))).encode()
+        return (self.template % tuple(_json_value(v) for v in values)).encode()
+
+
+class McapObserver:
+    """Writes the MCAP log; :meth:`close` always leaves a readable file.
+
+    Parameters
+    ----------
+    path : Path
+        Output file.
+    flush_seconds : float
+        Wall-clock interval at which the current chunk is flushed to disk, so even a killed
+        process keeps almost every completed step.
+    """
+
+    def __init__(self, path: Path | str, flush_seconds: float = 1.0) -> None:
+        from mcap.writer import Writer
+
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.path, "wb")
+        self.writer = Writer(self._fh)
+        self.writer.start(profile="", library="immersim")
+        self.channels: Dict[str, int] = {}
+        self.encoders: Dict[str, ChannelEncoder] = {}
+        self.flush_seconds = flush_seconds
+        self._last_flush = time.monotonic()
+        self._closed = False
+        self.messages = 0
+
+    def add_metadata(self, name: str, data: Dict[str, str]) -> None:
+        self.writer.add_metadata(name, {k: str(v) for k, v in data.items()})
+
+    def add_channel(self, topic: str, infos: Sequence[VarInfo]) -> None:
+        schema = json.dumps(json_schema(topic, infos)).encode()
+        sid = self.writer.register_schema(name=topic, encoding="jsonschema", data=schema)
+        self.channels[topic] = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        self.encoders[topic] = ChannelEncoder(infos)
+
+    def write(self, topic: str, t_ns: int, values: Sequence[Any], sequence: int = 0) -> None:
+        data = self.encoders[topic].encode(values)
+        self.writer.add_message(self.channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
+                                sequence=sequence)
+        self.messages += 1
+
+    def step_done(self) -> None:
+        """Called after each macro step: flush to disk now and then."""
+        now = time.monotonic()
+        if now - self._last_flush > self.flush_seconds:
+            self.writer.flush()
+            self._last_flush = now
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.writer.finish()
+        finally:
+            self._fh.close()
+
+
+def write_parameters(obs: McapObserver, unit: str, infos: List[VarInfo], values: List[Any], t_ns: int) -> None:
+    topic = f"{unit}/parameters"
+    obs.add_channel(topic, infos)
+    obs.write(topic, t_ns, values)

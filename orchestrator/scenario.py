@@ -1,0 +1,309 @@
+"""Scenario files (TOML): units, parameters, connections, inputs, faults, time, logging.
+
+Example::
+
+    [simulation]
+    start = 0.0            # s
+    stop = 10.0            # s
+    step = 0.033           # s, the macro step (default 0.033)
+    algorithm = "gauss-seidel"   # or "jacobi"
+    extrapolation = "zoh"        # or "linear"
+
+    [[units]]
+    name = "plat"                # instance name
+    fmu = "platform"             # a built-in unit or a path to any FMI 2.0/3.0 CS FMU
+    [units.parameters]
+    M = 240.0
+
+    [[connections]]
+    from = "net.avatar[1].f_x"
+    to = "plat.cue.f_x"
+
+    [[inputs]]                   # scenario inputs (manipulators)
+    target = "net.avatar[1].throttle"
+    kind = "step"                # constant | step | ramp | sine | table
+    at = 1.0
+    value = 0.5
+
+    [log]
+    include = ["*"]              # glob patterns over unit.variable
+    exclude = []
+
+Every problem is reported as a :class:`ScenarioError` naming the file and the key.
+"""
+from __future__ import annotations
+
+import math
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Tuple
+
+from .errors import ScenarioError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+DEFAULT_STEP_NS = 33_000_000
+ALGORITHMS = ("gauss-seidel", "jacobi")
+EXTRAPOLATIONS = ("zoh", "linear")
+INPUT_KINDS = ("constant", "step", "ramp", "sine", "table")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
+
+
+@dataclass
+class UnitSpec:
+    name: str
+    fmu: str
+    parameters: Dict[str, Any] = field(default_factory=dict)
+    path: Optional[Path] = None  # resolved FMU file, set when loaded
+
+
+@dataclass(frozen=True)
+class Connection:
+    src_unit: str
+    src_var: str
+    dst_unit: str
+    dst_var: str
+
+    def __str__(self) -> str:
+        return f"{self.src_unit}.{self.src_var} -> {self.dst_unit}.{self.dst_var}"
+
+
+@dataclass
+class InputSpec:
+    """A scenario input signal applied to one unit input before each step."""
+
+    unit: str
+    var: str
+    kind: str
+    params: Dict[str, Any]
+
+
+@dataclass
+class FaultSpec:
+    """Set ``unit.var`` to ``value`` from time ``at_ns`` on (fault injection)."""
+
+    unit: str
+    var: str
+    at_ns: int
+    value: Any
+
+
+@dataclass
+class LogSpec:
+    include: List[str] = field(default_factory=lambda: ["*"])
+    exclude: List[str] = field(default_factory=list)
+    parameters: bool = True
+
+
+@dataclass
+class Scenario:
+    file: Path
+    text: str
+    units: List[UnitSpec]
+    connections: List[Connection]
+    inputs: List[InputSpec]
+    faults: List[FaultSpec]
+    log: LogSpec
+    start_ns: int = 0
+    stop_ns: int = 10 * 33_000_000
+    step_ns: int = DEFAULT_STEP_NS
+    algorithm: str = "gauss-seidel"
+    extrapolation: str = "zoh"
+    tolerance: Optional[float] = None
+
+    @property
+    def n_steps(self) -> int:
+        """Number of macro steps (the last one may be shorter to land on ``stop``)."""
+        span = self.stop_ns - self.start_ns
+        return -(-span // self.step_ns)
+
+    def step_time_ns(self, k: int) -> int:
+        """Time of step ``k``: ``start + k*h`` from the integer ``k`` (never accumulated)."""
+        return min(self.start_ns + k * self.step_ns, self.stop_ns)
+
+    def unit(self, name: str) -> UnitSpec:
+        for u in self.units:
+            if u.name == name:
+                return u
+        raise KeyError(name)
+
+
+def seconds_to_ns(value: Any, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(f"{where} must be a number of seconds, got {value!r}")
+    if not math.isfinite(value):
+        raise ScenarioError(f"{where} must be finite, got {value!r}")
+    return int(round(value * 1e9))
+
+
+def split_ref(ref: Any, where: str) -> Tuple[str, str]:
+    """Split ``unit.variable`` at the first dot (variable names may contain dots)."""
+    if not isinstance(ref, str) or "." not in ref:
+        raise ScenarioError(f"{where}: {ref!r} is not of the form 'unit.variable'")
+    unit, var = ref.split(".", 1)
+    if not unit or not var:
+        raise ScenarioError(f"{where}: {ref!r} is not of the form 'unit.variable'")
+    return unit.strip(), var.strip()
+
+
+def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) -> Scenario:
+    """Parse and check a scenario file (structure only; FMUs are checked when loaded).
+
+    Parameters
+    ----------
+    path : path-like
+        The TOML file.
+    overrides : dict, optional
+        ``{"unit.param": value, "simulation.stop": value}`` applied on top (used by sweeps).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ScenarioError(f"scenario file {path} does not exist")
+    text = path.read_text()
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: invalid TOML: {exc}") from None
+    return parse_scenario(data, path, text, overrides)
+
+
+def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
+                   overrides: Optional[Dict[str, Any]] = None) -> Scenario:
+    f = str(path)
+    known = {"simulation", "units", "connections", "inputs", "faults", "log", "description", "title"}
+    for key in data:
+        if key not in known:
+            raise ScenarioError(f"{f}: unknown top-level key {key!r} (expected one of {', '.join(sorted(known))})")
+    sim = data.get("simulation", {})
+    if not isinstance(sim, dict):
+        raise ScenarioError(f"{f}: [simulation] must be a table")
+    sim = dict(sim)
+    for k, v in (overrides or {}).items():
+        if k.startswith("simulation."):
+            sim[k.split(".", 1)[1]] = v
+    for key in sim:
+        if key not in ("start", "stop", "step", "algorithm", "extrapolation", "tolerance"):
+            raise ScenarioError(f"{f}: [simulation] unknown key {key!r}")
+    start_ns = seconds_to_ns(sim.get("start", 0.0), f"{f}: simulation.start")
+    step_ns = seconds_to_ns(sim.get("step", 0.033), f"{f}: simulation.step")
+    if step_ns <= 0:
+        raise ScenarioError(f"{f}: simulation.step = {sim.get('step')!r} s must be > 0")
+    stop_ns = seconds_to_ns(sim.get("stop", start_ns / 1e9 + 10 * step_ns / 1e9), f"{f}: simulation.stop")
+    if stop_ns <= start_ns:
+        raise ScenarioError(f"{f}: simulation.stop = {stop_ns / 1e9:g} s must be after simulation.start = {start_ns / 1e9:g} s")
+    algorithm = sim.get("algorithm", "gauss-seidel")
+    if algorithm not in ALGORITHMS:
+        raise ScenarioError(f"{f}: simulation.algorithm {algorithm!r} is not one of {', '.join(ALGORITHMS)}")
+    extrapolation = sim.get("extrapolation", "zoh")
+    if extrapolation not in EXTRAPOLATIONS:
+        raise ScenarioError(f"{f}: simulation.extrapolation {extrapolation!r} is not one of {', '.join(EXTRAPOLATIONS)}")
+    tolerance = sim.get("tolerance")
+
+    raw_units = data.get("units")
+    if not isinstance(raw_units, list) or not raw_units:
+        raise ScenarioError(f"{f}: no [[units]] defined")
+    units: List[UnitSpec] = []
+    for i, u in enumerate(raw_units):
+        where = f"{f}: units[{i}]"
+        if not isinstance(u, dict):
+            raise ScenarioError(f"{where} must be a table")
+        for key in u:
+            if key not in ("name", "fmu", "parameters"):
+                raise ScenarioError(f"{where}: unknown key {key!r}")
+        name, fmu = u.get("name"), u.get("fmu")
+        if not isinstance(name, str) or not _NAME.match(name):
+            raise ScenarioError(f"{where}: 'name' must be an identifier, got {name!r}")
+        if any(x.name == name for x in units):
+            raise ScenarioError(f"{where}: duplicate unit instance name {name!r}")
+        if not isinstance(fmu, str) or not fmu:
+            raise ScenarioError(f"{where} ({name}): 'fmu' must be a built-in unit name or an FMU path")
+        params = u.get("parameters", {})
+        if not isinstance(params, dict):
+            raise ScenarioError(f"{where} ({name}): 'parameters' must be a table")
+        units.append(UnitSpec(name, fmu, dict(params)))
+    names = {u.name for u in units}
+    for k, v in (overrides or {}).items():
+        if k.startswith("simulation."):
+            continue
+        unit, var = split_ref(k, f"override {k!r}")
+        if unit not in names:
+            raise ScenarioError(f"override {k!r}: no unit {unit!r} in {f}")
+        next(u for u in units if u.name == unit).parameters[var] = v
+
+    def check_ref(ref: Any, where: str) -> Tuple[str, str]:
+        unit, var = split_ref(ref, where)
+        if unit not in names:
+            raise ScenarioError(f"{where}: unknown unit {unit!r} in {ref!r} (units: {', '.join(sorted(names))})")
+        return unit, var
+
+    connections: List[Connection] = []
+    raw_conns = data.get("connections", [])
+    if not isinstance(raw_conns, list):
+        raise ScenarioError(f"{f}: 'connections' must be an array")
+    for i, c in enumerate(raw_conns):
+        where = f"{f}: connections[{i}]"
+        if isinstance(c, str):
+            if "->" not in c:
+                raise ScenarioError(f"{where}: {c!r} is not of the form 'unit.out -> unit.in'")
+            src, dst = (s.strip() for s in c.split("->", 1))
+        elif isinstance(c, dict):
+            src, dst = c.get("from"), c.get("to")
+        else:
+            raise ScenarioError(f"{where} must be a string 'a.x -> b.y' or a table with from/to")
+        su, sv = check_ref(src, where)
+        du, dv = check_ref(dst, where)
+        conn = Connection(su, sv, du, dv)
+        if any((x.dst_unit, x.dst_var) == (du, dv) for x in connections):
+            raise ScenarioError(f"{where}: input {du}.{dv} is already connected")
+        connections.append(conn)
+
+    inputs: List[InputSpec] = []
+    for i, s in enumerate(data.get("inputs", [])):
+        where = f"{f}: inputs[{i}]"
+        if not isinstance(s, dict):
+            raise ScenarioError(f"{where} must be a table")
+        unit, var = check_ref(s.get("target"), where)
+        kind = s.get("kind", "constant")
+        if kind not in INPUT_KINDS:
+            raise ScenarioError(f"{where}: kind {kind!r} is not one of {', '.join(INPUT_KINDS)}")
+        params = {k: v for k, v in s.items() if k not in ("target", "kind")}
+        _check_input_params(kind, params, where)
+        inputs.append(InputSpec(unit, var, kind, params))
+
+    faults: List[FaultSpec] = []
+    for i, s in enumerate(data.get("faults", [])):
+        where = f"{f}: faults[{i}]"
+        if not isinstance(s, dict):
+            raise ScenarioError(f"{where} must be a table")
+        unit, var = check_ref(s.get("target"), where)
+        if "value" not in s:
+            raise ScenarioError(f"{where}: missing 'value'")
+        faults.append(FaultSpec(unit, var, seconds_to_ns(s.get("at", 0.0), f"{where}.at"), s["value"]))
+
+    raw_log = data.get("log", {})
+    if not isinstance(raw_log, dict):
+        raise ScenarioError(f"{f}: [log] must be a table")
+    for key in raw_log:
+        if key not in ("include", "exclude", "parameters"):
+            raise ScenarioError(f"{f}: [log] unknown key {key!r}")
+    logspec = LogSpec(list(raw_log.get("include", ["*"])), list(raw_log.get("exclude", [])),
+                      bool(raw_log.get("parameters", True)))
+    return Scenario(path, text, units, connections, inputs, faults, logspec, start_ns, stop_ns, step_ns,
+                    algorithm, extrapolation, tolerance)
+
+
+def _check_input_params(kind: str, p: Dict[str, Any], where: str) -> None:
+    need = {"constant": ("value",), "step": ("at", "value"), "ramp": ("at", "slope"),
+            "sine": ("amplitude", "frequency"), "table": ("times", "values")}[kind]
+    for key in need:
+        if key not in p:
+            raise ScenarioError(f"{where}: input kind {kind!r} needs {key!r}")
+    if kind == "table":
+        t, v = p["times"], p["values"]
+        if len(t) != len(v) or not t or any(b < a for a, b in zip(t, t[1:])):
+            raise ScenarioError(f"{where}: 'times' must be increasing and as long as 'values'")

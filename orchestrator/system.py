@@ -1,0 +1,170 @@
+"""Resolve, check and load the units of a scenario.
+
+Every connection, input, fault and parameter is checked against the FMUs' model
+descriptions before anything is instantiated: existence, causality and type family. Units
+whose variables nothing logs and nothing downstream consumes are not loaded at all.
+"""
+from __future__ import annotations
+
+import fnmatch
+import hashlib
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Set
+
+from .errors import FmuLoadError, ScenarioError
+from .fmu import FmuInstance, VarInfo, read_model
+from .scenario import Connection, Scenario
+
+log = logging.getLogger(__name__)
+
+
+def resolve_fmu(spec: str, scenario_file: Path, unit: str) -> Path:
+    """A built-in unit name (built on demand, incrementally) or a path relative to the scenario."""
+    from .build import build_all, unit_names
+
+    p = Path(spec)
+    if p.suffix != ".fmu" and "/" not in spec and spec in unit_names():
+        return build_all([spec])[0]
+    if not p.is_absolute():
+        p = (scenario_file.parent / p).resolve()
+    if not p.exists():
+        known = ", ".join(unit_names())
+        raise FmuLoadError(f"unit {unit}: FMU {spec!r} not found (looked for {p}; built-in units: {known})")
+    return p
+
+
+def read_variables(path: Path, unit: str) -> Dict[str, VarInfo]:
+    """Variables of an FMU from its model description, without instantiating it."""
+    return read_model(path, unit)[1]
+
+
+def sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _family_of_value(value) -> str:
+    if isinstance(value, bool):
+        return "bool"
+    if isinstance(value, int):
+        return "int"
+    if isinstance(value, float):
+        return "float"
+    return "string"
+
+
+@dataclass
+class System:
+    """The checked, loaded set of units of a scenario."""
+
+    scenario: Scenario
+    paths: Dict[str, Path]
+    variables: Dict[str, Dict[str, VarInfo]]
+    needed: List[str]
+    skipped: List[str]
+    logged: Dict[str, List[str]]
+    instances: Dict[str, FmuInstance] = field(default_factory=dict)
+    hashes: Dict[str, str] = field(default_factory=dict)
+
+    def connections(self) -> List[Connection]:
+        return [c for c in self.scenario.connections if c.dst_unit in self.needed]
+
+    def instantiate(self, unzip_root: Optional[Path] = None) -> None:
+        for name in self.needed:
+            self.instances[name] = FmuInstance(name, self.paths[name],
+                                               unzip_root / name if unzip_root else None)
+
+    def terminate(self) -> None:
+        for inst in self.instances.values():
+            inst.terminate()
+
+
+def check_system(scenario: Scenario) -> System:
+    """Resolve FMUs, check every reference against the model descriptions, pick needed units."""
+    f = scenario.file
+    paths: Dict[str, Path] = {}
+    variables: Dict[str, Dict[str, VarInfo]] = {}
+    for u in scenario.units:
+        paths[u.name] = resolve_fmu(u.fmu, f, u.name)
+        variables[u.name] = read_variables(paths[u.name], u.name)
+
+    def lookup(unit: str, var: str, where: str) -> VarInfo:
+        try:
+            return variables[unit][var]
+        except KeyError:
+            close = [n for n in variables[unit] if n.split(".")[-1] == var.split(".")[-1]][:3]
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            raise ScenarioError(f"{f}: {where}: unit {unit} ({paths[unit].name}) has no variable {var!r}{hint}") from None
+
+    for u in scenario.units:
+        for pname, value in u.parameters.items():
+            v = lookup(u.name, pname, f"parameter {u.name}.{pname}")
+            if v.causality not in ("parameter", "structuralParameter", "input"):
+                raise ScenarioError(f"{f}: parameter {u.name}.{pname}: variable has causality {v.causality}, "
+                                    f"not parameter or input")
+            fam = _family_of_value(value)
+            if fam != v.family and not (fam == "int" and v.family == "float"):
+                raise ScenarioError(f"{f}: parameter {u.name}.{pname}: type mismatch, the FMU declares "
+                                    f"{v.type} but the scenario gives {type(value).__name__} {value!r}")
+    for c in scenario.connections:
+        src = lookup(c.src_unit, c.src_var, f"connection {c}")
+        dst = lookup(c.dst_unit, c.dst_var, f"connection {c}")
+        if src.causality != "output":
+            raise ScenarioError(f"{f}: connection {c}: source {c.src_unit}.{c.src_var} has causality "
+                                f"{src.causality}, expected output")
+        if dst.causality != "input":
+            raise ScenarioError(f"{f}: connection {c}: destination {c.dst_unit}.{c.dst_var} has causality "
+                                f"{dst.causality}, expected input")
+        if src.family != dst.family:
+            raise ScenarioError(f"{f}: connection {c}: type mismatch {src.type} -> {dst.type}")
+    for s in scenario.inputs:
+        v = lookup(s.unit, s.var, f"input {s.unit}.{s.var}")
+        if v.causality != "input":
+            raise ScenarioError(f"{f}: input {s.unit}.{s.var}: variable has causality {v.causality}, expected input")
+        if v.family != "float":
+            raise ScenarioError(f"{f}: input {s.unit}.{s.var}: scenario signals drive Real inputs, this one is {v.type}")
+        if any((c.dst_unit, c.dst_var) == (s.unit, s.var) for c in scenario.connections):
+            raise ScenarioError(f"{f}: input {s.unit}.{s.var} is also the destination of a connection")
+    for s in scenario.faults:
+        v = lookup(s.unit, s.var, f"fault {s.unit}.{s.var}")
+        if v.causality not in ("input", "parameter"):
+            raise ScenarioError(f"{f}: fault {s.unit}.{s.var}: only inputs can be forced, causality is {v.causality}")
+
+    # what is logged
+    logged: Dict[str, List[str]] = {}
+    for u in scenario.units:
+        names = []
+        for name, v in variables[u.name].items():
+            if v.causality not in ("input", "output", "local"):
+                continue
+            full = f"{u.name}.{name}"
+            if any(fnmatch.fnmatchcase(full, p) for p in scenario.log.include) and \
+                    not any(fnmatch.fnmatchcase(full, p) for p in scenario.log.exclude):
+                names.append(name)
+        logged[u.name] = names
+    # needed: logs something, or feeds (transitively) a needed unit
+    needed: Set[str] = {u for u, names in logged.items() if any(
+        variables[u][n].causality in ("output", "local") for n in names)}
+    changed = True
+    while changed:
+        changed = False
+        for c in scenario.connections:
+            if c.dst_unit in needed and c.src_unit not in needed:
+                needed.add(c.src_unit)
+                changed = True
+    order = [u.name for u in scenario.units]
+    skipped = [u for u in order if u not in needed]
+    for u in skipped:
+        log.info("unit %s is not loaded: nothing logs or consumes its outputs", u)
+    if not needed:
+        raise ScenarioError(f"{f}: the [log] selection selects no output of any unit: nothing to simulate")
+    return System(scenario, paths, variables, [u for u in order if u in needed], skipped, logged)
+
+
+def fmu_hashes(system: System) -> Dict[str, str]:
+    return {u: sha256(p) for u, p in system.paths.items() if u in system.needed}
