@@ -97,7 +97,7 @@ class Execution:
             for s in sc.inputs:  # initial value of each scenario signal
                 if s.unit == name:
                     from .manipulators import signal
-                    params[s.var] = signal(s)(sc.start_ns * 1e-9)
+                    params[s.var] = signal(s)(sc.start_ns / 1e9)
             system.instances[name].initialize(sc.start_ns, sc.stop_ns, params, sc.tolerance)
         master = Master(sc, slots, conns)
         master.initial(sc.start_ns)

@@ -55,8 +55,12 @@ class VarInfo:
 
 
 def ns_to_s(t_ns: int) -> float:
-    """Integer nanoseconds to seconds (the only place the master converts time)."""
-    return t_ns * 1e-9
+    """Integer nanoseconds to seconds (the only place the master converts time).
+
+    Division by 1e9 is correctly rounded, so ``k * 33_000_000`` ns gives the float nearest to
+    ``k * 0.033`` s for every k, with no accumulated drift.
+    """
+    return t_ns / 1e9
 
 
 def read_model(path: Path, unit: str):
@@ -219,9 +223,9 @@ class FmuInstance:
             raise FmuCallError(self.name, "doStep", t_ns, 3,
                                f"master time {t_ns} ns differs from the instance time {self.t_ns} ns")
         if self.fmi_version.startswith("2"):
-            self._check("fmi2DoStep", self._do_step(self.fmu.component, t_ns * 1e-9, h_ns * 1e-9, 1))
+            self._check("fmi2DoStep", self._do_step(self.fmu.component, ns_to_s(t_ns), ns_to_s(h_ns), 1))
         else:
-            out = self._guard("fmi3DoStep", lambda: self.fmu.doStep(t_ns * 1e-9, h_ns * 1e-9))
+            out = self._guard("fmi3DoStep", lambda: self.fmu.doStep(ns_to_s(t_ns), ns_to_s(h_ns)))
             if out[1]:
                 raise FmuCallError(self.name, "fmi3DoStep", t_ns, 2, "FMU requested termination")
         self.t_ns = t_ns + h_ns

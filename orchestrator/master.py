@@ -111,7 +111,7 @@ class Master:
                 y = 0.5 * (y + y0) if (src.stepped and not delayed) else y + 0.5 * (y - y0)
             vals[i] = y
         if slot.signals:
-            t = t_ns * 1e-9
+            t = t_ns / 1e9
             for i, fn in slot.signals:
                 vals[i] = fn(t)
         for fault, idx in slot.faults:
