@@ -1,0 +1,114 @@
+"""Trajectory-tracking controllers of the platform (§6.4.2) and the closed-loop right-hand sides.
+
+* ``computed_torque`` (feedback linearisation on the full Lagrangian model):
+  ``F = J^-T (M(q) (q_r'' + K_d e' + K_p e) + h(q, q'))`` with ``e = q_r - q``; on the nominal
+  model the error obeys ``e'' + K_d e' + K_p e = 0`` exactly (until a force saturates).
+* ``pd`` (ablation baseline): task-space PD with constant gravity compensation and no model:
+  ``F = J^-T (diag(M_0) (K_d e' + K_p e) + h_0)``, ``M_0``, ``h_0`` taken at the home pose at rest.
+* ``direct``: the actuator forces are inputs.
+
+Gains: ``K_p = omega_c^2``, ``K_d = 2 zeta_c omega_c`` on every axis. Forces are clipped to
+``+-F_max`` (the plant sees the clipped force; the unclipped demand is reported so saturation can
+be flagged). The closed-loop state is ``x = (q, q')`` (12); the reference enters as
+``(q_r, q_r', q_r'')`` (18). With the reference prefilter (used by the FMU) the state grows by
+``(r, r')`` (12): ``r'' = omega_f^2 (u - r) - 2 omega_f r'`` for a raw reference ``u``.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from .dynamics import NP, functions, lagrangian_sx
+from .planar import planar_accel_sx
+
+CONTROLS = ("computed_torque", "pd", "direct")
+MODELS = ("full", "planar")
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    """Controller and prefilter parameters.
+
+    Attributes
+    ----------
+    omega_c : float
+        Closed-loop natural frequency, rad/s (K_p = omega_c^2).
+    zeta_c : float
+        Closed-loop damping ratio (K_d = 2 zeta_c omega_c).
+    F_max : float
+        Actuator force limit, N.
+    omega_f : float
+        Natural frequency of the critically damped reference prefilter, rad/s.
+    """
+
+    omega_c: float = 20.0
+    zeta_c: float = 1.0
+    F_max: float = 10000.0
+    omega_f: float = 15.0
+
+    def vector(self) -> np.ndarray:
+        return np.array([self.omega_c, self.zeta_c, self.F_max, self.omega_f], float)
+
+
+NC = 4
+
+
+def _control_forces(control: str, q, dq, ref, Fcmd, pv, cv, terms):
+    if control == "direct":
+        return Fcmd
+    wc, zc = cv[0], cv[1]
+    e, de = ref[:6] - q, ref[6:12] - dq
+    v = wc * wc * e + 2 * zc * wc * de
+    J = terms["J"]
+    if control == "computed_torque":
+        Q = terms["M"] @ (ref[12:18] + v) + terms["h"]
+    elif control == "pd":
+        M0, h0, _, _ = functions()["terms"](ca.DM.zeros(6), ca.DM.zeros(6), pv)
+        Q = ca.diag(ca.diag(M0)) @ v + h0
+    else:
+        raise ValueError(f"control {control!r} not in {CONTROLS}")
+    return ca.solve(J.T, Q)
+
+
+@functools.lru_cache(maxsize=None)
+def closed_loop(control: str = "computed_torque", model: str = "full") -> ca.Function:
+    """``f(x[12], ref[18], Fcmd[6], p[NP], c[NC]) -> (xdot[12], F[6])`` (built once per process).
+
+    ``F`` is the unclipped force demand; the plant gets ``clip(F, -F_max, F_max)``. The controller
+    always uses the full model with the plant's parameters (nominal model).
+    """
+    if control not in CONTROLS:
+        raise ValueError(f"control {control!r} not in {CONTROLS}")
+    if model not in MODELS:
+        raise ValueError(f"model {model!r} not in {MODELS}")
+    x, ref, Fcmd = ca.SX.sym("x", 12), ca.SX.sym("ref", 18), ca.SX.sym("Fcmd", 6)
+    pv, cv = ca.SX.sym("p", NP), ca.SX.sym("c", NC)
+    q, dq = x[:6], x[6:]
+    t = lagrangian_sx(q, dq, pv)
+    F = _control_forces(control, q, dq, ref, Fcmd, pv, cv, t)
+    Fs = ca.fmin(ca.fmax(F, -cv[2]), cv[2])
+    if model == "full":
+        ddq = ca.solve(t["M"], t["J"].T @ Fs - t["h"])
+    else:
+        ddq = planar_accel_sx(q, Fs, pv)
+    return ca.Function(f"cl_{control}_{model}", [x, ref, Fcmd, pv, cv], [ca.cse(ca.vertcat(dq, ddq)), F],
+                       ["x", "ref", "Fcmd", "p", "c"], ["xdot", "F"])
+
+
+@functools.lru_cache(maxsize=None)
+def prefiltered_loop(control: str = "computed_torque", model: str = "full") -> ca.Function:
+    """Closed loop with the reference prefilter: ``f(x[24], u[12], p[NP], c[NC]) -> (xdot[24], F[6])``.
+
+    ``x = (q, q', r, r')``, ``u = (raw pose reference[6], Fcmd[6])``.
+    """
+    x, u = ca.SX.sym("x", 24), ca.SX.sym("u", 12)
+    pv, cv = ca.SX.sym("p", NP), ca.SX.sym("c", NC)
+    wf = cv[3]
+    r, dr = x[12:18], x[18:24]
+    ddr = wf * wf * (u[:6] - r) - 2 * wf * dr
+    xdot_cl, F = closed_loop(control, model)(x[:12], ca.vertcat(r, dr, ddr), u[6:], pv, cv)
+    return ca.Function(f"pf_{control}_{model}", [x, u, pv, cv], [ca.vertcat(xdot_cl, dr, ddr), F],
+                       ["x", "u", "p", "c"], ["xdot", "F"])
