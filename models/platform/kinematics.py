@@ -194,10 +194,14 @@ class WorkspaceReport:
     min_reach: np.ndarray
 
 
-def workspace_check(poses: np.ndarray, p: PlatformParams = PlatformParams()) -> WorkspaceReport:
-    """Check rod reach (reach ratio >= p.reach_margin) and stroke limits for poses (N, 6)."""
+def workspace_check(poses: np.ndarray, p: PlatformParams = PlatformParams(),
+                    ik: IKResult | None = None) -> WorkspaceReport:
+    """Check rod reach (reach ratio >= p.reach_margin) and stroke limits for poses (N, 6).
+
+    ``ik`` may pass the :func:`ik_full` result of the same poses to save its evaluation.
+    """
     q, _ = _batch(poses, 6)
-    res = ik_full(q, p)
+    res = ik_full(q, p) if ik is None else ik
     min_reach = np.min(res.reach, axis=1)
     reach_ok = min_reach >= p.reach_margin
     with np.errstate(invalid="ignore"):
@@ -230,13 +234,13 @@ def clamp_to_workspace(pose: np.ndarray, p: PlatformParams = PlatformParams(),
 
 
 def near_singular(poses: np.ndarray, p: PlatformParams = PlatformParams(), cos_beta_min: float = 0.17,
-                  reach_min: float | None = None) -> np.ndarray:
+                  reach_min: float | None = None, ik: IKResult | None = None) -> np.ndarray:
     """Boolean (N,): |cos beta| < cos_beta_min (Euler singularity at beta = +-90 deg, default
     about 80 deg) or some rod within ``reach_min`` (default 2 x reach_margin) of perpendicular
     to its slider (actuator Jacobian singular)."""
     q, _ = _batch(poses, 6)
     reach_min = 2.0 * p.reach_margin if reach_min is None else reach_min
-    res = ik_full(q, p)
+    res = ik_full(q, p) if ik is None else ik
     with np.errstate(invalid="ignore"):
         rod_bad = ~(np.min(res.reach, axis=1) >= reach_min)
     return (np.abs(np.cos(q[:, 4])) < cos_beta_min) | rod_bad

@@ -1,0 +1,141 @@
+"""Classical washout motion cueing: avatar specific force and angular rate -> platform pose reference.
+
+Per axis (all filters linear, discretised exactly for inputs held over the macro step, ZOH):
+
+* translation: ``p(s) = k_t s / ((s^2 + 2 zeta_t omega_t s + omega_t^2)(s + omega_b)) f(s)``, i.e. the
+  specific force high-passed by a third-order filter and integrated twice, so a sustained
+  acceleration washes out back to the centre;
+* tilt coordination (x, y): ``f_lp = omega_tc^2 / (s + omega_tc)^2 f``; target tilt
+  ``beta_t = -asin(f_lp,x / g)``, ``gamma_t = asin(f_lp,y / g)`` (gravity in the tilted seat supplies the
+  sustained specific force; with ``A = A_x A_y A_z`` the body specific force of gravity is
+  ``(-g sin beta, g sin gamma cos beta, ...)``), limited to ``tilt_max`` and rate-limited to ``tilt_rate``;
+* rotation: ``angle(s) = k_r s / (s^2 + 2 zeta_r omega_r s + omega_r^2) w(s)`` (high-passed rate,
+  integrated) on gamma (w_x), beta (w_y), alpha (w_z);
+* collision jolt: ``jolt`` (m/s^2) is added to the surge specific force for the step, and
+  ``jolt_heave`` times it to heave, through the translational channel only (no tilt).
+
+Inputs are the avatar's specific force with the static 1 g removed (zero at rest, m/s^2) and its
+angular rate (rad/s), both in the avatar's body frame. The pose reference is
+``(x, y, z, gamma_hp + gamma_t, beta_hp + beta_t, alpha_hp)``; clamping into the workspace is the
+caller's job (:func:`.kinematics.clamp_to_workspace`).
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm
+
+
+@dataclass(frozen=True)
+class WashoutParams:
+    """Washout filter parameters (rad/s, dimensionless gains, rad, rad/s)."""
+
+    k_t: float = 0.5
+    omega_t: float = 2.5
+    zeta_t: float = 1.0
+    omega_b: float = 0.5
+    k_r: float = 0.5
+    omega_r: float = 1.0
+    zeta_r: float = 1.0
+    omega_tc: float = 2.0
+    tilt_max: float = np.deg2rad(10.0)
+    tilt_rate: float = np.deg2rad(3.0)
+    jolt_heave: float = 0.3
+    g: float = 9.81
+
+    def __post_init__(self) -> None:
+        for name in ("omega_t", "zeta_t", "omega_b", "omega_r", "zeta_r", "omega_tc", "g"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"WashoutParams.{name} = {getattr(self, name)} must be > 0")
+
+
+def _companion(den, num):
+    """Controllable canonical (A, B, C) of num(s)/den(s), den monic of degree n (coefficients high->low)."""
+    n = len(den) - 1
+    A = np.zeros((n, n))
+    A[:-1, 1:] = np.eye(n - 1)
+    A[-1, :] = -np.asarray(den[::-1][:-1])
+    B = np.zeros(n)
+    B[-1] = 1.0
+    C = np.zeros(n)
+    num = np.asarray(num, float)[::-1]
+    C[: len(num)] = num
+    return A, B, C
+
+
+def continuous_system(w: WashoutParams):
+    """Block-diagonal continuous LTI system: state (19,), input (f_x, f_y, f_z, w_x, w_y, w_z, jolt).
+
+    The jolt column drives the surge and (scaled by ``jolt_heave``) the heave translation blocks
+    only, not the tilt low-pass. Returns (A (19,19), B (19,7), C_pos (3,19), C_ang (3,19), C_lp (2,19)).
+    """
+    tr_den = np.polymul([1, 2 * w.zeta_t * w.omega_t, w.omega_t**2], [1, w.omega_b])
+    At, Bt, Ct = _companion(tr_den, [w.k_t, 0.0])
+    Ar, Br, Cr = _companion([1, 2 * w.zeta_r * w.omega_r, w.omega_r**2], [w.k_r, 0.0])
+    Al, Bl, Cl = _companion([1, 2 * w.omega_tc, w.omega_tc**2], [w.omega_tc**2])
+    blocks = [(At, Bt, 0), (At, Bt, 1), (At, Bt, 2), (Ar, Br, 3), (Ar, Br, 4), (Ar, Br, 5), (Al, Bl, 0), (Al, Bl, 1)]
+    n = sum(b[0].shape[0] for b in blocks)
+    A, B = np.zeros((n, n)), np.zeros((n, 7))
+    C_pos, C_ang, C_lp = np.zeros((3, n)), np.zeros((3, n)), np.zeros((2, n))
+    i = 0
+    for k, (Ab, Bb, inp) in enumerate(blocks):
+        m = Ab.shape[0]
+        A[i:i + m, i:i + m] = Ab
+        B[i:i + m, inp] = Bb
+        if k < 3:
+            C_pos[k, i:i + m] = Ct
+        elif k < 6:
+            C_ang[k - 3, i:i + m] = Cr
+        else:
+            C_lp[k - 6, i:i + m] = Cl
+        i += m
+    nt = At.shape[0]
+    B[0:nt, 6] = Bt                       # surge block
+    B[2 * nt:3 * nt, 6] = w.jolt_heave * Bt  # heave block
+    return A, B, C_pos, C_ang, C_lp
+
+
+@functools.lru_cache(maxsize=32)
+def discrete_system(w: WashoutParams, h: float):
+    """Exact ZOH discretisation (Phi, Gamma) for step h (s), cached."""
+    A, B, *_ = continuous_system(w)
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n], M[:n, n:] = A, B
+    E = expm(M * h)
+    return E[:n, :n], E[:n, n:]
+
+
+class Washout:
+    """Stateful classical washout filter (one per platform instance)."""
+
+    def __init__(self, params: WashoutParams = WashoutParams()) -> None:
+        self.params = params
+        _, _, self.C_pos, self.C_ang, self.C_lp = continuous_system(params)
+        self.x = np.zeros(self.C_pos.shape[1])
+        self.tilt = np.zeros(2)  # (gamma_t, beta_t), rate-limited
+
+    def state(self):
+        return (self.x.copy(), self.tilt.copy())
+
+    def set_state(self, s) -> None:
+        self.x, self.tilt = s[0].copy(), s[1].copy()
+
+    def step(self, f: np.ndarray, omega: np.ndarray, jolt: float, h: float) -> np.ndarray:
+        """Advance by h with inputs held; return the pose reference (6,) at the end of the step."""
+        w = self.params
+        Phi, Gam = discrete_system(w, float(h))
+        self.x = Phi @ self.x + Gam @ np.concatenate([f, omega, [jolt]])
+        lp = self.C_lp @ self.x
+        smax = np.sin(w.tilt_max)
+        target = np.array([np.arcsin(np.clip(lp[1] / w.g, -smax, smax)),    # gamma_t from f_y
+                           -np.arcsin(np.clip(lp[0] / w.g, -smax, smax))])  # beta_t from f_x
+        step = w.tilt_rate * h
+        self.tilt = self.tilt + np.clip(target - self.tilt, -step, step)
+        ang = self.C_ang @ self.x
+        return np.array([*(self.C_pos @ self.x), ang[0] + self.tilt[0], ang[1] + self.tilt[1], ang[2]])
+
+    def at_rest(self, tol: float = 1e-12) -> bool:
+        return bool(np.all(np.abs(self.x) < tol) and np.all(np.abs(self.tilt) < tol))
