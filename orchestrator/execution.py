@@ -22,6 +22,37 @@ from .system import System, check_system, fmu_hashes
 log = logging.getLogger(__name__)
 
 
+class _DeferredSigint:
+    """Turn SIGINT into a flag checked between macro steps.
+
+    A KeyboardInterrupt raised inside an FMU's own Python code (pythonfmu FMUs share this
+    interpreter) would leave the FMU in a fatal state; deferring it to the end of the step
+    stops the run cleanly with every completed step logged. Only the main thread can install
+    the handler; elsewhere SIGINT keeps its default behaviour.
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._old = None
+
+    def __enter__(self) -> "_DeferredSigint":
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        self.requested = True
+
+    def __exit__(self, *exc) -> None:
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+
+
 class RunFailed(ImmersimError, RuntimeError):
     """A run stopped before its end; ``result`` tells how far it got."""
 
@@ -154,13 +185,17 @@ class Execution:
             if self.progress:
                 from tqdm import tqdm
                 bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None)
-            for k in range(n):
-                t_ns, t_next = sc.step_time_ns(k), sc.step_time_ns(k + 1)
-                master.step(t_ns, t_next - t_ns)
-                self._observe(master, k + 1, t_next)
-                result.steps_done, result.t_ns = k + 1, t_next
-                if bar is not None:
-                    bar.update(1)
+            t0, h, stop = sc.start_ns, sc.step_ns, sc.stop_ns
+            with _DeferredSigint() as sigint:
+                for k in range(n):
+                    t_ns, t_next = t0 + k * h, min(t0 + (k + 1) * h, stop)
+                    master.step(t_ns, t_next - t_ns)
+                    self._observe(master, k + 1, t_next)
+                    result.steps_done, result.t_ns = k + 1, t_next
+                    if bar is not None:
+                        bar.update(1)
+                    if sigint.requested:
+                        raise KeyboardInterrupt
         except KeyboardInterrupt:
             result.status, result.reason = "interrupted", "interrupted by SIGINT"
             raise RunInterrupted(self._stop_message(result), result) from None

@@ -14,6 +14,7 @@ from __future__ import annotations
 import ctypes
 import logging
 import math
+import weakref
 import zipfile
 from collections import deque
 from dataclasses import dataclass
@@ -92,6 +93,39 @@ def read_model(path: Path, unit: str):
     return md, variables
 
 
+#: FMI 2.0 log messages are routed by instance name: FMPy's native proxy that formats the
+#: variadic message keeps one Python callback per process, so one callback serves all.
+_BY_NAME: "weakref.WeakValueDictionary[str, FmuInstance]" = weakref.WeakValueDictionary()
+_CALLBACKS = None
+
+
+def _route_fmi2_log(env, instance, status, category, message) -> None:
+    name = instance.decode("utf-8", "replace") if instance else ""
+    target = _BY_NAME.get(name)
+    if target is not None:
+        target._record(status, message)
+    else:
+        log.warning("FMU %s: %s", name, message.decode("utf-8", "replace") if message else "")
+
+
+def _fmi2_callbacks():
+    """The process-wide fmi2CallbackFunctions with the routing logger."""
+    global _CALLBACKS
+    if _CALLBACKS is None:
+        from fmpy.fmi1 import calloc, free
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+        from fmpy.logging import addLoggerProxy
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(_route_fmi2_log)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        addLoggerProxy(ctypes.byref(cb))
+        _CALLBACKS = cb
+    return _CALLBACKS
+
+
 class FmuInstance:
     """A loaded, instantiated co-simulation FMU.
 
@@ -111,6 +145,7 @@ class FmuInstance:
         self.name = name
         self.path = Path(path)
         self.t_ns = 0
+        self.fatal = False
         self.messages: Deque[str] = deque(maxlen=20)
         if not self.path.exists():
             raise FmuLoadError(f"unit {name}: FMU file {self.path} does not exist")
@@ -125,8 +160,7 @@ class FmuInstance:
 
     # -- loading -----------------------------------------------------------------------
     def _instantiate(self, md: Any) -> None:
-        from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
-        from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
+        from fmpy.fmi2 import FMU2Slave
         from fmpy.fmi3 import FMU3Slave
 
         kwargs = dict(guid=md.guid, unzipDirectory=self.unzip_dir,
@@ -134,15 +168,8 @@ class FmuInstance:
         try:
             if self.fmi_version.startswith("2"):
                 self.fmu = FMU2Slave(**kwargs)
-                from fmpy.fmi1 import calloc, free
-                from fmpy.logging import addLoggerProxy
-
-                cb = fmi2CallbackFunctions()
-                cb.logger = fmi2CallbackLoggerTYPE(self._log2)
-                cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-                cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-                addLoggerProxy(ctypes.byref(cb))
-                self._callbacks = cb  # keep alive
+                cb = _fmi2_callbacks()
+                _BY_NAME[self.name] = self
                 self._guard("fmi2Instantiate", lambda: self.fmu.instantiate(callbacks=cb, loggingOn=True))
             elif self.fmi_version.startswith("3"):
                 self.fmu = FMU3Slave(**kwargs)
@@ -156,9 +183,6 @@ class FmuInstance:
             raise FmuLoadError(f"unit {self.name}: cannot load the binary of {self.path}: {exc}") from exc
         self._setup_fast_path()
 
-    def _log2(self, env, instance, status, category, message) -> None:
-        self._record(status, message)
-
     def _log3(self, env, status, category, message) -> None:
         self._record(status, message)
 
@@ -169,7 +193,9 @@ class FmuInstance:
         log.log(level, "unit %s [%s]: %s", self.name, _STATUS[status] if status < 6 else status, text)
 
     def _setup_fast_path(self) -> None:
-        if self.fmi_version.startswith("2"):
+        self._fmi2 = self.fmi_version.startswith("2")
+        self._component = self.fmu.component
+        if self._fmi2:
             dll = self.fmu.dll  # fmpy has set argtypes/restype on these ctypes functions
             self._do_step = dll.fmi2DoStep
             self._do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
@@ -184,6 +210,7 @@ class FmuInstance:
         try:
             return thunk()
         except FMICallException as exc:
+            self.fatal = self.fatal or exc.status == 4
             raise FmuCallError(self.name, function, self.t_ns, exc.status, self._last_message()) from None
         except Exception as exc:
             if isinstance(exc, FmuCallError):
@@ -195,6 +222,7 @@ class FmuInstance:
 
     def _check(self, function: str, status: int) -> None:
         if status > 1:
+            self.fatal = self.fatal or status == 4
             raise FmuCallError(self.name, function, self.t_ns, status, self._last_message())
 
     # -- life cycle --------------------------------------------------------------------
@@ -222,8 +250,10 @@ class FmuInstance:
         if t_ns != self.t_ns:
             raise FmuCallError(self.name, "doStep", t_ns, 3,
                                f"master time {t_ns} ns differs from the instance time {self.t_ns} ns")
-        if self.fmi_version.startswith("2"):
-            self._check("fmi2DoStep", self._do_step(self.fmu.component, ns_to_s(t_ns), ns_to_s(h_ns), 1))
+        if self._fmi2:
+            status = self._do_step(self._component, t_ns / 1e9, h_ns / 1e9, 1)  # ns_to_s, inlined
+            if status > 1:
+                self._check("fmi2DoStep", status)
         else:
             out = self._guard("fmi3DoStep", lambda: self.fmu.doStep(ns_to_s(t_ns), ns_to_s(h_ns)))
             if out[1]:
@@ -231,7 +261,14 @@ class FmuInstance:
         self.t_ns = t_ns + h_ns
 
     def terminate(self) -> None:
-        """Terminate and free the instance; errors here are logged, not raised."""
+        """Terminate and free the instance; errors here are logged, not raised.
+
+        After ``fmi2Fatal`` the FMI standard allows no further call on the instance (and the
+        pythonfmu binary crashes on one), so a fatal instance is left alone.
+        """
+        if self.fatal:
+            log.warning("unit %s: not terminated after a fatal error", self.name)
+            return
         for fn, call in (("terminate", self.fmu.terminate), ("freeInstance", self.fmu.freeInstance)):
             try:
                 call()
@@ -305,18 +342,26 @@ class ValueReader:
         self._real_np = np.frombuffer(self._real_buf, dtype=np.float64) if real_idx else np.zeros(0)
         self._other = [(i, infos[i].name) for i in range(len(infos)) if i not in set(real_idx)]
         self._fast = fmi2 and bool(real_idx)
+        self._n_real = len(real_idx)
+        self._all_real_fast = self._fast and len(real_idx) == len(names)
 
     def read(self) -> List[Any]:
+        """Current values, in the order of ``names``."""
         inst = self.inst
+        if self._all_real_fast:
+            status = inst._get_real(inst.fmu.component, self._real_vrs, self._n_real, self._real_buf)
+            if status > 1:
+                inst._check("fmi2GetReal", status)
+            return self._real_np.tolist()
         out: List[Any] = [None] * len(self.names)
         if self._real_idx:
             if self._fast:
                 inst._check("fmi2GetReal", inst._get_real(inst.fmu.component, self._real_vrs,
-                                                         len(self._real_idx), self._real_buf))
+                                                         self._n_real, self._real_buf))
                 vals = self._real_np.tolist()
             else:
-                vals = inst._guard("fmi3GetFloat64",
-                                   lambda: inst.fmu.getFloat64(list(self._real_vrs)))
+                vals = inst._guard("fmi3GetFloat64", lambda: inst.fmu.getFloat64(list(self._real_vrs)))
+                self._real_np[:] = vals
             for i, val in zip(self._real_idx, vals):
                 out[i] = val
         if self._other:
@@ -325,13 +370,22 @@ class ValueReader:
                 out[i] = val
         return out
 
-    def nonfinite(self) -> Optional[str]:
-        """Name of the first NaN/inf Real of the last read, or None."""
+    def nonfinite(self, values: Sequence[Any]) -> Optional[str]:
+        """Name of the first NaN/inf Real among ``values`` (as returned by :meth:`read`), or None.
+
+        The sum of finite floats is finite unless it overflows, so one ``sum`` screens the
+        common case; only a non-finite sum triggers the element-wise search.
+        """
         if not self._real_idx:
             return None
-        bad = ~np.isfinite(self._real_np)
-        if bad.any():
-            return self.names[self._real_idx[int(np.argmax(bad))]]
+        if self._all_real_fast:
+            if math.isfinite(sum(values)):
+                return None
+        elif math.isfinite(sum(values[i] for i in self._real_idx)):
+            return None
+        for i in self._real_idx:
+            if not math.isfinite(values[i]):
+                return self.names[i]
         return None
 
 

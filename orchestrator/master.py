@@ -52,7 +52,7 @@ class Slot:
 
     def read(self) -> None:
         values = self.reader.read()
-        bad = self.reader.nonfinite()
+        bad = self.reader.nonfinite(values)
         if bad is not None:
             raise NonFiniteOutputError(
                 f"unit {self.name}: output {bad} = {values[self.read_names.index(bad)]} "

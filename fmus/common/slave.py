@@ -142,13 +142,17 @@ class TableSlave(Fmi2Slave):
         self._initialized = True
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        """One communication step. A failure is logged with status error (naming instance,
+        variable and time) and returned as ``False``: the pythonfmu binary then reports a
+        failed step instead of a fatal Python exception that would poison the instance."""
         try:
             self._check_master(current_time, step_size)
             self.step_model(current_time, step_size)
             self._check_outputs(current_time + step_size)
-        except Exception as exc:  # make the reason visible through the FMI logger, then fail
+        except Exception as exc:
             self.log(f"{type(exc).__name__}: {exc}", Fmi2Status.error)
-            raise
+            self.failed = f"{type(exc).__name__}: {exc}"
+            return False
         self._time = current_time + step_size
         return True
 
