@@ -1,0 +1,153 @@
+"""Consistency control of ch. 3: scene grid (§3.3), ownership (§3.6.2), dead reckoning (§3.6.3).
+
+The cached master/slave rendering of §3.5.2 lives in :mod:`.model` (it needs the event
+timing); here are the pure, vectorised pieces.
+"""
+from __future__ import annotations
+
+from typing import Tuple
+
+import numpy as np
+
+
+# -- scene grid §3.3 -------------------------------------------------------------------------
+class SceneGrid:
+    """``C x C`` grid over a square scene of side ``size``; 9-cell neighbourhoods (fig. 3-5a).
+
+    Cell ``(i, j)`` has index ``i * C + j`` with ``i`` along x. Its neighbourhood is
+    ``S_{i+di, j+dj}`` for ``di, dj in {-1, 0, 1}`` inside the grid.
+    """
+
+    def __init__(self, size: float, cells: int = 10, enabled: bool = True) -> None:
+        self.size, self.C, self.enabled = float(size), int(cells), enabled
+        C = self.C
+        i, j = np.divmod(np.arange(C * C), C)
+        nb = []
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                ii, jj = i + di, j + dj
+                ok = (ii >= 0) & (ii < C) & (jj >= 0) & (jj < C)
+                nb.append(np.where(ok, ii * C + jj, -1))
+        self.neigh = np.stack(nb, axis=1)  # (C*C, 9), -1 outside
+
+    def cell(self, pos: np.ndarray) -> np.ndarray:
+        """Cell index of each position (n, 2) -> (n,) int."""
+        ij = np.clip((pos / self.size * self.C).astype(np.int64), 0, self.C - 1)
+        return ij[:, 0] * self.C + ij[:, 1]
+
+    def view_pairs(self, viewer_cells: np.ndarray, object_cells: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """All (viewer, object) pairs with the object in the viewer's 9-cell neighbourhood.
+
+        With the grid disabled every viewer sees every object. Returns index arrays, sorted
+        by viewer. The relation is symmetric: the viewers of an object are the viewers in the
+        object's neighbourhood.
+        """
+        M, O = len(viewer_cells), len(object_cells)
+        if not self.enabled:
+            return np.repeat(np.arange(M), O), np.tile(np.arange(O), M)
+        order = np.argsort(object_cells, kind="stable")
+        counts = np.bincount(object_cells, minlength=self.C * self.C)
+        starts = np.r_[0, np.cumsum(counts)[:-1]]
+        cells = self.neigh[viewer_cells].ravel()          # (M*9,)
+        owner = np.repeat(np.arange(M), 9)
+        valid = cells >= 0
+        cells, owner = cells[valid], owner[valid]
+        lens = counts[cells]
+        total = int(lens.sum())
+        viewer = np.repeat(owner, lens)
+        offs = np.cumsum(lens) - lens
+        pos = np.arange(total) - np.repeat(offs, lens) + np.repeat(starts[cells], lens)
+        return viewer, order[pos]
+
+
+# -- ownership §3.6.2 ----------------------------------------------------------------------------
+def ellipsoid_axes(vel: np.ndarray, frame_s: float, scale: float, min_axis: float):
+    """Control ellipsoid of each avatar, eq. 3-11/3-12.
+
+    The avatar moves ``D = |v| T`` per frame; the long semi-axis is ``a = D * Scale`` (eq. 3-11)
+    along the velocity, floored at ``min_axis`` so a resting avatar keeps a sphere. The two
+    foci are the current position ``A(t0)`` and the dead-reckoned next position
+    ``A(t1) = A(t0) + v T``, so the focal half-distance is ``D/2`` and the short semi-axes are
+    ``b = c = sqrt(a^2 - (D/2)^2)`` (eq. 3-12, reading the seed's ``c/2`` as half the focal
+    distance). The centre is ``A(t0) + v T / 2``.
+
+    Parameters
+    ----------
+    vel : (n, d) m/s
+    Returns
+    -------
+    a, b : (n,) m;  u : (n, d) unit long-axis direction (x axis for a resting avatar);
+    shift : (n, d) m, centre minus position.
+    """
+    speed = np.linalg.norm(vel, axis=1)
+    D = speed * frame_s
+    a = np.maximum(D * scale, min_axis)
+    b = np.sqrt(a ** 2 - (0.5 * D) ** 2)
+    u = np.zeros_like(vel)
+    moving = speed > 0
+    u[moving] = vel[moving] / speed[moving, None]
+    u[~moving, 0] = 1.0
+    return a, b, u, 0.5 * vel * frame_s
+
+
+def mahalanobis_ellipsoid(x: np.ndarray, centre: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mahalanobis distance of eq. 3-6 with ``Sigma = R diag(a^2, b^2, b^2) R^T`` (long axis ``u``).
+
+    ``d^2 = ((x - c).u)^2 / a^2 + (|x - c|^2 - ((x - c).u)^2) / b^2``; ``d <= 1`` inside the
+    control ellipsoid of eq. 3-10. Arrays broadcast over the leading axis.
+    """
+    r = x - centre
+    along = np.einsum("...i,...i->...", r, u)
+    perp2 = np.maximum(np.einsum("...i,...i->...", r, r) - along ** 2, 0.0)
+    return np.sqrt(along ** 2 / a ** 2 + perp2 / b ** 2)
+
+
+def covariance(u: np.ndarray, a: float, b: float) -> np.ndarray:
+    """The ellipsoid's covariance ``Sigma`` (3, 3) for long axis ``u`` (3,), for cross-checks."""
+    u = np.asarray(u, float) / np.linalg.norm(u)
+    return b ** 2 * np.eye(3) + (a ** 2 - b ** 2) * np.outer(u, u)
+
+
+def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, entity_pos: np.ndarray,
+                  current: np.ndarray, frame_s: float, scale: float, min_axis: float) -> np.ndarray:
+    """Owning avatar (group index) of every entity, or the current one where nobody claims it.
+
+    ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
+    the smallest Mahalanobis distance. ``'euclidean'``: the nearest avatar (eq. 3-3) within a
+    sphere of the same long semi-axis ``a`` (same reach, no direction). ``'none'``: no change.
+    Ties go to the lower index. Candidate pairs come from a k-d tree, so the cost is linear.
+    """
+    if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
+        return current
+    from scipy.spatial import cKDTree
+
+    a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis)
+    centre = avatar_pos + shift if rule == "mahalanobis" else avatar_pos
+    sd = cKDTree(centre).sparse_distance_matrix(cKDTree(entity_pos), float(a.max()), output_type="ndarray")
+    gi, ei = sd["i"].astype(np.int64), sd["j"].astype(np.int64)
+    if rule == "mahalanobis":
+        d = mahalanobis_ellipsoid(entity_pos[ei], centre[gi], u[gi], a[gi], b[gi])
+    else:
+        d = sd["v"] / a[gi]
+    keep = d <= 1.0
+    gi, ei, d = gi[keep], ei[keep], d[keep]
+    out = current.copy()
+    if len(ei):
+        order = np.lexsort((gi, d, ei))
+        ei, gi = ei[order], gi[order]
+        first = np.r_[True, ei[1:] != ei[:-1]]
+        out[ei[first]] = gi[first]
+    return out
+
+
+# -- dead reckoning §3.6.3 -----------------------------------------------------------------------
+def dead_reckon(pos: np.ndarray, vel, acc, dt, order: int) -> np.ndarray:
+    """Extrapolate positions (n, 2) by ``dt`` (n,) s: order 0 ``p``, 1 ``p + v dt`` (the thesis's
+    ``A(t1) = A(t0) + v (t1 - t0)``), 2 ``p + v dt + a dt^2 / 2``. ``vel``/``acc`` may be
+    None when the order does not use them."""
+    if order == 0:
+        return pos.copy()
+    dt = np.asarray(dt)[..., None]
+    if order == 1:
+        return pos + vel * dt
+    return pos + dt * (vel + (0.5 * dt) * acc)

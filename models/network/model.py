@@ -1,0 +1,558 @@
+"""The discrete-event network model (ch. 2-3): events on a heap, frames every 33 ms.
+
+Time advances through a ``heapq`` of events, each at its own time: controller inputs
+reaching a master, autopilot input changes, delayed collision responses, heartbeats,
+time-out checks, joins and leaves. Render frames are ticks at ``k * frame_s`` (``k`` an
+integer). The world (ground truth) is advanced exactly to each event's time before the event
+is applied, so an input arriving 7.3 ms into a frame changes the avatar's motion from 7.3 ms.
+
+Messages are sampled per (sender, receiver, PDU type) per frame with their own arrival
+times (latency + jitter + serialisation on the sender's uplink); a receiver's cache takes a
+record as soon as it has arrived, and what a node shows at tick ``k`` is its cache at
+``k * frame_s`` dead-reckoned to that instant (§3.5.2, §3.6.3). A slave shows frame ``k`` only
+if its FRAME packet arrived by ``k * frame_s``; a late packet is dropped (§3.5.2).
+
+Order of work at a tick ``t_k``: collision responses, ownership (§3.6.2), publishing
+(every frame, or DIS threshold), message building by topology and link sampling, delivery
+of everything that has arrived by ``t_k``, slave frame flips, display and metrics.
+"""
+from __future__ import annotations
+
+import copy
+import heapq
+import logging
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from . import links as lk
+from .config import NetworkConfig
+from .consistency import SceneGrid, assign_owners, dead_reckon
+from .ids import PastryOverlay
+from .metrics import StepMetrics, Totals, inconsistency
+from .nodes import H, LAN, WAN, NodeRegistry, build_messages, control_bytes
+from .pdu import PduType, record_bytes
+from .supernode import CONTROLLER, RENDER, Supernode
+from .world import World
+
+log = logging.getLogger(__name__)
+
+HIST = 16  # frames of displayed-avatar history kept for slaves that lag
+
+
+class NetworkModel:
+    """Hybrid-P2P distributed VR network with consistency control.
+
+    Parameters
+    ----------
+    cfg : NetworkConfig
+
+    Attributes
+    ----------
+    world : World, ground truth
+    owner : (G + E,) owning group of every object (avatars first)
+    metrics : StepMetrics of the last :meth:`step`; ``totals`` accumulates over the run
+    per_object_max, per_object_rms : (G + E,) m, eq. 3-1/3-2 errors at the last frame
+    """
+
+    def __init__(self, cfg: NetworkConfig) -> None:
+        self.cfg = cfg
+        self.rng = np.random.default_rng(cfg.seed)
+        self.world = World(cfg, self.rng)
+        self.reg = NodeRegistry(cfg)
+        self.grid = SceneGrid(cfg.scene_size, cfg.grid_cells, cfg.grid)
+        self.supernode = Supernode(cfg.heartbeat_timeout_s)
+        G, E = cfg.groups, cfg.entities
+        self.n_obj = G + E
+        self.t = 0.0
+        self.k = 0
+        self.latency_scale = 1.0
+        self._heap: List[tuple] = []
+        self._seq = 0
+        self.alive = np.zeros(self.reg.n, bool)       # node process running (sends heartbeats)
+        self.online = np.zeros(self.reg.n, bool)      # listed in the supernode's table
+        self.busy = np.zeros(self.reg.n)              # uplink busy-until (s)
+        self.master = np.full(G, -1, np.int64)
+        self.slaves: List[np.ndarray] = [np.zeros(0, np.int64) for _ in range(G)]
+        self.shown_frame = np.zeros(self.reg.n, np.int64)
+        self.inputs = np.zeros((G, 2))
+        self.inputs_changed = False
+        # ownership: avatars by their group; entities initially by the nearest avatar
+        self.owner = np.r_[np.arange(G), self._initial_entity_owners()]
+        self.pending_contact = np.zeros(E, bool)
+        # receivers' caches (viewer group x object): record time, position, velocity, acceleration
+        # one row per (viewer, object), flat index viewer * n_obj + object: t, p(2), v(2), a(2)
+        # stored column-wise, cache[j] contiguous (fast gathers): rows t, px, py, vx, vy, ax, ay
+        self.cache = np.zeros((7, G * self.n_obj))
+        self.cache[0] = -np.inf
+        # owner's knowledge of what it last published (DIS)
+        self.pub_t = np.full(self.n_obj, -np.inf)
+        self.pub_p = np.zeros((self.n_obj, 2))
+        self.pub_v = np.zeros((self.n_obj, 2))
+        self.pub_a = np.zeros((self.n_obj, 2))
+        self._inflight: List[Dict[str, np.ndarray]] = []   # chunks in send order
+        self._frames: Dict[str, np.ndarray] = {k: np.zeros(0, t) for k, t in
+                                               (("arr", float), ("slave", np.int64), ("frame", np.int64))}
+        self.hist = np.zeros((HIST, G, G, 2))
+        # subscription: which objects were in each viewer's neighbourhood, and since when
+        self.in_view = np.ones((G, self.n_obj), bool)
+        self.enter_t = np.zeros((G, self.n_obj))
+        self.per_object_max = np.zeros(self.n_obj)
+        self.per_object_rms = np.zeros(self.n_obj)
+        self.metrics = StepMetrics()
+        self.totals = Totals()
+        self.overlay: Optional[PastryOverlay] = None
+        self.join_hops: List[int] = []
+        self._bootstrap()
+
+    # -- set-up ---------------------------------------------------------------------------
+    def _initial_entity_owners(self) -> np.ndarray:
+        cfg, w = self.cfg, self.world
+        E = cfg.entities
+        if cfg.ownership == "none" or E == 0:
+            return np.arange(E) % cfg.groups
+        from scipy.spatial import cKDTree
+
+        return cKDTree(w.apos).query(w.epos)[1].astype(np.int64)
+
+    def _bootstrap(self) -> None:
+        cfg, reg = self.cfg, self.reg
+        for g in range(cfg.groups):
+            self._join(0.0, reg.controller(g))
+            for i in reg.render_nodes(g):
+                self._join(0.0, int(i))
+        self._rebuild_overlay()
+        phase = self.rng.uniform(0.0, cfg.heartbeat_s, reg.n - 1)
+        for i in range(reg.n - 1):
+            self._push(float(phase[i]), "heartbeat", i)
+        self._push(cfg.heartbeat_s, "expire")
+        for g in range(cfg.driven_groups, cfg.groups):
+            self._autopilot(0.0, g)
+        self._publish_initial()
+        self._display()
+
+    def _publish_initial(self) -> None:
+        """Frame 0: every node starts from the same scene file (the shared initial state)."""
+        P, V, A = self.world.positions(), self.world.velocities(), self.world.accelerations()
+        rec = np.c_[np.zeros(self.n_obj), P, V, A]
+        self.cache[:] = np.tile(rec.T, (1, self.cfg.groups))
+        self.pub_t[:] = 0.0
+        self.pub_p, self.pub_v, self.pub_a = P.copy(), V.copy(), A.copy()
+
+    def _push(self, t: float, kind: str, *data) -> None:
+        self._seq += 1
+        heapq.heappush(self._heap, (t, self._seq, kind, data))
+
+    # -- membership -------------------------------------------------------------------------
+    def _join(self, t: float, node: int) -> None:
+        reg = self.reg
+        g = int(reg.group[node])
+        kind = CONTROLLER if node >= reg.controller0 else RENDER
+        self.supernode.join(t, node, reg.identify[g], kind, reg.ip[node], reg.port[node], self.cfg.scene_id)
+        self.alive[node] = self.online[node] = True
+        if kind == RENDER:
+            self._refresh_group(g)
+
+    def _leave(self, node: int, timed_out: bool) -> None:
+        if not self.online[node]:
+            return
+        self.supernode.leave(node, timed_out)
+        self.online[node] = False
+        g = int(self.reg.group[node])
+        if node < self.reg.controller0:
+            self._refresh_group(g)
+
+    def _refresh_group(self, g: int) -> None:
+        """Master = first online render node of the group (§3.5.1 rule 1); the rest are slaves."""
+        rows = self.supernode.group(self.reg.identify[g])
+        nodes = np.array([r.node for r in rows], np.int64)
+        old = self.master[g]
+        self.master[g] = nodes[0] if len(nodes) else -1
+        self.slaves[g] = nodes[1:]
+        self.shown_frame[nodes[1:]] = np.minimum(self.shown_frame[nodes[1:]], self.k) if len(nodes) > 1 else 0
+        if old != self.master[g] and self.overlay is not None:
+            self._rebuild_overlay(new_master=int(self.master[g]) if self.master[g] >= 0 else None)
+
+    def _rebuild_overlay(self, new_master: Optional[int] = None) -> None:
+        """Pastry overlay of the cluster's masters; a new master routes a JOIN to its own ID."""
+        ids = [self.reg.nid[m] for m in self.master if m >= 0]
+        if not ids:
+            self.overlay = None
+            return
+        cfg = self.cfg
+        if len(ids) > 512:  # routing tables of very large clusters are built lazily (cost O(N^2))
+            self.overlay = None
+            return
+        self.overlay = PastryOverlay(ids, cfg.pastry_b, cfg.pastry_L, cfg.pastry_M)
+        if new_master is not None and len(ids) > 1:
+            me = self.reg.nid[new_master]
+            boot = min((i for i in ids if i != me))
+            hops = len(self.overlay.route(boot, me)) - 1
+            self.join_hops.append(hops)
+            self._count(hops, hops * H, PduType.JOIN)
+
+    def schedule_leave(self, t: float, node: int, graceful: bool = True) -> None:
+        """Node ``node`` leaves at ``t`` (graceful: LEAVE PDU; else it crashes and times out)."""
+        self._push(t, "leave", node, graceful)
+
+    def schedule_join(self, t: float, node: int) -> None:
+        self._push(t, "join", node)
+
+    # -- inputs ------------------------------------------------------------------------------
+    def set_input(self, g: int, throttle: float, steer: float, t: Optional[float] = None) -> None:
+        """Driver input of group ``g`` at time ``t`` (default: now).
+
+        A change travels as a ControllerPacket controller -> supernode -> master (hybrid and
+        client-server; direct over the LAN in full mesh) and acts when it arrives.
+        """
+        t = self.t if t is None else t
+        if self.inputs[g, 0] == throttle and self.inputs[g, 1] == steer:
+            return
+        self.inputs[g] = throttle, steer
+        self.inputs_changed = True
+        delay = self._control_delay()
+        self._push(t + delay, "input", g, float(throttle), float(steer))
+
+    def _control_delay(self) -> float:
+        links = self.cfg.links
+        if self.cfg.topology == "full_mesh":
+            self._count(1, control_bytes(), PduType.CONTROL)
+            return float(self.latency_scale * lk.sample_latency(self.rng, links["lan"], 1)[0])
+        self._count(2, 2 * control_bytes(), PduType.CONTROL)
+        return float(self.latency_scale * lk.sample_latency(self.rng, links["wan"], 2).sum())
+
+    def _autopilot(self, t: float, g: int) -> None:
+        thr = float(self.rng.uniform(0.1, 0.6))
+        steer = float(self.rng.uniform(-0.3, 0.3))
+        self._push(t + self._control_delay(), "input", g, thr, steer)
+        self._push(t + float(self.rng.exponential(self.cfg.autopilot_change_s)), "autopilot", g)
+
+    def bounce(self, g: int, normal, restitution: Optional[float] = None) -> float:
+        """Collision response input for avatar ``g`` (contact normal, stop if restitution 0)."""
+        e = self.cfg.restitution if restitution is None else restitution
+        return self.world.bounce_avatar(g, normal, e)
+
+    def inject_update(self, sender_group: int, viewer_group: int, obj: int, pos, vel=(0.0, 0.0),
+                      arrival: Optional[float] = None) -> None:
+        """Put a STATE record from ``sender_group`` for ``obj`` in flight (e.g. a forged one)."""
+        t = self.t if arrival is None else arrival
+        rec = np.r_[self.t, np.asarray(pos, float), np.asarray(vel, float), 0.0, 0.0][None, :]
+        self._add_inflight(np.array([t]), np.array([viewer_group * self.n_obj + obj]), np.array([sender_group]), rec)
+
+    # -- stepping ------------------------------------------------------------------------------
+    def step(self, h: float) -> StepMetrics:
+        """Advance the model by ``h`` seconds; returns the step's metrics."""
+        t_end = self.t + h
+        T = self.cfg.frame_s
+        eps = 1e-9
+        self.metrics = StepMetrics()
+        self.world.jolt[:] = 0.0
+        while True:
+            t_tick = (self.k + 1) * T
+            t_ev = self._heap[0][0] if self._heap else np.inf
+            t_next = min(t_tick, t_ev)
+            if t_next > t_end + eps:
+                break
+            self.t = max(self.t, t_next)
+            if t_ev <= t_tick:
+                _, _, kind, data = heapq.heappop(self._heap)
+                self._handle(kind, data)
+            else:
+                self.k += 1
+                self.world.advance_to(self.t)
+                self._tick()
+        self.world.advance_to(t_end)
+        self.t = t_end
+        m = self.metrics
+        m.online_nodes = int(self.online.sum())
+        self.totals.add(m)
+        self.inputs_changed = False
+        return m
+
+    def _handle(self, kind: str, data: tuple) -> None:
+        t = self.t
+        if kind == "input":
+            g, thr, steer = data
+            if self.master[g] >= 0:
+                self.world.advance_to(t, entities=False)
+                self.world.set_input(g, thr, steer)
+        elif kind == "autopilot":
+            self._autopilot(t, data[0])
+        elif kind == "impulse":
+            e, dv, g = data
+            self.world.advance_to(t, avatars=False)
+            self.world.push_entity(e, np.asarray(dv))
+            self.pending_contact[e] = False
+            self._handover(np.array([self.cfg.groups + e]), np.array([g]))
+        elif kind == "heartbeat":
+            node = data[0]
+            if self.alive[node]:
+                self.supernode.heartbeat(t, node)
+                self._count(1, H, PduType.HEARTBEAT)
+                self._push(t + self.cfg.heartbeat_s, "heartbeat", node)
+        elif kind == "expire":
+            for node in self.supernode.expire(t):
+                self.online[node] = False
+                self._refresh_group(int(self.reg.group[node]))
+            self._push(t + self.cfg.heartbeat_s, "expire")
+        elif kind == "leave":
+            node, graceful = data
+            self.alive[node] = False
+            if graceful:
+                self._count(1, H, PduType.LEAVE)
+                self._leave(node, timed_out=False)
+        elif kind == "join":
+            node = data[0]
+            if not self.online[node]:
+                self._count(1, H, PduType.JOIN)
+                self._join(t, node)
+                self._push(t + self.cfg.heartbeat_s, "heartbeat", node)
+        else:  # pragma: no cover
+            raise ValueError(f"network model: unknown event {kind!r} at t = {t}")
+
+    def _count(self, messages: int, nbytes: int, ptype: int) -> None:
+        self.metrics.messages += int(messages)
+        self.metrics.bytes += int(nbytes)
+        bt = self.totals.by_type
+        name = PduType(ptype).name
+        bt[name] = bt.get(name, 0) + int(nbytes)
+
+    def _handover(self, objs: np.ndarray, new: np.ndarray) -> None:
+        if self.cfg.ownership == "none":
+            return
+        changed = self.owner[objs] != new
+        if changed.any():
+            n = int(changed.sum())
+            o, old = objs[changed], self.owner[objs[changed]]
+            # the old owner knew the exact state when it let go: its cache starts from it
+            w = self.world
+            P, V, A = w.positions()[o], w.velocities()[o], w.accelerations()[o]
+            self._scatter(old * self.n_obj + o, np.c_[np.full(len(o), self.t), P, V, A])
+            self.owner[o] = new[changed]
+            self.metrics.handovers += n
+            self._count(n, n * (H + record_bytes(self.cfg.prediction_order)), PduType.HANDOVER)
+
+    # -- a frame --------------------------------------------------------------------------------
+    def _tick(self) -> None:
+        cfg, w = self.cfg, self.world
+        t = self.k * cfg.frame_s
+        G = cfg.groups
+        self.metrics.frames += 1
+        online_g = self.master >= 0
+        # 1. collision responses between avatars and entities (the owner responds)
+        ai, ei, dv = w.contacts()
+        if len(ai):
+            ai, ei, dv = ai[online_g[ai]], ei[online_g[ai]], dv[online_g[ai]]
+            self.metrics.contacts += len(ai)
+            local = self.owner[G + ei] == ai
+            for e, d in zip(ei[local], dv[local]):
+                w.push_entity(e, d)
+            remote = ~local & ~self.pending_contact[ei]
+            if remote.any():
+                # the contact is reported to the owner (slave/master report, §3.5.1 rule 3)
+                lat = self.latency_scale * lk.sample_latency(self.rng, cfg.links["wan"], int(remote.sum()))
+                for e, d, g, L in zip(ei[remote], dv[remote], ai[remote], lat):
+                    self.pending_contact[e] = True
+                    self._push(t + float(L), "impulse", int(e), d.copy(), int(g))
+                self.metrics.remote_contacts += int(remote.sum())
+        # 2. ownership (§3.6.2)
+        P, V, A = w.positions(), w.velocities(), w.accelerations()
+        if cfg.ownership != "none" and cfg.entities:
+            cand = np.flatnonzero(online_g)
+            cur = self.owner[G:]
+            new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos,
+                                      np.searchsorted(cand, cur).clip(0, max(len(cand) - 1, 0)),
+                                      cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis)
+            claimed = new_local != np.searchsorted(cand, cur).clip(0, max(len(cand) - 1, 0))
+            new = cur.copy()
+            new[claimed] = cand[new_local[claimed]]
+            self._handover(np.arange(G, self.n_obj), new)
+        # 3. publishing: every frame, or DIS threshold / heartbeat
+        has_owner = online_g[self.owner]
+        if cfg.dis_threshold > 0:
+            pred = dead_reckon(self.pub_p, self.pub_v, self.pub_a, t - self.pub_t, cfg.prediction_order)
+            err = np.hypot(*(pred - P).T)
+            pub = has_owner & ((err > cfg.dis_threshold) | (t - self.pub_t >= cfg.dis_heartbeat_s))
+        else:
+            pub = has_owner
+        pub_obj = np.flatnonzero(pub)
+        self.pub_t[pub_obj] = t
+        self.pub_p[pub_obj], self.pub_v[pub_obj], self.pub_a[pub_obj] = P[pub_obj], V[pub_obj], A[pub_obj]
+        self.metrics.published += len(pub_obj)
+        # 4. messages by topology, link sampling
+        cells = self.grid.cell(P)
+        viewers = np.flatnonzero(online_g)
+        vg_local, vo = self.grid.view_pairs(cells[viewers], cells)
+        vg = viewers[vg_local]
+        frame_size = np.bincount(vg, minlength=G)
+        if cfg.topology == "full_mesh":  # a broadcast subscribes everyone to everything
+            newly = np.zeros(len(vg), bool)
+        else:
+            fi = vg * self.n_obj + vo
+            iv = self.in_view.ravel()
+            newly = ~iv[fi]
+            iv[:] = False
+            iv[fi] = True
+            self.enter_t.ravel()[fi[newly]] = t
+        send_pair = pub[vo] | newly
+        tr = build_messages(cfg, self.reg, t, self.master, self.slaves, pub_obj, self.owner, vg, vo, frame_size,
+                            send_pair)
+        arrival, lost = self._transmit(tr)
+        if len(tr.rec_msg):
+            r_arr, r_lost = arrival[tr.rec_msg], lost[tr.rec_msg]
+            if (tr.rec_hop1 >= 0).any():
+                r_lost = r_lost | np.where(tr.rec_hop1 >= 0, lost[np.maximum(tr.rec_hop1, 0)], False)
+            ok = ~r_lost
+            o = tr.rec_obj[ok]
+            self._add_inflight(r_arr[ok], tr.rec_viewer[ok] * self.n_obj + o, self.owner[o],
+                               np.c_[np.full(len(o), t), P[o], V[o], A[o]])
+        if len(tr.frame_msg):
+            f_arr = np.where(lost[tr.frame_msg], np.inf, arrival[tr.frame_msg])
+            for key, val in (("arr", f_arr), ("slave", tr.frame_slave), ("frame", np.full(len(f_arr), self.k + 1))):
+                self._frames[key] = np.concatenate([self._frames[key], val])
+        # 5. deliveries up to now, slave frame flips (§3.5.2)
+        self._deliver(t)
+        self._flip_frames(t)
+        # 6. display and metrics (eq. 3-1/3-2)
+        self._display(vg, vo)
+
+    def _transmit(self, tr):
+        cfg = self.cfg
+        n = len(tr.send_t)
+        arrival, lost = np.zeros(n), np.zeros(n, bool)
+        self.metrics.messages += n
+        self.metrics.bytes += int(tr.nbytes.sum())
+        bt = self.totals.by_type
+        for p in np.unique(tr.ptype):
+            name = PduType(int(p)).name
+            bt[name] = bt.get(name, 0) + int(tr.nbytes[tr.ptype == p].sum())
+        first = tr.hop_of == -1
+        a1, l1 = lk.transmit(self.rng, cfg.links, tr.send_t[first], tr.sender[first], tr.link[first],
+                             tr.nbytes[first], self.busy, self.latency_scale)
+        arrival[first], lost[first] = a1, l1
+        second = ~first
+        if second.any():
+            send2 = tr.send_t.copy()
+            direct = second & (tr.hop_of >= 0)
+            send2[direct] = np.maximum(send2[direct], arrival[tr.hop_of[direct]])
+            lost[direct] |= lost[tr.hop_of[direct]]
+            wait = tr.rec_hop1 >= 0
+            if wait.any():
+                ok = ~lost[tr.rec_hop1[wait]]
+                np.maximum.at(send2, tr.rec_msg[wait][ok], arrival[tr.rec_hop1[wait]][ok])
+            a2, l2 = lk.transmit(self.rng, cfg.links, send2[second], tr.sender[second], tr.link[second],
+                                 tr.nbytes[second], self.busy, self.latency_scale)
+            arrival[second], lost[second] = a2, lost[second] | l2
+        self.metrics.lost_messages += int(lost.sum())
+        return arrival, lost
+
+    # -- in-flight records ----------------------------------------------------------------------
+    def _add_inflight(self, arr: np.ndarray, fi: np.ndarray, sender: np.ndarray, rec: np.ndarray) -> None:
+        """Records in flight: arrival (s), flat cache index, sending group, record (k, 7)."""
+        if len(arr):
+            self._inflight.append({"arr": arr, "fi": fi, "sender": sender, "rec": rec})
+
+    def _deliver(self, t: float) -> None:
+        """Apply every record that has arrived by ``t``; reject records from non-owners (§3.6.1).
+
+        Chunks are applied in send order and one chunk holds one record per (viewer, object),
+        so a newer record always overwrites an older one; a record older than the cached one
+        (reordering) is ignored.
+        """
+        keep = []
+        n_obj = self.n_obj
+        for c in self._inflight:
+            due = c["arr"] <= t + 1e-12
+            if not due.all():
+                keep.append({k: v[~due] for k, v in c.items()})
+                if not due.any():
+                    continue
+                c = {k: v[due] for k, v in c.items()}
+            fi, rec = c["fi"], c["rec"]
+            valid = c["sender"] == self.owner[fi % n_obj]
+            if not valid.all():
+                self.metrics.rejected_updates += int((~valid).sum())
+                fi, rec = fi[valid], rec[valid]
+            newer = rec[:, 0] > np.take(self.cache[0], fi)
+            if not newer.all():
+                fi, rec = fi[newer], rec[newer]
+            self._scatter(fi, rec)
+        self._inflight = keep
+
+    def _scatter(self, fi: np.ndarray, rec: np.ndarray) -> None:
+        """Write records ``rec`` (k, 7) into the cache rows ``fi`` (k,)."""
+        for j in range(7):
+            self.cache[j][fi] = rec[:, j]
+
+    def _gather(self, fi: np.ndarray):
+        """Cached record time (k,), position, velocity, acceleration (k, 2) of rows ``fi``."""
+        c = self.cache
+        order = self.cfg.prediction_order
+        t = np.take(c[0], fi)
+        p = np.stack([np.take(c[1], fi), np.take(c[2], fi)], axis=1)
+        v = np.stack([np.take(c[3], fi), np.take(c[4], fi)], axis=1) if order >= 1 else None
+        a = np.stack([np.take(c[5], fi), np.take(c[6], fi)], axis=1) if order >= 2 else None
+        return t, p, v, a
+
+    def _flip_frames(self, t: float) -> None:
+        fr = self._frames
+        due = fr["frame"] <= self.k
+        if not due.any():
+            return
+        on_time = due & (fr["arr"] <= t + 1e-12) & (fr["frame"] == self.k)
+        self.shown_frame[fr["slave"][on_time]] = self.k
+        self.metrics.dropped_frames += int((due & ~on_time).sum())
+        self._frames = {k: v[~due] for k, v in fr.items()}
+
+    # -- display ----------------------------------------------------------------------------------
+    def _display(self, vg: Optional[np.ndarray] = None, vo: Optional[np.ndarray] = None) -> None:
+        cfg, G = self.cfg, self.cfg.groups
+        t = self.k * cfg.frame_s
+        P = self.world.positions()
+        if vg is None:
+            online = np.flatnonzero(self.master >= 0)
+            cells = self.grid.cell(P)
+            vl, vo = self.grid.view_pairs(cells[online], cells)
+            vg = online[vl]
+        # copies shown by non-owners that have a record of the object
+        fi = vg * self.n_obj + vo
+        ct, cp, cv, ca = self._gather(fi)
+        remote = (self.owner[vo] != vg) & (ct >= np.take(self.enter_t.ravel(), fi) - 1e-12)
+        shown = dead_reckon(cp, cv, ca, t - ct, cfg.prediction_order)
+        pm, pr, mx, rms = inconsistency(vo, shown, P, self.n_obj, remote)
+        self.per_object_max, self.per_object_rms = pm, pr
+        self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
+        self.metrics.inconsistency_rms = rms
+        # displayed avatars at every master (for slaves showing an older frame)
+        fa = (np.arange(G)[:, None] * self.n_obj + np.arange(G)[None, :]).ravel()
+        at, ap, avv, aa = self._gather(fa)
+        av = dead_reckon(ap, avv, aa, t - at, cfg.prediction_order).reshape(G, G, 2)
+        av[np.arange(G), np.arange(G)] = P[:G]
+        self.hist[self.k % HIST] = av
+        sl = np.concatenate([s for s in self.slaves if len(s)]) if any(len(s) for s in self.slaves) else np.zeros(0, int)
+        if len(sl):
+            self.metrics.desync_frames = max(self.metrics.desync_frames, int((self.k - self.shown_frame[sl]).max()))
+
+    # -- queries ------------------------------------------------------------------------------------
+    def perceived_avatar(self, node: int, g: int) -> np.ndarray:
+        """Position (2,) of avatar ``g`` as shown by render node ``node`` now (m)."""
+        grp = int(self.reg.group[node])
+        frame = self.k if node == self.master[grp] else int(self.shown_frame[node])
+        frame = max(frame, self.k - HIST + 1)
+        return self.hist[frame % HIST, grp, g].copy()
+
+    def at_rest(self) -> bool:
+        """No input changed, nothing moves, no record or input/impulse event pending."""
+        pending = any(kind in ("input", "impulse") for _, _, kind, _ in self._heap)
+        return (not self.inputs_changed and not self.world.moving() and not pending
+                and not self._inflight and self.cfg.driven_groups == self.cfg.groups)
+
+    def heartbeat_table(self) -> List[dict]:
+        return self.supernode.table()
+
+    def get_state(self):
+        """Deep copy of the whole model (events, RNG, caches, world) for FMU get/set state."""
+        return copy.deepcopy(self.__dict__)
+
+    def set_state(self, state) -> None:
+        self.__dict__.update(copy.deepcopy(state))

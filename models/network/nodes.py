@@ -1,0 +1,229 @@
+"""Nodes (control platforms, render nodes, supernode) and the forwarding rules of §3.5.1.
+
+Render node ``i`` belongs to group ``i // R`` (``R`` render nodes per group); control
+platform ``g`` has node index ``G R + g``; the supernode is ``G R + G``. Every node has an
+identity string, IPv4 address, port and a 128-bit ID (MD5 of ``ip:port``, §2.3.1).
+
+:func:`build_messages` turns one frame's traffic into aggregated messages, one per
+(sender, receiver) and PDU type, following the topology:
+
+``hybrid_p2p`` (thesis, §3.5.1)
+    (2) control commands reach only the master (via the supernode, see
+    :meth:`NetworkModel.set_input`); the master forwards the next frame to its slaves (FRAME,
+    LAN); (3) slaves report their view's dynamic entities and collisions to the master
+    (REPORT, LAN); (4) each master sends the objects it owns to the other masters of its
+    cluster, restricted to those whose 9-cell neighbourhood holds the object when the grid is
+    on (STATE, WAN).
+``client_server``
+    every message is relayed by the supernode: owners send their updates to it, it forwards to
+    each receiver one aggregated batch once the inputs of that batch have arrived.
+``full_mesh``
+    every render node broadcasts its updates to every other render node (no grid, no
+    hierarchy); a master's broadcast to its own slaves doubles as their frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, List
+
+import numpy as np
+
+from . import links as lk
+from .config import NetworkConfig
+from .ids import node_id
+from .pdu import HEADER, PduType, controller_bytes, record_bytes, report_bytes
+
+H = HEADER.size
+LAN, WAN = lk.CLASS_INDEX["lan"], lk.CLASS_INDEX["wan"]
+
+
+class NodeRegistry:
+    """Static identities of every node of a configuration."""
+
+    def __init__(self, cfg: NetworkConfig) -> None:
+        G, R = cfg.groups, cfg.render_nodes
+        self.G, self.R = G, R
+        self.n_render = G * R
+        self.controller0 = G * R
+        self.supernode = G * R + G
+        self.n = G * R + G + 1
+        self.group = np.r_[np.arange(G * R) // R, np.arange(G), -1]
+        self.rank = np.r_[np.arange(G * R) % R, np.full(G, -1), -1]
+        self.identify = [f"Render-{g:04d}" for g in range(G)]
+        self.ip: List[str] = []
+        self.port: List[int] = []
+        for i in range(self.n):
+            g = int(self.group[i])
+            if i == self.supernode:
+                self.ip.append("10.255.255.1"), self.port.append(20001)
+            elif i >= self.controller0:
+                self.ip.append(f"10.{g // 250}.{g % 250}.200"), self.port.append(20010)
+            else:
+                self.ip.append(f"10.{g // 250}.{g % 250}.{10 + int(self.rank[i])}"), self.port.append(20014)
+        self.nid = [node_id(f"{ip}:{port}") for ip, port in zip(self.ip, self.port)]
+
+    def render_nodes(self, g: int) -> np.ndarray:
+        return np.arange(g * self.R, (g + 1) * self.R)
+
+    def controller(self, g: int) -> int:
+        return self.controller0 + g
+
+
+@dataclass
+class Traffic:
+    """Messages of one frame plus the record and frame deliveries they carry.
+
+    Message arrays are parallel (``send_t`` s, ``sender``/``receiver`` node, ``link`` class,
+    ``nbytes``, ``ptype``, ``hop_of``: index of the first-hop message a relayed message waits
+    for, -1 if none, -2 if it waits for the first hops of its records, ``rec_hop1``). Record deliveries: ``rec_msg`` (message), ``rec_viewer`` (group),
+    ``rec_obj``. Frame deliveries: ``frame_msg``, ``frame_slave`` (node).
+    """
+
+    send_t: np.ndarray
+    sender: np.ndarray
+    receiver: np.ndarray
+    link: np.ndarray
+    nbytes: np.ndarray
+    ptype: np.ndarray
+    hop_of: np.ndarray
+    rec_msg: np.ndarray
+    rec_viewer: np.ndarray
+    rec_obj: np.ndarray
+    frame_msg: np.ndarray
+    frame_slave: np.ndarray
+    rec_hop1: np.ndarray
+
+
+class _Builder:
+    def __init__(self) -> None:
+        self.cols: Dict[str, list] = {k: [] for k in ("send_t", "sender", "receiver", "link", "nbytes", "ptype", "hop_of")}
+        self.n = 0
+
+    def add(self, send_t, sender, receiver, link, nbytes, ptype, hop_of=None) -> np.ndarray:
+        sender = np.asarray(sender, np.int64)
+        k = len(sender)
+        for name, val in (("send_t", send_t), ("sender", sender), ("receiver", receiver), ("link", link),
+                          ("nbytes", nbytes), ("ptype", ptype), ("hop_of", -1 if hop_of is None else hop_of)):
+            self.cols[name].append(np.broadcast_to(np.asarray(val), (k,)))
+        idx = np.arange(self.n, self.n + k)
+        self.n += k
+        return idx
+
+    def arrays(self):
+        out = {}
+        for name, parts in self.cols.items():
+            dtype = float if name == "send_t" else np.int64
+            out[name] = np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+        return out
+
+
+def _group_pairs(a: np.ndarray, b: np.ndarray, nb: int):
+    """Unique (a, b) keys: returns unique a, unique b, counts, inverse index of each pair."""
+    key = a * nb + b
+    counts = np.bincount(key, minlength=nb * nb)
+    uk = np.flatnonzero(counts)
+    lookup = np.zeros(nb * nb, np.int64)
+    lookup[uk] = np.arange(len(uk))
+    return uk // nb, uk % nb, counts[uk], lookup[key]
+
+
+def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.ndarray, slaves: List[np.ndarray],
+                   pub_obj: np.ndarray, owner: np.ndarray, view_g: np.ndarray, view_o: np.ndarray,
+                   frame_size: np.ndarray, send_pair: np.ndarray) -> Traffic:
+    """Aggregated messages of one frame at time ``t``.
+
+    Parameters
+    ----------
+    master : (G,) node index of each group's master, -1 if the group is offline
+    slaves : per group, node indices of its online slaves
+    pub_obj : objects published this frame
+    owner : (n_obj,) owning group of each object
+    view_g, view_o : (viewer group, object) pairs of the grid neighbourhoods (viewers online)
+    frame_size : (G,) objects in each group's frame
+    send_pair : (len(view_g),) bool, the pair's object is sent to the viewer this frame (it was
+        published, or it has just entered the viewer's neighbourhood)
+    """
+    G = reg.G
+    rec = record_bytes(cfg.prediction_order)
+    rep = report_bytes()
+    b = _Builder()
+    compose = t + cfg.compose_ms * 1e-3
+    published = np.zeros(len(owner), bool)
+    published[pub_obj] = True
+    rec_msg, rec_view, rec_obj, fr_msg, fr_slave, rec_hop1 = [], [], [], [], [], []
+    online_g = np.flatnonzero(master >= 0)
+    if cfg.topology == "full_mesh":
+        everyone = np.concatenate([master[online_g]] + [s for s in slaves if len(s)]).astype(np.int64)
+        n_pub = np.bincount(owner[pub_obj], minlength=G)
+        # masters: all their published objects to every other render node
+        for g in online_g:
+            m = master[g]
+            others = everyone[everyone != m]
+            same = reg.group[others] == g
+            idx = b.add(t, np.full(len(others), m), others, np.where(same, LAN, WAN), H + n_pub[g] * rec, PduType.STATE)
+            mine = pub_obj[owner[pub_obj] == g]
+            viewers = reg.group[others[~same & (others == master[reg.group[others]])]]
+            vidx = idx[~same & (others == master[reg.group[others]])]
+            if len(mine) and len(viewers):
+                rec_msg.append(np.repeat(vidx, len(mine)))
+                rec_view.append(np.repeat(viewers, len(mine)))
+                rec_obj.append(np.tile(mine, len(viewers)))
+            if len(slaves[g]):
+                sl_mask = np.isin(others, slaves[g])
+                fr_msg.append(idx[sl_mask])
+                fr_slave.append(others[sl_mask])
+        for g in online_g:
+            for s in slaves[g]:
+                others = everyone[everyone != s]
+                same = reg.group[others] == g
+                b.add(t, np.full(len(others), s), others, np.where(same, LAN, WAN), H + rep, PduType.REPORT)
+    else:
+        # STATE: owner's master -> viewer's master for published objects in the viewer's neighbourhood
+        sel = send_pair & (owner[view_o] != view_g) & (master[owner[view_o]] >= 0)
+        vg, vo = view_g[sel], view_o[sel]
+        og = owner[vo]
+        if cfg.topology == "hybrid_p2p":
+            sg, rg, cnt, inv = _group_pairs(og, vg, G)
+            idx = b.add(t, master[sg], master[rg], WAN, H + cnt * rec, PduType.STATE)
+            rec_msg.append(idx[inv]), rec_view.append(vg), rec_obj.append(vo)
+        else:  # client_server: owner -> server, server -> viewer
+            srv = reg.supernode
+            sent = np.unique(vo)
+            n_pub = np.bincount(owner[sent], minlength=G)
+            senders = np.flatnonzero((n_pub > 0) & (master >= 0))
+            hop1 = np.full(G, -1)
+            hop1[senders] = b.add(t, master[senders], srv, WAN, H + n_pub[senders] * rec, PduType.STATE)
+            # second hop (-2: leaves when the last first-hop message feeding it has arrived)
+            rg_u, inv = np.unique(vg, return_inverse=True)
+            cnt = np.bincount(inv, minlength=len(rg_u))
+            idx = b.add(t, np.full(len(rg_u), srv), master[rg_u], WAN, H + cnt * rec, PduType.RELAY, -2)
+            rec_msg.append(idx[inv]), rec_view.append(vg), rec_obj.append(vo)
+            rec_hop1.append(hop1[og])
+        # FRAME and REPORT inside each group, all groups at once
+        sl = np.concatenate([slaves[g] for g in online_g]).astype(np.int64) if len(online_g) else np.zeros(0, np.int64)
+        if len(sl):
+            sg = reg.group[sl]
+            fb = H + frame_size[sg] * rec
+            if cfg.topology == "hybrid_p2p":
+                idx = b.add(compose, master[sg], sl, LAN, fb, PduType.FRAME)
+                b.add(t, sl, master[sg], LAN, H + rep, PduType.REPORT)
+            else:
+                gs = np.unique(sg)
+                h1 = np.full(G, -1)
+                h1[gs] = b.add(compose, master[gs], reg.supernode, WAN, H + frame_size[gs] * rec, PduType.FRAME)
+                idx = b.add(compose, np.full(len(sl), reg.supernode), sl, WAN, fb, PduType.RELAY, h1[sg])
+                b.add(t, sl, reg.supernode, WAN, H + rep, PduType.REPORT)
+            fr_msg.append(idx), fr_slave.append(sl)
+    arr = b.arrays()
+    cat = lambda parts: np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)  # noqa: E731
+    hop1 = cat(rec_hop1)
+    rmsg = cat(rec_msg)
+    if len(hop1) != len(rmsg):
+        hop1 = np.full(len(rmsg), -1, np.int64)
+    return Traffic(arr["send_t"], arr["sender"], arr["receiver"], arr["link"], arr["nbytes"], arr["ptype"],
+                   arr["hop_of"], rmsg, cat(rec_view), cat(rec_obj), cat(fr_msg), cat(fr_slave), hop1)
+
+
+def control_bytes() -> int:
+    """Bytes of one CONTROL PDU carrying a ControllerPacket."""
+    return H + controller_bytes()

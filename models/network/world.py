@@ -1,0 +1,215 @@
+"""Ground truth of the shared scene: avatars with simple vehicle kinematics, free entities.
+
+Avatars (one per control platform) follow a kinematic bicycle model driven by the
+ControllerPacket quantities (seed line ~711): ``throttle`` in [-1, 1] scales the acceleration
+``mAcceleration = throttle * max_accel`` and ``steer`` in [-1, 1] the steering angle, which
+gives the small orientation change ``mTinyOrient = yaw_rate * dt``::
+
+    dv/dt   = max_accel * throttle - drag * v,    |v| <= max_speed
+    dyaw/dt = v * tan(steer * max_steer) / wheelbase
+    dx/dt   = v cos(yaw),  dy/dt = v sin(yaw)
+
+Body-frame specific force (x forward, y left, z up) ``f = (dv/dt, v * dyaw/dt, g)`` and angular
+rate ``w = (0, 0, dyaw/dt)`` feed the motion platform's washout. Free entities move on the
+ground with a constant turn rate and linear drag (``dv/dt = w_e J v - drag_e v``) so that
+their motion is smooth but curved (dead reckoning of order 2 has something to gain). Everyone
+reflects off the scene's walls. Collision responses (inputs) bounce or stop an avatar:
+``v <- v - (1 + e) (v.n) n`` for ``v.n < 0``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .config import NetworkConfig
+
+G_ACC = 9.81
+
+
+class World:
+    """Vectorised state of ``G`` avatars and ``E`` free entities (SI units, z up)."""
+
+    def __init__(self, cfg: NetworkConfig, rng: np.random.Generator) -> None:
+        G, E, S = cfg.groups, cfg.entities, cfg.scene_size
+        self.cfg = cfg
+        self.t = self.ta = self.te = 0.0
+        self.apos = rng.uniform(0.1 * S, 0.9 * S, (G, 2))
+        self.yaw = rng.uniform(-np.pi, np.pi, G)
+        self.speed = np.zeros(G)
+        self.throttle = np.zeros(G)
+        self.steer = np.zeros(G)
+        self.accel = np.zeros(G)        # dv/dt of the last sub-step (m/s^2)
+        self.yaw_rate = np.zeros(G)     # rad/s
+        self.jolt = np.zeros(G)         # |dv| from collision responses since last reset (m/s)
+        self.epos = rng.uniform(0.0, S, (E, 2))
+        ang = rng.uniform(-np.pi, np.pi, E)
+        self.evel = cfg.entity_speed * np.c_[np.cos(ang), np.sin(ang)]
+        self.eturn = rng.uniform(-0.2, 0.2, E)   # rad/s
+        self.ez = np.full(E, cfg.entity_radius)
+
+    # -- views ----------------------------------------------------------------------------
+    @property
+    def avel(self) -> np.ndarray:
+        """Avatar velocity (G, 2), m/s."""
+        return self.speed[:, None] * np.c_[np.cos(self.yaw), np.sin(self.yaw)]
+
+    def aacc(self) -> np.ndarray:
+        """Avatar acceleration in the world frame (G, 2), m/s^2."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        lat = self.speed * self.yaw_rate
+        return np.c_[self.accel * c - lat * s, self.accel * s + lat * c]
+
+    def eacc(self) -> np.ndarray:
+        """Entity acceleration (E, 2), m/s^2."""
+        v = self.evel
+        return self.eturn[:, None] * np.c_[-v[:, 1], v[:, 0]] - self.cfg.entity_drag * v
+
+    def positions(self) -> np.ndarray:
+        """All objects (avatars then entities), (G + E, 2)."""
+        return np.concatenate([self.apos, self.epos])
+
+    def velocities(self) -> np.ndarray:
+        return np.concatenate([self.avel, self.evel])
+
+    def accelerations(self) -> np.ndarray:
+        return np.concatenate([self.aacc(), self.eacc()])
+
+    def specific_force(self) -> np.ndarray:
+        """Body-frame specific force of every avatar (G, 3), m/s^2, gravity included on z."""
+        return np.c_[self.accel, self.speed * self.yaw_rate, np.full(len(self.speed), G_ACC)]
+
+    def angular_rate(self) -> np.ndarray:
+        """Body-frame angular rate (G, 3), rad/s."""
+        z = np.zeros(len(self.speed))
+        return np.c_[z, z, self.yaw_rate]
+
+    def moving(self, eps: float = 1e-9) -> bool:
+        return bool(np.any(np.abs(self.speed) > eps) or np.any(np.abs(self.evel) > eps)
+                    or np.any(self.throttle != 0.0))
+
+    # -- dynamics ---------------------------------------------------------------------------
+    def advance_to(self, t: float, avatars: bool = True, entities: bool = True) -> None:
+        """Advance avatars and/or entities to time ``t`` (s). The two have their own clocks:
+        entity motion does not depend on avatar inputs between frames, so an input event only
+        needs the avatars brought up to its time."""
+        if avatars and t > self.ta:
+            self._advance_avatars(t - self.ta)
+            self.ta = t
+        if entities and t > self.te:
+            self._advance_entities(t - self.te)
+            self.te = t
+        self.t = max(self.ta, self.te)
+
+    def _substeps(self, dt: float):
+        n = max(1, int(np.ceil(dt / (self.cfg.frame_s / self.cfg.substeps) - 1e-9)))
+        return n, dt / n
+
+    def _advance_avatars(self, dt: float) -> None:
+        cfg = self.cfg
+        n, h = self._substeps(dt)
+        k_steer = np.tan(self.steer * cfg.max_steer_rad) / cfg.wheelbase
+        for _ in range(n):
+            v0 = self.speed
+            a = cfg.max_accel * self.throttle - cfg.drag * v0
+            v1 = np.clip(v0 + a * h, -cfg.max_speed, cfg.max_speed)
+            self.accel = (v1 - v0) / h
+            vm = 0.5 * (v0 + v1)
+            self.yaw_rate = vm * k_steer
+            yaw_m = self.yaw + 0.5 * self.yaw_rate * h
+            self.apos = self.apos + (vm * h)[:, None] * np.c_[np.cos(yaw_m), np.sin(yaw_m)]
+            self.yaw = np.mod(self.yaw + self.yaw_rate * h + np.pi, 2 * np.pi) - np.pi
+            self.speed = v1
+            self._avatar_walls()
+
+    def _advance_entities(self, dt: float) -> None:
+        """Exact rotation of the velocity by ``w h`` with decay; trapezoidal positions."""
+        cfg = self.cfg
+        n, h = self._substeps(dt)
+        decay = np.exp(-cfg.entity_drag * h)
+        ct, st = np.cos(self.eturn * h), np.sin(self.eturn * h)
+        for _ in range(n):
+            vx, vy = self.evel[:, 0], self.evel[:, 1]
+            nv = np.empty_like(self.evel)
+            nv[:, 0] = (ct * vx - st * vy) * decay
+            nv[:, 1] = (st * vx + ct * vy) * decay
+            self.epos += 0.5 * h * (self.evel + nv)
+            self.evel = nv
+            self._entity_walls()
+
+    def _entity_walls(self) -> None:
+        S = self.cfg.scene_size
+        p, v = self.epos, self.evel
+        lo, hi = p < 0.0, p > S
+        if lo.any() or hi.any():
+            p[lo] = -p[lo]
+            p[hi] = 2 * S - p[hi]
+            v[lo | hi] *= -1.0
+
+    def _avatar_walls(self) -> None:
+        S = self.cfg.scene_size
+        out = (self.apos < 0.0) | (self.apos > S)
+        if out.any():
+            self.apos = np.clip(self.apos, 0.0, S)
+            vel = self.avel
+            vel[out] *= -1.0
+            rows = out.any(axis=1)
+            self.yaw[rows] = np.arctan2(vel[rows, 1], vel[rows, 0])
+            self.speed[rows] = np.abs(self.speed[rows])
+
+    # -- inputs -----------------------------------------------------------------------------
+    def set_input(self, g: int, throttle: float, steer: float) -> None:
+        """ControllerPacket of avatar ``g`` takes effect (clipped to [-1, 1])."""
+        self.throttle[g] = float(np.clip(throttle, -1.0, 1.0))
+        self.steer[g] = float(np.clip(steer, -1.0, 1.0))
+
+    def bounce_avatar(self, g: int, normal, restitution: float) -> float:
+        """Collision response of avatar ``g`` on a contact with unit normal ``normal`` (2,).
+
+        Returns the velocity change |dv| (m/s); 0 when the avatar is not approaching.
+        """
+        n = np.asarray(normal, float)
+        norm = np.hypot(*n)
+        if norm == 0.0:
+            return 0.0
+        n = n / norm
+        v = self.avel[g]
+        vn = float(v @ n)
+        if vn >= 0.0:
+            return 0.0
+        dv = -(1.0 + restitution) * vn * n
+        v2 = v + dv
+        sp = float(np.hypot(*v2))
+        if sp > 1e-12:
+            self.yaw[g] = np.arctan2(v2[1], v2[0])
+        self.speed[g] = sp
+        jolt = float(np.hypot(*dv))
+        self.jolt[g] += jolt
+        return jolt
+
+    def push_entity(self, e: int, dv) -> None:
+        """Apply a velocity change ``dv`` (2,) m/s to entity ``e`` (collision response)."""
+        self.evel[e] += dv
+
+    def contacts(self):
+        """Approaching avatar-entity pairs in contact: (avatar, entity, dv of entity (k, 2))."""
+        from scipy.spatial import cKDTree
+
+        G, E = len(self.speed), len(self.evel)
+        if G == 0 or E == 0:
+            return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
+        r = self.cfg.avatar_radius + self.cfg.entity_radius
+        pairs = cKDTree(self.apos).query_ball_tree(cKDTree(self.epos), r) if G < 8 else None
+        if pairs is not None:
+            ai = np.array([g for g, lst in enumerate(pairs) for _ in lst], int)
+            ei = np.array([e for lst in pairs for e in lst], int)
+        else:
+            sd = cKDTree(self.apos).sparse_distance_matrix(cKDTree(self.epos), r, output_type="ndarray")
+            ai, ei = sd["i"].astype(int), sd["j"].astype(int)
+        if len(ai) == 0:
+            return ai, ei, np.zeros((0, 2))
+        d = self.epos[ei] - self.apos[ai]
+        dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+        n = d / dist[:, None]
+        rel = np.einsum("ij,ij->i", self.avel[ai] - self.evel[ei], n)
+        keep = rel > 0
+        dv = ((1.0 + self.cfg.restitution) * rel[keep])[:, None] * n[keep]
+        return ai[keep], ei[keep], dv
