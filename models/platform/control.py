@@ -16,7 +16,7 @@ be flagged). The closed-loop state is ``x = (q, q')`` (12); the reference enters
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -44,10 +44,10 @@ class ControlParams:
         Natural frequency of the critically damped reference prefilter, rad/s.
     """
 
-    omega_c: float = 20.0
-    zeta_c: float = 1.0
-    F_max: float = 10000.0
-    omega_f: float = 15.0
+    omega_c: float = field(default=20.0, metadata={"unit": "rad/s", "doc": "closed-loop natural frequency, K_p = omega_c^2"})
+    zeta_c: float = field(default=1.0, metadata={"unit": "1", "doc": "closed-loop damping ratio, K_d = 2 zeta_c omega_c"})
+    F_max: float = field(default=10000.0, metadata={"unit": "N", "doc": "actuator force limit"})
+    omega_f: float = field(default=15.0, metadata={"unit": "rad/s", "doc": "reference prefilter natural frequency (critically damped)"})
 
     def vector(self) -> np.ndarray:
         return np.array([self.omega_c, self.zeta_c, self.F_max, self.omega_f], float)

@@ -22,7 +22,7 @@ caller's job (:func:`.kinematics.clamp_to_workspace`).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import expm
@@ -32,18 +32,18 @@ from scipy.linalg import expm
 class WashoutParams:
     """Washout filter parameters (rad/s, dimensionless gains, rad, rad/s)."""
 
-    k_t: float = 0.5
-    omega_t: float = 2.5
-    zeta_t: float = 1.0
-    omega_b: float = 0.5
-    k_r: float = 0.5
-    omega_r: float = 1.0
-    zeta_r: float = 1.0
-    omega_tc: float = 2.0
-    tilt_max: float = np.deg2rad(10.0)
-    tilt_rate: float = np.deg2rad(3.0)
-    jolt_heave: float = 0.3
-    g: float = 9.81
+    k_t: float = field(default=0.5, metadata={"unit": "1", "doc": "washout translational gain"})
+    omega_t: float = field(default=2.5, metadata={"unit": "rad/s", "doc": "washout translational high-pass break frequency"})
+    zeta_t: float = field(default=1.0, metadata={"unit": "1", "doc": "washout translational high-pass damping"})
+    omega_b: float = field(default=0.5, metadata={"unit": "rad/s", "doc": "washout first-order high-pass (return to centre)"})
+    k_r: float = field(default=0.5, metadata={"unit": "1", "doc": "washout rotational gain"})
+    omega_r: float = field(default=1.0, metadata={"unit": "rad/s", "doc": "washout rotational high-pass break frequency"})
+    zeta_r: float = field(default=1.0, metadata={"unit": "1", "doc": "washout rotational high-pass damping"})
+    omega_tc: float = field(default=2.0, metadata={"unit": "rad/s", "doc": "tilt-coordination low-pass frequency"})
+    tilt_max: float = field(default=float(np.deg2rad(10.0)), metadata={"unit": "rad", "doc": "tilt-coordination angle limit"})
+    tilt_rate: float = field(default=float(np.deg2rad(3.0)), metadata={"unit": "rad/s", "doc": "tilt-coordination rate limit"})
+    jolt_heave: float = field(default=0.3, metadata={"unit": "1", "doc": "share of the jolt that goes to heave"})
+    g: float = field(default=9.81, metadata={"unit": "m/s2", "doc": "gravity used by tilt coordination"})
 
     def __post_init__(self) -> None:
         for name in ("omega_t", "zeta_t", "omega_b", "omega_r", "zeta_r", "omega_tc", "g"):

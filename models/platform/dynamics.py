@@ -151,6 +151,7 @@ def lagrangian_sx(q, dq, pv) -> Dict[str, ca.SX]:
 def functions() -> Dict[str, ca.Function]:
     """CasADi Functions of the full model (built once per process).
 
+    ``ik(q, p) -> (dl, reach)`` (strokes, eq. 6-14..6-19, and (rod . slider axis) / c; NaN out of reach),
     ``terms(q, dq, p) -> (M, h, J, dl)``, ``forward(q, dq, F, p) -> ddq``,
     ``energy(q, dq, p) -> (T, V)``, ``rod_angles(q, p) -> (theta, phi)``.
     """
@@ -158,7 +159,11 @@ def functions() -> Dict[str, ca.Function]:
     pv = ca.SX.sym("p", NP)
     t = lagrangian_sx(q, dq, pv)
     ddq = ca.solve(t["M"], t["J"].T @ F - t["h"])
+    P = param_dict(pv)
+    dl, rods, _, _ = kinematics_sx(q, P)
+    reach = ca.vertcat(*[ca.dot(r, ax) for r, ax in zip(rods, PlatformParams().axes)]) / P["c"]
     return {
+        "ik": ca.Function("platform_ik", [q, pv], [dl, reach], ["q", "p"], ["dl", "reach"]),
         "terms": ca.Function("terms", [q, dq, pv], [t["M"], t["h"], t["J"], t["dl"]],
                              ["q", "dq", "p"], ["M", "h", "J", "dl"]),
         "forward": ca.Function("forward", [q, dq, F, pv], [ddq], ["q", "dq", "F", "p"], ["ddq"]),

@@ -27,7 +27,7 @@ and is taken equal to ``e``. The machine mass M = 240 kg is used (the thesis sim
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
@@ -36,27 +36,27 @@ import numpy as np
 class PlatformParams:
     """Geometry, mass and hinge parameters of the platform (SI units, see module table)."""
 
-    a: float = 0.38
-    b: float = 0.35
-    e: float = 0.318
-    d: float = 0.318
-    c: float = 0.30
-    h: float = 0.02
-    m: float = 0.129
-    n: float = 0.241
-    M: float = 240.0
-    size_x: float = 0.76
-    size_y: float = 0.70
-    size_z: float = 0.04
-    payload_mass: float = 0.0
-    payload_z: float = 0.5
-    k_C: float = 5.0
-    p_C: float = 0.5
-    p_B: float = 0.2
-    stroke_min: float = -0.12
-    stroke_max: float = 0.12
-    reach_margin: float = 0.02
-    g: float = 9.81
+    a: float = field(default=0.38, metadata={"unit": "m", "doc": "ball joint B1 at (-a, 0, 0), eq. 6-5"})
+    b: float = field(default=0.35, metadata={"unit": "m", "doc": "B2, B3 at (-e, -b, 0), (e, -b, 0), eq. 6-5"})
+    e: float = field(default=0.318, metadata={"unit": "m", "doc": "x offset of B2, B3, eq. 6-5"})
+    d: float = field(default=0.318, metadata={"unit": "m", "doc": "B4, B5 at (d, m, -h), (-d, m, -h), eq. 6-5"})
+    c: float = field(default=0.30, metadata={"unit": "m", "doc": "rod length B_iC_i"})
+    h: float = field(default=0.02, metadata={"unit": "m", "doc": "depth of B4..B6 below the centre plane"})
+    m: float = field(default=0.129, metadata={"unit": "m", "doc": "y offset of B4, B5, eq. 6-5"})
+    n: float = field(default=0.241, metadata={"unit": "m", "doc": "B6 at (0, -n, -h), eq. 6-5"})
+    M: float = field(default=240.0, metadata={"unit": "kg", "doc": "platform mass"})
+    size_x: float = field(default=0.76, metadata={"unit": "m", "doc": "platform length (cuboid inertia)"})
+    size_y: float = field(default=0.70, metadata={"unit": "m", "doc": "platform width (cuboid inertia)"})
+    size_z: float = field(default=0.04, metadata={"unit": "m", "doc": "platform height (cuboid inertia)"})
+    payload_mass: float = field(default=0.0, metadata={"unit": "kg", "doc": "point payload (seated person)"})
+    payload_z: float = field(default=0.5, metadata={"unit": "m", "doc": "payload height above C in the platform frame"})
+    k_C: float = field(default=5.0, metadata={"unit": "N.m/rad", "doc": "hinge stiffness at the universal joints C_i, eq. 6-54"})
+    p_C: float = field(default=0.5, metadata={"unit": "N.m.s/rad", "doc": "hinge damping at C_i, eq. 6-54"})
+    p_B: float = field(default=0.2, metadata={"unit": "N.m.s/rad", "doc": "ball-joint damping on the relative rate, eq. 6-54"})
+    stroke_min: float = field(default=-0.12, metadata={"unit": "m", "doc": "lower stroke limit of every actuator"})
+    stroke_max: float = field(default=0.12, metadata={"unit": "m", "doc": "upper stroke limit of every actuator"})
+    reach_margin: float = field(default=0.02, metadata={"unit": "1", "doc": "minimum (rod . slider axis)/c inside the workspace"})
+    g: float = field(default=9.81, metadata={"unit": "m/s2", "doc": "gravity"})
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -3,18 +3,27 @@ dynamics -> outputs. The FMU wrapper ``fmus/platform/platform_fmu.py`` only maps
 """
 from __future__ import annotations
 
+import functools
 import logging
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .control import CONTROLS, MODELS, ControlParams, prefiltered_loop
+from .codegen import FastFunction, compile_library
 from .cueing import Washout, WashoutParams
+from .dynamics import functions
 from .integrators import IntegratorConfig, StepIntegrator
-from .kinematics import OutsideWorkspaceError, clamp_to_workspace, ik_full, near_singular, workspace_check
+from .kinematics import OutsideWorkspaceError, clamp_to_workspace
 from .params import PlatformParams
 
 log = logging.getLogger(__name__)
+
+
+@functools.lru_cache(maxsize=None)
+def _ik_library():
+    return compile_library("platform_ik", [functions()["ik"]])
 
 CUEING = ("washout", "pose")
 ON_WORKSPACE = ("clamp", "error")
@@ -52,7 +61,7 @@ class StepInputs:
     force_cmd: np.ndarray = field(default_factory=lambda: np.zeros(6))  # N (control = direct)
 
     def is_zero(self) -> bool:
-        return not (np.any(self.f) or np.any(self.omega) or self.jolt or np.any(self.ref) or np.any(self.force_cmd))
+        return not (self.jolt or self.f.any() or self.omega.any() or self.ref.any() or self.force_cmd.any())
 
 
 @dataclass
@@ -79,6 +88,8 @@ class PlatformSim:
         self.c = cfg.control.vector()
         self.integ = StepIntegrator(prefiltered_loop(cfg.control_mode, cfg.model), cfg.integrator)
         self.washout = Washout(cfg.washout)
+        self._ik = FastFunction(functions()["ik"], _ik_library())
+        self.raw_ref = np.zeros(6)
         self.x = np.zeros(24)
         self.u = np.zeros(12)
         self.clamped = False
@@ -88,12 +99,13 @@ class PlatformSim:
     # -- state --------------------------------------------------------------------------
     def get_state(self):
         return {"x": self.x.copy(), "u": self.u.copy(), "washout": self.washout.state(), "clamped": self.clamped,
-                "out": self.out}
+                "raw_ref": self.raw_ref.copy(), "out": self.out}
 
     def set_state(self, s) -> None:
         self.x, self.u = s["x"].copy(), s["u"].copy()
         self.washout.set_state(s["washout"])
         self.clamped = s["clamped"]
+        self.raw_ref = s["raw_ref"].copy()
         self.out = s["out"]
 
     def at_rest(self) -> bool:
@@ -111,21 +123,30 @@ class PlatformSim:
             ref = self.washout.step(inp.f, inp.omega, inp.jolt, h)
         else:
             ref = np.asarray(inp.ref, float)
+        self.raw_ref = ref
         ref, self.clamped = self._limit(ref, t)
         self.u = np.concatenate([ref, inp.force_cmd])
         x = self.integ.step(self.x, self.u, self.p, self.c, h)
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             raise ArithmeticError(f"platform state became non-finite in the step ending at t = {t + h:g} s "
                                   f"(integrator {cfg.integrator.method})")
         self.x = x
         self.out = self._outputs()
-        if not np.all(np.isfinite(self.out.stroke)):
+        if not np.isfinite(self.out.stroke).all():
             raise OutsideWorkspaceError(
                 f"the platform left the rods' reach at t = {t + h:g} s: pose {np.array2string(x[:6], precision=4)}")
         return self.out
 
+    def _inside(self, pose) -> tuple:
+        """(inside, strokes, reach) of one pose with the compiled IK."""
+        p = self.cfg.params
+        dl, reach = self._ik(pose, self.p)
+        # NaN (out of reach) compares False
+        ok = bool(reach.min() >= p.reach_margin and dl.min() >= p.stroke_min and dl.max() <= p.stroke_max)
+        return ok, dl, reach
+
     def _limit(self, ref: np.ndarray, t: float):
-        if workspace_check(ref, self.cfg.params).inside[0]:
+        if self._inside(ref)[0]:
             return ref, False
         if self.cfg.on_workspace == "error":
             raise OutsideWorkspaceError(
@@ -135,12 +156,16 @@ class PlatformSim:
 
     def _outputs(self) -> StepOutputs:
         q, dq, r = self.x[:6], self.x[6:12], self.x[12:18]
-        poses = np.vstack([q, self.u[:6]])
-        res = ik_full(poses, self.cfg.params)
+        _, dl, reach = self._inside(q)
+        _, _, reach_ref = self._inside(self.u[:6])
         _, F = self.integ.rhs(self.x, self.u, self.p, self.c)
-        sat = bool(np.any(np.abs(F) > self.cfg.control.F_max))
-        sing = bool(near_singular(poses, self.cfg.params, self.cfg.cos_beta_min, ik=res).any())
-        return StepOutputs(pose=q.copy(), vel=dq.copy(), stroke=res.strokes[0].copy(),
-                           force=np.clip(F, -self.cfg.control.F_max, self.cfg.control.F_max),
-                           track_err=float(np.linalg.norm(q[:3] - r[:3])), saturated=sat, near_singular=sing,
+        Fmax = self.cfg.control.F_max
+        sat = bool(np.abs(F).max() > Fmax)
+        # same criteria as kinematics.near_singular, on the pose, the clamped and the raw reference
+        rod_bad = not (min(reach.min(), reach_ref.min()) >= 2.0 * self.cfg.params.reach_margin)
+        cos_b = min(abs(math.cos(q[4])), abs(math.cos(self.u[4])), abs(math.cos(self.raw_ref[4])))
+        sing = rod_bad or cos_b < self.cfg.cos_beta_min
+        return StepOutputs(pose=q.copy(), vel=dq.copy(), stroke=dl,
+                           force=np.minimum(np.maximum(F, -Fmax), Fmax),
+                           track_err=math.dist(q[:3], r[:3]), saturated=sat, near_singular=sing,
                            outside_workspace=self.clamped, at_rest=self.at_rest())
