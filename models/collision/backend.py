@@ -1,0 +1,376 @@
+"""The one interface of the collision backends: monitored pairs in, per-pair results out.
+
+Every backend (``fcl``, ``basis_point``, ``honeycomb``) subclasses :class:`CollisionBackend`
+and is driven through ``query(poses, dt) -> QueryResult``. The base class owns what is common:
+
+* the poses and world transforms of all bodies, updated only for dynamic bodies that moved;
+* the skip rules: a pair none of whose bodies moved reuses its cached result (static-static
+  pairs are evaluated once, at the first query, and never again); a step where no pose
+  changed returns the previous result at once (``at_rest``);
+* world AABBs and bounding spheres of the bodies (exact, from the transformed vertices);
+* the closing speed of a pair from the pose change over the step.
+
+Monitored pairs spec
+--------------------
+``"missile vs any tank; body_a vs body_b; avatar_1 vs scene"``: pairs separated by ``;`` (or
+new lines), each ``A vs B`` where ``A`` is a body name and ``B`` is a body name, ``any G``
+(every body whose group is ``G`` or whose name matches the glob ``G``, e.g. ``tank_1*``) or
+``scene`` (every other body). An empty spec monitors each dynamic body against the scene.
+"""
+from __future__ import annotations
+
+import fnmatch
+import logging
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, replace
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .geometry import pose_matrix
+from .scene import Scene, SceneError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["BackendConfig", "PairSpec", "PairResult", "QueryResult", "CollisionBackend",
+           "parse_pairs", "PairSpecError"]
+
+
+class PairSpecError(SceneError):
+    """The monitored-pairs spec names an unknown body or is malformed."""
+
+
+@dataclass
+class BackendConfig:
+    """Options of the collision backends (each backend reads the ones it needs).
+
+    Attributes
+    ----------
+    max_distance : float
+        m; distances beyond it are not computed exactly (reported as ``max_distance``) and
+        bodies farther apart never reach the narrow phase. ``inf``: always exact.
+    ccd : bool
+        fcl: time of impact (conservative advancement) for bodies that moved in the step.
+    max_contacts : int
+        fcl: contacts requested per narrow-phase collision (deepest one is reported).
+    st : float
+        basis_point: sampling threshold ST of eq. 5-8..5-11 (0.05 in the thesis).
+    dn_rule : {'strict', 'floor'}
+        basis_point: DN = largest integer strictly below 1/ST (text of §5.4.1) or floor(1/ST)
+        (eq. 5-11 with equality, as table 5-5 lists DN = 20 for ST = 0.05).
+    cells_n, cells_m : int
+        honeycomb: n x m cells over the projection overlap (§4.4).
+    shrink_ratio, shrink_step : float
+        honeycomb: equal-ratio shrink start (5 %) and decrement (0.1 %), eq. 4-7.
+    rays_per_cell : int
+        honeycomb: k x k depth rays per cell (the ray-cast depth buffer of §4.2.2).
+    """
+
+    max_distance: float = math.inf
+    ccd: bool = True
+    max_contacts: int = 32
+    st: float = 0.05
+    dn_rule: str = "strict"
+    cells_n: int = 8
+    cells_m: int = 8
+    shrink_ratio: float = 0.05
+    shrink_step: float = 0.001
+    rays_per_cell: int = 2
+
+    def __post_init__(self) -> None:
+        if not 0 < self.st < 1:
+            raise ValueError(f"st = {self.st} must be in (0, 1)")
+        if self.dn_rule not in ("strict", "floor"):
+            raise ValueError(f"dn_rule = {self.dn_rule!r} must be 'strict' or 'floor'")
+        if self.cells_n < 1 or self.cells_m < 1:
+            raise ValueError(f"cells_n = {self.cells_n}, cells_m = {self.cells_m} must be >= 1")
+        if not self.max_distance > 0:
+            raise ValueError(f"max_distance = {self.max_distance} must be > 0")
+        if not 0 < self.shrink_step <= self.shrink_ratio < 1:
+            raise ValueError("need 0 < shrink_step <= shrink_ratio < 1")
+        if self.rays_per_cell < 1:
+            raise ValueError(f"rays_per_cell = {self.rays_per_cell} must be >= 1")
+
+
+@dataclass
+class PairSpec:
+    """A monitored pair: body ``a`` against the bodies ``members``."""
+
+    label: str
+    a: int
+    members: np.ndarray
+
+
+@dataclass
+class PairResult:
+    """Result of one monitored pair in one step.
+
+    Attributes
+    ----------
+    in_contact : bool
+    distance : float
+        m; 0 in contact (fcl), -1 when the pair has no member.
+    depth : float
+        m; penetration depth (>= 0).
+    point : ndarray, shape (3,)
+        Contact point (in contact) or the closest point on ``a`` (world frame, m).
+    normal : ndarray, shape (3,)
+        Unit normal from ``a`` towards the partner.
+    toi : float
+        s from the start of the step to the first contact, -1 when none in the step.
+    closing_speed : float
+        m/s, relative speed of ``a`` towards the partner along ``normal``.
+    partner : int
+        Body index of the nearest / deepest member, -1 when none.
+    """
+
+    in_contact: bool = False
+    distance: float = -1.0
+    depth: float = 0.0
+    point: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    normal: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    toi: float = -1.0
+    closing_speed: float = 0.0
+    partner: int = -1
+
+
+@dataclass
+class QueryResult:
+    """All monitored pairs of one step plus work counters."""
+
+    pairs: List[PairResult]
+    n_bodies: int
+    n_candidates: int
+    n_narrow: int
+    at_rest: bool
+
+
+def parse_pairs(spec: str, scene: Scene) -> List[PairSpec]:
+    """Parse a monitored-pairs spec (module docstring) against ``scene``."""
+    names = {b.name: i for i, b in enumerate(scene.bodies)}
+    groups: Dict[str, List[int]] = {}
+    for i, b in enumerate(scene.bodies):
+        groups.setdefault(b.group, []).append(i)
+    text = (spec or "").replace("\n", ";")
+    parts = [p.strip() for p in text.split(";") if p.strip()]
+    if not parts:
+        parts = [f"{scene.bodies[i].name} vs scene" for i in scene.dynamic]
+    known = ", ".join(list(names)[:8]) + (" ..." if len(names) > 8 else "")
+    pairs = []
+    for part in parts:
+        left, sep, right = part.partition(" vs ")
+        if not sep:
+            raise PairSpecError(f"pairs spec {part!r}: expected 'A vs B'")
+        left, right = left.strip(), right.strip()
+        if left not in names:
+            raise PairSpecError(f"pairs spec {part!r}: no body named {left!r} (bodies: {known})")
+        a = names[left]
+        if right == "scene":
+            members = [i for i in range(len(scene.bodies)) if i != a]
+        elif right.startswith("any "):
+            pattern = right[4:].strip()
+            members = groups.get(pattern) or [i for n, i in names.items() if fnmatch.fnmatchcase(n, pattern)]
+            members = [i for i in members if i != a]
+            if not members:
+                raise PairSpecError(f"pairs spec {part!r}: no body matches group or name {pattern!r}")
+        elif right in names:
+            if names[right] == a:
+                raise PairSpecError(f"pairs spec {part!r}: a body cannot be paired with itself")
+            members = [names[right]]
+        else:
+            raise PairSpecError(f"pairs spec {part!r}: no body named {right!r} (bodies: {known})")
+        pairs.append(PairSpec(part, a, np.asarray(sorted(members), dtype=int)))
+    return pairs
+
+
+class CollisionBackend(ABC):
+    """Common state and skip logic of every backend; subclasses implement ``_evaluate``.
+
+    Parameters
+    ----------
+    scene : Scene
+    pairs : str or list of PairSpec
+        Monitored pairs (spec string or parsed).
+    config : BackendConfig, optional
+    """
+
+    name = "abstract"
+
+    def __init__(self, scene: Scene, pairs, config: Optional[BackendConfig] = None) -> None:
+        self.scene = scene
+        self.config = config or BackendConfig()
+        self.pairs: List[PairSpec] = parse_pairs(pairs, scene) if isinstance(pairs, (str, type(None))) else list(pairs)
+        self.n = len(scene.bodies)
+        self.dyn = np.asarray(scene.dynamic, dtype=int)
+        self.is_dynamic = np.zeros(self.n, bool)
+        self.is_dynamic[self.dyn] = True
+        self.poses = scene.poses()
+        self.T = scene.transforms(self.poses)
+        self.prev_T = self.T.copy()
+        # per mesh: local vertices, bounding-sphere centre and radius (eq. 5-1)
+        self._local: Dict[str, Tuple[np.ndarray, np.ndarray, float]] = {}
+        for key, mesh in scene.meshes.items():
+            v = np.asarray(mesh.vertices, float)
+            c = (v.min(0) + v.max(0)) / 2
+            self._local[key] = (v, c, float(np.linalg.norm(v - c, axis=1).max()))
+        self.aabb = np.zeros((self.n, 2, 3))
+        self.sphere_c = np.zeros((self.n, 3))
+        self.sphere_r = np.array([self._local[b.mesh_key][2] for b in scene.bodies])
+        self._aabb_cache: Dict[tuple, np.ndarray] = {}
+        self._stale = np.zeros(self.n, bool)
+        self._moved_set = np.zeros(self.n, bool)
+        self._update_bounds(np.arange(self.n))
+        # dynamic bodies each pair depends on (for the skip rule)
+        self._pair_dyn = [np.flatnonzero(self.is_dynamic[np.append(p.members, p.a)]) for p in self.pairs]
+        self._pair_dyn = [set(np.append(p.members, p.a)[idx].tolist()) for p, idx in zip(self.pairs, self._pair_dyn)]
+        self._dyn_list = self.dyn.tolist()
+        self._dyn_poses = {i: self.poses[i].tolist() for i in self._dyn_list}
+        self._cache: List[Optional[PairResult]] = [None] * len(self.pairs)
+        self._last: Optional[QueryResult] = None
+        self._setup()
+
+    # -- to implement -------------------------------------------------------------------
+    def _setup(self) -> None:
+        """Build backend structures (called once at the end of ``__init__``)."""
+
+    def _moved(self, idx: np.ndarray) -> None:
+        """Bodies ``idx`` got new transforms in ``self.T`` (update backend structures)."""
+
+    @abstractmethod
+    def _evaluate(self, pair: PairSpec, dt: float) -> Tuple[PairResult, int, int]:
+        """Evaluate one pair at the current transforms (``self.prev_T`` holds the start of the
+        step). Returns the result, the number of candidate pairs and of narrow-phase tests."""
+
+    # -- bounds ---------------------------------------------------------------------------
+    def ensure_bounds(self, idx) -> None:
+        """Bring ``aabb`` / ``sphere_c`` of bodies ``idx`` up to date (they are lazy)."""
+        idx = np.atleast_1d(idx)
+        stale = idx[self._stale[idx]]
+        if len(stale):
+            self._update_bounds(stale)
+
+    def _update_bounds(self, idx: np.ndarray) -> None:
+        self._stale[idx] = False
+        for i in idx:
+            key = self.scene.bodies[i].mesh_key
+            v, c, _ = self._local[key]
+            T = self.T[i]
+            rkey = None if self.is_dynamic[i] else (key, T[:3, :3].round(12).tobytes())
+            box = self._aabb_cache.get(rkey) if rkey else None
+            if box is None:
+                pts = v @ T[:3, :3].T
+                box = np.stack([pts.min(0), pts.max(0)])
+                if rkey:
+                    self._aabb_cache[rkey] = box
+            self.aabb[i] = box + T[:3, 3]
+            self.sphere_c[i] = T[:3, :3] @ c + T[:3, 3]
+
+    def aabb_gap(self, a: int, members: np.ndarray) -> np.ndarray:
+        """Euclidean gap between the AABB of ``a`` and those of ``members`` (0 if overlapping)."""
+        self.ensure_bounds(np.append(members, a))
+        lo = np.maximum(self.aabb[members, 0] - self.aabb[a, 1], 0)
+        hi = np.maximum(self.aabb[a, 0] - self.aabb[members, 1], 0)
+        return np.linalg.norm(np.maximum(lo, hi), axis=1)
+
+    # -- the query ----------------------------------------------------------------------
+    def query(self, poses: Sequence[Sequence[float]], dt: float = 0.033) -> QueryResult:
+        """Advance to new poses of the dynamic bodies and evaluate every monitored pair.
+
+        Parameters
+        ----------
+        poses : array_like, shape (n_dynamic, 6)
+            ``(x, y, z, roll, pitch, yaw)`` of each dynamic body, scene order (m, rad).
+        dt : float
+            Step length (s): time of impact and closing speed refer to it.
+        """
+        poses = np.asarray(poses, dtype=float).reshape(len(self.dyn), 6)
+        if not math.isfinite(float(poses.sum())):
+            i, k = np.argwhere(~np.isfinite(poses))[0]
+            raise ValueError(f"pose of dynamic body {self.scene.bodies[self.dyn[i]].name!r} "
+                             f"({'x y z roll pitch yaw'.split()[k]}) = {poses[i, k]} is not finite")
+        rows = poses.tolist()
+        moved = [i for i, row in zip(self._dyn_list, rows) if row != self._dyn_poses[i]]
+        if self._last is not None and not moved:
+            # nothing moved: the last contacts hold, nothing was tested, nothing is closing
+            self.prev_T[self.dyn] = self.T[self.dyn]
+            rest = [replace(r, toi=-1.0, closing_speed=0.0) for r in self._last.pairs]
+            self._last = QueryResult(rest, self.n, 0, 0, True)
+            return self._last
+        for i, row in zip(self._dyn_list, rows):
+            self.prev_T[i] = self.T[i]  # static rows never change
+            if row != self._dyn_poses[i]:
+                self._dyn_poses[i] = row
+                self.poses[i] = row
+                self.T[i] = pose_matrix(row)
+        if moved:
+            moved_arr = np.asarray(moved, dtype=int)
+            self._stale[moved_arr] = True
+            self._moved(moved_arr)
+        moved_set = set(moved)
+        out, n_cand, n_narrow = [], 0, 0
+        for k, pair in enumerate(self.pairs):
+            cached = self._cache[k]
+            if cached is not None and moved_set.isdisjoint(self._pair_dyn[k]):
+                out.append(replace(cached, toi=-1.0, closing_speed=0.0))
+                continue
+            if len(pair.members) == 0:
+                res, c, m = PairResult(), 0, 0
+            else:
+                res, c, m = self._evaluate(pair, dt)
+            res.closing_speed = self._closing_speed(pair.a, res, dt)
+            self._cache[k] = res
+            out.append(res)
+            n_cand += c
+            n_narrow += m
+        self._last = QueryResult(out, self.n, n_cand, n_narrow, False)
+        return self._last
+
+    def _closing_speed(self, a: int, res: PairResult, dt: float) -> float:
+        if res.partner < 0 or dt <= 0:
+            return 0.0
+        b = res.partner
+        if not (self.is_dynamic[a] or self.is_dynamic[b]):
+            return 0.0
+        rel = (self.T[a, :3, 3] - self.prev_T[a, :3, 3]) - (self.T[b, :3, 3] - self.prev_T[b, :3, 3])
+        n = res.normal
+        return float(rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]) / dt
+
+    # -- state (FMI get/set FMU state) ----------------------------------------------------
+    def get_state(self) -> dict:
+        """Everything that changes from step to step (poses, caches, last result)."""
+        import copy
+
+        return copy.deepcopy({"poses": self.poses, "T": self.T, "prev_T": self.prev_T,
+                              "aabb": self.aabb, "sphere_c": self.sphere_c,
+                              "cache": self._cache, "last": self._last})
+
+    def set_state(self, state: dict) -> None:
+        import copy
+
+        state = copy.deepcopy(state)
+        self.poses, self.T, self.prev_T = state["poses"], state["T"], state["prev_T"]
+        self.aabb, self.sphere_c = state["aabb"], state["sphere_c"]
+        self._stale[self.dyn] = True
+        self._cache, self._last = state["cache"], state["last"]
+        self._dyn_poses = {i: self.poses[i].tolist() for i in self._dyn_list}
+        self._moved(self.dyn)
+
+
+def aggregate(results: List[Tuple[int, PairResult]], lower_bound: float) -> PairResult:
+    """Combine per-member results: deepest contact if any, else the nearest member.
+
+    ``lower_bound`` is the distance bound of the members that never reached the narrow phase.
+    """
+    if not results:
+        return PairResult(distance=float(lower_bound) if math.isfinite(lower_bound) else -1.0)
+    contacts = [(b, r) for b, r in results if r.in_contact]
+    if contacts:
+        b, best = max(contacts, key=lambda br: br[1].depth)
+    else:
+        b, best = min(results, key=lambda br: br[1].distance)
+        if best.distance > lower_bound:  # an unexamined member may be nearer: report the bound
+            best = replace(best, distance=float(lower_bound))
+    toi = [r.toi for _, r in results if r.toi >= 0]
+    best = replace(best, partner=b, toi=min(toi) if toi else -1.0)
+    return best
