@@ -113,8 +113,8 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     """Owning avatar (group index) of every entity, or the current one where nobody claims it.
 
     ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
-    the smallest Mahalanobis distance. ``'euclidean'``: the nearest avatar (eq. 3-3) within a
-    sphere of the same long semi-axis ``a`` (same reach, no direction). ``'none'``: no change.
+    the smallest Mahalanobis distance. ``'euclidean'``: the nearest avatar (eq. 3-3) among those
+    within a sphere of radius ``a`` (the same reach, no direction). ``'none'``: no change.
     Ties go to the lower index. Candidate pairs come from a k-d tree, so the cost is linear.
     """
     if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
@@ -127,9 +127,10 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     gi, ei = sd["i"].astype(np.int64), sd["j"].astype(np.int64)
     if rule == "mahalanobis":
         d = mahalanobis_ellipsoid(entity_pos[ei], centre[gi], u[gi], a[gi], b[gi])
-    else:
-        d = sd["v"] / a[gi]
-    keep = d <= 1.0
+        keep = d <= 1.0
+    else:  # nearest distance (eq. 3-3) among the avatars within reach a
+        d = sd["v"]
+        keep = d <= a[gi]
     gi, ei, d = gi[keep], ei[keep], d[keep]
     out = current.copy()
     if len(ei):

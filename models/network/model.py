@@ -129,6 +129,9 @@ class NetworkModel:
         for g in range(cfg.driven_groups, cfg.groups):
             self._autopilot(0.0, g)
         self._publish_initial()
+        # frame 1 comes from the scene file every node has loaded (no packet needed)
+        sl = np.concatenate(self.slaves) if self.slaves else np.zeros(0, np.int64)
+        self._frames = {"arr": np.zeros(len(sl)), "slave": sl.astype(np.int64), "frame": np.ones(len(sl), np.int64)}
         self._display()
 
     def _publish_initial(self) -> None:
