@@ -146,12 +146,13 @@ class Execution:
             "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
             "skipped_units": ",".join(system.skipped),
             "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})
-        self._log_index: Dict[str, List[int]] = {}
+        self._log_index: Dict[str, Optional[List[int]]] = {}
         for name, slot in master.slots.items():
             logged = system.logged[name]
             if logged:
                 obs.add_channel(name, [slot.inst.var(n) for n in logged])
-                self._log_index[name] = [slot.index(n) for n in logged]
+                idx = [slot.index(n) for n in logged]
+                self._log_index[name] = None if idx == list(range(len(slot.read_names))) else idx
             if sc.log.parameters:
                 pnames = [n for n, v in slot.inst.variables.items() if v.causality in ("parameter", "structuralParameter")]
                 if pnames:
@@ -163,7 +164,7 @@ class Execution:
         if obs is not None:
             for name, idx in self._log_index.items():
                 cur = master.slots[name].cur
-                obs.write(name, t_ns, [cur[i] for i in idx], k)
+                obs.write(name, t_ns, cur if idx is None else [cur[i] for i in idx], k)
             obs.step_done()
         for fn in self.observers:
             fn(k, t_ns)

@@ -46,6 +46,7 @@ class Slot:
     signals: List[Tuple[int, Callable[[float], float]]] = field(default_factory=list)
     faults: List[Tuple[Fault, Optional[int]]] = field(default_factory=list)
     stepped: bool = False
+    has_inputs: bool = False  # anything to gather before a step
 
     def index(self, name: str) -> int:
         return self.read_names.index(name)
@@ -100,8 +101,12 @@ class Master:
             if slot is not None:
                 idx = slot.real_inputs.index(fs.var) if fs.var in slot.real_inputs else None
                 slot.faults.append((Fault(fs), idx))
+        for slot in slots.values():
+            slot.has_inputs = bool(slot.float_feeds or slot.other_feeds or slot.signals or slot.faults)
 
     def _gather(self, slot: Slot, t_ns: int) -> None:
+        if not slot.has_inputs:
+            return
         vals = slot.in_vals
         linear = self.linear
         for i, src, j, delayed in slot.float_feeds:

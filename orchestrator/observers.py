@@ -60,13 +60,57 @@ class ChannelEncoder:
         self.infos = list(infos)
         self.all_float = all(v.family == "float" for v in self.infos)
         keys = [json.dumps(v.name) for v in self.infos]
+        # %r of a finite float is its repr, valid JSON; non-finite values are stopped before logging
+        self.float_template = "{" + ",".join(f"{k}:%r" for k in keys) + "}"
         self.template = "{" + ",".join(f"{k}:%s" for k in keys) + "}"
 
     def encode(self, values: Sequence[Any]) -> bytes:
         if self.all_float:
-            # repr of a finite float is valid JSON; non-finite values are stopped before logging
-            return (self.template % tuple(map(repr, values))).encode()
+            return (self.float_template % tuple(values)).encode()
         return (self.template % tuple(_json_value(v) for v in values)).encode()
+
+
+def _fast_writer_class():
+    """An ``mcap.writer.Writer`` whose ``add_message`` packs the record header with one
+    ``struct`` call instead of five, keeping the chunk index and statistics exactly as the
+    library does (``tests/orchestrator/test_mcap_writer.py`` checks the bytes are identical).
+    Falls back to the library's method when its internals are not the expected ones."""
+    import struct
+
+    from mcap.records import MessageIndex
+    from mcap.writer import Writer
+
+    header = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log, publish time
+
+    class FastWriter(Writer):
+        def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
+                        sequence: int = 0) -> None:
+            try:
+                stats = self._Writer__statistics
+                cb = self._Writer__chunk_builder
+                buf = cb.record_writer._buffer
+            except AttributeError:
+                return super().add_message(channel_id, log_time, data, publish_time, sequence)
+            if stats.message_count == 0 or log_time < stats.message_start_time:
+                stats.message_start_time = log_time
+            if log_time > stats.message_end_time:
+                stats.message_end_time = log_time
+            stats.channel_message_counts[channel_id] += 1
+            stats.message_count += 1
+            if cb.num_messages == 0 or log_time < cb.message_start_time:
+                cb.message_start_time = log_time
+            if log_time > cb.message_end_time:
+                cb.message_end_time = log_time
+            index = cb.message_indices.get(channel_id)
+            if not index:
+                index = cb.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+            index.records.append((log_time, buf.tell()))
+            cb.num_messages += 1
+            buf.write(header.pack(0x05, 22 + len(data), channel_id, sequence, log_time, publish_time))
+            buf.write(data)
+            self._Writer__maybe_finalize_chunk()
+
+    return FastWriter
 
 
 class McapObserver:
@@ -82,12 +126,10 @@ class McapObserver:
     """
 
     def __init__(self, path: Path | str, flush_seconds: float = 1.0) -> None:
-        from mcap.writer import Writer
-
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(self.path, "wb")
-        self.writer = Writer(self._fh)
+        self.writer = _fast_writer_class()(self._fh)
         self.writer.start(profile="", library="immersim")
         self.channels: Dict[str, int] = {}
         self.encoders: Dict[str, ChannelEncoder] = {}

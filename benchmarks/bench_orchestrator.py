@@ -1,0 +1,85 @@
+"""Per-step time of our orchestrator with full MCAP logging vs FMPy's own simulate_fmu loop.
+
+Same FMU (the oscillator test unit: a cheap model, so master overhead dominates), same
+number of 33 ms steps, measured side by side and interleaved in one run, for 1 and 3 units.
+For 3 units FMPy runs three separate simulate_fmu loops (it has no multi-FMU master); ours
+runs one scenario with the three instances coupled in a ring, logging every variable.
+
+    python benchmarks/bench_orchestrator.py [--steps N] [--repeats R]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ROOT, interleaved, median, stamp  # noqa: E402
+
+from immersim.orchestrator.build import build_unit  # noqa: E402
+from immersim.orchestrator.execution import run_scenario  # noqa: E402
+
+
+def scenario(tmp: Path, fmu: Path, n_units: int, steps: int) -> Path:
+    lines = [f"[simulation]\nstop = {steps * 0.033!r}\nstep = 0.033\nalgorithm = \"gauss-seidel\"\n"]
+    for i in range(n_units):
+        lines.append(f'[[units]]\nname = "m{i}"\nfmu = "{fmu}"\nparameters = {{ x0 = {1.0 if i == 0 else 0.0} }}\n')
+    if n_units > 1:
+        for i in range(n_units):
+            lines.append(f'[[connections]]\nfrom = "m{i}.x"\nto = "m{(i + 1) % n_units}.x_other"\n')
+    p = tmp / f"bench_{n_units}.toml"
+    p.write_text("\n".join(lines))
+    return p
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--steps", type=int, default=20000)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    import fmpy
+
+    with tempfile.TemporaryDirectory() as tmpd:
+        tmp = Path(tmpd)
+        fmu = build_unit(ROOT / "tests" / "units" / "oscillator", tmp / "fmus")
+        n = args.steps
+        rows = []
+        for n_units in (1, 3):
+            scn = scenario(tmp, fmu, n_units, n)
+
+            def ours(scn=scn):
+                t = time.perf_counter()
+                res = run_scenario(scn, tmp / "out.mcap")
+                assert res.steps_done == n
+                return time.perf_counter() - t
+
+            def theirs(n_units=n_units):
+                t = time.perf_counter()
+                for i in range(n_units):
+                    r = fmpy.simulate_fmu(str(fmu), stop_time=n * 0.033, step_size=0.033, output_interval=0.033,
+                                          start_values={"x0": 1.0 if i == 0 else 0.0})
+                    assert len(r) == n + 1
+                return time.perf_counter() - t
+
+            times = interleaved({"immersim": ours, "fmpy": theirs}, args.repeats)
+            a, b = median(times["immersim"]) / n * 1e6, median(times["fmpy"]) / n * 1e6
+            rows.append((n_units, a, b, a / b, min(times["immersim"]) / n * 1e6, min(times["fmpy"]) / n * 1e6))
+            print(f"{n_units} unit(s): immersim {a:.1f} us/step, fmpy {b:.1f} us/step, ratio {a / b:.2f}", flush=True)
+    out = ROOT / "results" / "orchestrator"
+    out.mkdir(parents=True, exist_ok=True)
+    cmd = f"python benchmarks/bench_orchestrator.py --steps {args.steps} --repeats {args.repeats}"
+    text = ["# Orchestrator overhead: immersim (full MCAP logging) vs FMPy simulate_fmu", "", stamp(cmd), "",
+            f"{args.steps} steps of 33 ms per run, {args.repeats} interleaved repeats; per-step time = wall time of "
+            "the whole run (load, initialize, step, log, close) / steps. Target: ratio <= 1.0.", "",
+            "| units | immersim median [us/step] | FMPy median [us/step] | ratio (median) | immersim best | FMPy best |",
+            "|---|---|---|---|---|---|"]
+    for n_units, a, b, r, amin, bmin in rows:
+        text.append(f"| {n_units} | {a:.1f} | {b:.1f} | {r:.2f} | {amin:.1f} | {bmin:.1f} |")
+    (out / "README.md").write_text("\n".join(text) + "\n")
+    print((out / "README.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
