@@ -159,7 +159,10 @@ def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) 
     path : path-like
         The TOML file.
     overrides : dict, optional
-        ``{"unit.param": value, "simulation.stop": value}`` applied on top (used by sweeps).
+        Applied on top of the file (used by sweeps and ``immersim run --set``):
+        ``"unit.param": value`` sets a parameter, ``"simulation.stop": value`` (or step,
+        algorithm, extrapolation, start, tolerance) a simulation setting, and
+        ``"unit:fmu": path`` swaps the unit's FMU for another one.
     """
     path = Path(path)
     if not path.exists():
@@ -229,6 +232,12 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     names = {u.name for u in units}
     for k, v in (overrides or {}).items():
         if k.startswith("simulation."):
+            continue
+        if k.endswith(":fmu"):  # swap a unit's FMU (ablation): "unit:fmu" = path or built-in name
+            unit = k[:-4]
+            if unit not in names:
+                raise ScenarioError(f"override {k!r}: no unit {unit!r} in {f}")
+            next(u for u in units if u.name == unit).fmu = str(v)
             continue
         unit, var = split_ref(k, f"override {k!r}")
         if unit not in names:
