@@ -100,6 +100,7 @@ class NetworkModel:
         self.per_object_max = np.zeros(self.n_obj)
         self.per_object_rms = np.zeros(self.n_obj)
         self.metrics = StepMetrics()
+        self._last_display = (0.0, 0.0, 0)
         self.totals = Totals()
         self.overlay: Optional[PastryOverlay] = None
         self.join_hops: List[int] = []
@@ -245,11 +246,13 @@ class NetworkModel:
     # -- stepping ------------------------------------------------------------------------------
     def step(self, h: float) -> StepMetrics:
         """Advance the model by ``h`` seconds; returns the step's metrics."""
-        t_end = self.t + h
         T = self.cfg.frame_s
         eps = 1e-9
+        t_end = self.t + h
+        k_end = round(t_end / T)
+        if abs(t_end - k_end * T) < eps:  # masters differ in the last ulp of t + h: snap to the frame grid
+            t_end = k_end * T
         self.metrics = StepMetrics()
-        self.world.jolt[:] = 0.0
         while True:
             t_tick = (self.k + 1) * T
             t_ev = self._heap[0][0] if self._heap else np.inf
@@ -267,6 +270,9 @@ class NetworkModel:
         self.world.advance_to(t_end)
         self.t = t_end
         m = self.metrics
+        if m.frames == 0:  # no frame in a short step: the display (and its error) is unchanged
+            m.inconsistency_max, m.inconsistency_rms, m.desync_frames = self._last_display
+        self._last_display = (m.inconsistency_max, m.inconsistency_rms, m.desync_frames)
         m.online_nodes = int(self.online.sum())
         self.totals.add(m)
         self.inputs_changed = False

@@ -1,0 +1,165 @@
+"""FMI 2.0 co-simulation wrapper of the network unit (thesis ch. 2-3).
+
+A fixed capacity of 4 players (control platform + avatar + render group each); the
+structural parameter ``players`` chooses how many are active. Driver inputs travel as
+ControllerPackets to the group's master and act when they arrive; collision responses
+(``contact[p].*``) bounce or stop avatar ``p`` at the start of the step. The model itself is
+:class:`immersim.models.network.NetworkModel`.
+"""
+from immersim.fmus.common import TableSlave, Var
+from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network.config import OWNERSHIP_RULES, TOPOLOGIES
+
+CAPACITY = 4
+N_ENTITY_OUT = 16
+
+
+def _player_vars():
+    out = []
+    for p in range(1, CAPACITY + 1):
+        a = f"avatar[{p}]"
+        out += [
+            Var(f"{a}.throttle", "input", "Real", 0.0, "1", f"player {p} throttle in [-1, 1] (ControllerPacket mAcceleration / max_accel)"),
+            Var(f"{a}.steer", "input", "Real", 0.0, "1", f"player {p} steering in [-1, 1] (ControllerPacket mTinyOrient)"),
+            Var(f"contact[{p}].active", "input", "Boolean", False, "", f"player {p}'s avatar is in contact (collision response this step)"),
+            Var(f"contact[{p}].nx", "input", "Real", 0.0, "1", f"contact normal x, pointing from the obstacle to avatar {p}"),
+            Var(f"contact[{p}].ny", "input", "Real", 0.0, "1", f"contact normal y, pointing from the obstacle to avatar {p}"),
+        ]
+    for p in range(1, CAPACITY + 1):
+        a = f"avatar[{p}]"
+        out += [
+            Var(f"{a}.x", "output", "Real", 0.0, "m", f"ground-truth x of avatar {p}"),
+            Var(f"{a}.y", "output", "Real", 0.0, "m", f"ground-truth y of avatar {p}"),
+            Var(f"{a}.z", "output", "Real", 0.0, "m", f"ground-truth z of avatar {p} (flat ground)"),
+            Var(f"{a}.yaw", "output", "Real", 0.0, "rad", f"heading of avatar {p}"),
+            Var(f"{a}.vx", "output", "Real", 0.0, "m/s", f"velocity x of avatar {p}"),
+            Var(f"{a}.vy", "output", "Real", 0.0, "m/s", f"velocity y of avatar {p}"),
+            Var(f"{a}.f_x", "output", "Real", 0.0, "m/s2", f"body-frame specific force x (forward) of avatar {p}"),
+            Var(f"{a}.f_y", "output", "Real", 0.0, "m/s2", f"body-frame specific force y (left) of avatar {p}: v * yaw rate"),
+            Var(f"{a}.f_z", "output", "Real", 0.0, "m/s2", f"body-frame specific force z of avatar {p}: +g"),
+            Var(f"{a}.w_x", "output", "Real", 0.0, "rad/s", f"body-frame angular rate x of avatar {p}"),
+            Var(f"{a}.w_y", "output", "Real", 0.0, "rad/s", f"body-frame angular rate y of avatar {p}"),
+            Var(f"{a}.w_z", "output", "Real", 0.0, "rad/s", f"body-frame angular rate z (yaw rate) of avatar {p}"),
+            Var(f"{a}.jolt", "output", "Real", 0.0, "m/s", f"|velocity change| of avatar {p} from collision responses in the step"),
+            Var(f"perceived[{p}].x", "output", "Real", 0.0, "m", f"x of avatar {p} as shown by a slave render node of player 1 (cached frame)"),
+            Var(f"perceived[{p}].y", "output", "Real", 0.0, "m", f"y of avatar {p} as shown by a slave render node of player 1 (cached frame)"),
+        ]
+    for e in range(1, N_ENTITY_OUT + 1):
+        out += [Var(f"entity[{e}].{c}", "output", "Real", 0.0, "m", f"ground-truth {c} of free entity {e}") for c in "xyz"]
+    return tuple(out)
+
+
+class network(TableSlave):
+    modelName = "network"
+    description = "hybrid-P2P distributed VR network: supernode, render groups, ownership, dead reckoning, cached rendering"
+    CAN_HANDLE_STATE = True
+    VARIABLES = (
+        Var("players", "parameter", "Integer", 2, "", f"active players 1..{CAPACITY} (one control platform, avatar and render group each)"),
+        Var("render_nodes", "parameter", "Integer", 3, "", "render nodes per group; the first online is the master F-RP (§3.5.1)"),
+        Var("entities", "parameter", "Integer", 16, "", f"free dynamic entities in the scene (outputs for the first {N_ENTITY_OUT})"),
+        Var("seed", "parameter", "Integer", 0, "", "seed of every random draw (placement, latency, loss)"),
+        Var("topology", "parameter", "String", "hybrid_p2p", "", "hybrid_p2p | client_server | full_mesh"),
+        Var("prediction_order", "parameter", "Integer", 1, "", "dead-reckoning order 0, 1, 2 (§3.6.3)"),
+        Var("ownership", "parameter", "String", "mahalanobis", "", "entity ownership rule: mahalanobis (eq. 3-11/3-12) | euclidean | none"),
+        Var("grid", "parameter", "Boolean", True, "", "10x10 scene grid with 9-cell neighbourhoods (§3.3)"),
+        Var("latency_ms", "parameter", "Real", 20.0, "ms", "base one-way latency of WAN links (between sites)"),
+        Var("jitter_ms", "parameter", "Real", 5.0, "ms", "mean of the exponential jitter added to WAN latency"),
+        Var("loss", "parameter", "Real", 0.0, "1", "WAN message loss probability"),
+        Var("bandwidth_mbps", "parameter", "Real", 100.0, "Mbit/s", "WAN uplink bandwidth per node (<= 0: unlimited)"),
+        Var("dis_threshold", "parameter", "Real", 0.0, "m", "DIS update threshold; <= 0 publishes every frame"),
+        Var("scene_size", "parameter", "Real", 100.0, "m", "side of the square scene"),
+        Var("entity_speed", "parameter", "Real", 2.0, "m/s", "initial speed of the free entities"),
+        Var("latency_scale", "input", "Real", 1.0, "1", "multiplies every link latency (inject latency bursts), >= 0"),
+    ) + _player_vars() + (
+        Var("inconsistency_max", "output", "Real", 0.0, "m", "max position error of any displayed copy in the step (eq. 3-1/3-2)"),
+        Var("inconsistency_rms", "output", "Real", 0.0, "m", "RMS position error over displayed copies at the last frame"),
+        Var("desync_frames", "output", "Integer", 0, "", "largest lag (frames) of a slave behind its master in the step"),
+        Var("messages", "output", "Integer", 0, "", "messages sent in the step"),
+        Var("bytes", "output", "Integer", 0, "", "bytes sent in the step (PDU headers + payloads)"),
+        Var("handovers", "output", "Integer", 0, "", "entity ownership hand-overs in the step"),
+        Var("dropped_frames", "output", "Integer", 0, "", "slave frames dropped at the tick in the step (§3.5.2)"),
+        Var("rejected_updates", "output", "Integer", 0, "", "updates from non-owners rejected in the step"),
+        Var("online_nodes", "output", "Integer", 0, "", "nodes in the supernode's heartbeat index table"),
+        Var("at_rest", "output", "Boolean", False, "", "no input changed, nothing moves, nothing pending"),
+    )
+
+    def _param_error(self, name, msg):
+        return ValueError(f"{self.instance_name}: parameter {name} = {self.values[name]!r} {msg} (t = {self._time:g} s)")
+
+    def setup_model(self):
+        v = self.values
+        if not 1 <= v["players"] <= CAPACITY:
+            raise self._param_error("players", f"must be in 1..{CAPACITY}")
+        if v["render_nodes"] < 1:
+            raise self._param_error("render_nodes", "must be >= 1")
+        if v["entities"] < 0:
+            raise self._param_error("entities", "must be >= 0")
+        if v["topology"] not in TOPOLOGIES:
+            raise self._param_error("topology", f"must be one of {', '.join(TOPOLOGIES)}")
+        if v["ownership"] not in OWNERSHIP_RULES:
+            raise self._param_error("ownership", f"must be one of {', '.join(OWNERSHIP_RULES)}")
+        if v["prediction_order"] not in (0, 1, 2):
+            raise self._param_error("prediction_order", "must be 0, 1 or 2")
+        for name in ("latency_ms", "jitter_ms", "scene_size"):
+            if v[name] < 0 or (name == "scene_size" and v[name] == 0):
+                raise self._param_error(name, "must be positive")
+        if not 0 <= v["loss"] < 1:
+            raise self._param_error("loss", "must be in [0, 1)")
+        wan = LinkClass(v["latency_ms"], v["jitter_ms"], v["loss"], v["bandwidth_mbps"])
+        cfg = NetworkConfig(
+            groups=v["players"], render_nodes=v["render_nodes"], entities=v["entities"], driven_groups=v["players"],
+            seed=v["seed"], topology=v["topology"], prediction_order=v["prediction_order"], ownership=v["ownership"],
+            grid=bool(v["grid"]), dis_threshold=v["dis_threshold"], scene_size=v["scene_size"],
+            entity_speed=v["entity_speed"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
+        self.model = NetworkModel(cfg)
+        self._write_outputs()
+
+    def step_model(self, t, h):
+        v, m = self.values, self.model
+        if v["latency_scale"] < 0:
+            raise ValueError(f"{self.instance_name}: input latency_scale = {v['latency_scale']} must be >= 0 (t = {t:g} s)")
+        m.latency_scale = v["latency_scale"]
+        m.world.jolt[:] = 0.0
+        for p in range(m.cfg.groups):
+            q = p + 1
+            m.set_input(p, v[f"avatar[{q}].throttle"], v[f"avatar[{q}].steer"], t)
+            if v[f"contact[{q}].active"]:
+                m.bounce(p, (v[f"contact[{q}].nx"], v[f"contact[{q}].ny"]))
+        m.step(h)
+        self._write_outputs()
+
+    def _write_outputs(self):
+        v, m = self.values, self.model
+        w = m.world
+        G = m.cfg.groups
+        vel, f, om = w.avel, w.specific_force(), w.angular_rate()
+        slave = 1 if m.cfg.render_nodes > 1 else 0
+        for p in range(CAPACITY):
+            a, q = f"avatar[{p + 1}]", p + 1
+            if p < G:
+                vals = (w.apos[p, 0], w.apos[p, 1], 0.0, w.yaw[p], vel[p, 0], vel[p, 1], *f[p], *om[p], w.jolt[p])
+                per = m.perceived_avatar(slave, p)
+            else:
+                vals, per = (0.0,) * 13, (0.0, 0.0)
+            for name, val in zip(("x", "y", "z", "yaw", "vx", "vy", "f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "jolt"), vals):
+                v[f"{a}.{name}"] = float(val)
+            v[f"perceived[{q}].x"], v[f"perceived[{q}].y"] = float(per[0]), float(per[1])
+        E = m.cfg.entities
+        for e in range(N_ENTITY_OUT):
+            if e < E:
+                v[f"entity[{e + 1}].x"], v[f"entity[{e + 1}].y"] = float(w.epos[e, 0]), float(w.epos[e, 1])
+                v[f"entity[{e + 1}].z"] = float(w.ez[e])
+            else:
+                v[f"entity[{e + 1}].x"] = v[f"entity[{e + 1}].y"] = v[f"entity[{e + 1}].z"] = 0.0
+        s = m.metrics
+        v["inconsistency_max"], v["inconsistency_rms"] = float(s.inconsistency_max), float(s.inconsistency_rms)
+        for name in ("desync_frames", "messages", "bytes", "handovers", "dropped_frames", "rejected_updates"):
+            v[name] = int(getattr(s, name))
+        v["online_nodes"] = int(m.online.sum())
+        v["at_rest"] = bool(m.at_rest())
+
+    def get_model_state(self):
+        return self.model.get_state()
+
+    def set_model_state(self, state):
+        self.model.set_state(state)

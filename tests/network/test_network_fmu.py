@@ -1,0 +1,232 @@
+"""The network FMU: validation, README table, golden reference, two instances, NaN, state, libcosim.
+
+Regenerate the reference with ``python tests/network/test_network_fmu.py --write-reference``.
+"""
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.validation import validate_fmu
+
+from immersim.fmus.common import markdown_table
+from immersim.orchestrator.build import build_unit, default_build_dir
+
+UNIT = Path(__file__).resolve().parents[2] / "fmus" / "network"
+H = 0.033
+PARAMS = {"players": 2, "entities": 24, "latency_ms": 30.0, "jitter_ms": 5.0, "seed": 7}
+REF_OUTPUTS = (["avatar[1].x", "avatar[1].y", "avatar[1].yaw", "avatar[1].vx", "avatar[1].f_x", "avatar[1].f_y",
+                "avatar[1].w_z", "avatar[2].x", "avatar[2].y", "perceived[2].x", "perceived[2].y",
+                "entity[1].x", "entity[1].y", "entity[16].x", "inconsistency_max", "inconsistency_rms"])
+
+
+@pytest.fixture(scope="module")
+def fmu():
+    return build_unit(UNIT, default_build_dir())
+
+
+class Runner:
+    """A minimal FMPy co-simulation loop over FMU2Slave with a capturing logger."""
+
+    def __init__(self, path, name="n", params=None):
+        self.md = read_model_description(str(path))
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.types = {v.name: v.type for v in self.md.modelVariables}
+        self.tmp = tempfile.mkdtemp(prefix="net_fmu_")
+        zipfile.ZipFile(path).extractall(self.tmp)
+        self.messages = []
+
+        def logger(env, inst, status, category, message):
+            self.messages.append(message.decode(errors="replace"))
+
+        self.cb = fmi2CallbackFunctions()
+        self._logger = fmi2CallbackLoggerTYPE(logger)
+        self.cb.logger = self._logger
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.tmp,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(callbacks=self.cb, loggingOn=True)
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        self.set(params or {})
+        self.fmu.exitInitializationMode()
+        self.k = 0
+
+    def set(self, values):
+        for name, value in values.items():
+            t, vr = self.types[name], [self.vr[name]]
+            if t == "Real":
+                self.fmu.setReal(vr, [float(value)])
+            elif t == "Integer":
+                self.fmu.setInteger(vr, [int(value)])
+            elif t == "Boolean":
+                self.fmu.setBoolean(vr, [bool(value)])
+            else:
+                self.fmu.setString(vr, [str(value)])
+
+    def get(self, names):
+        out = []
+        for n in names:
+            t, vr = self.types[n], [self.vr[n]]
+            out.append(float(self.fmu.getBoolean(vr)[0]) if t == "Boolean" else
+                       float(self.fmu.getInteger(vr)[0]) if t == "Integer" else self.fmu.getReal(vr)[0])
+        return np.array(out)
+
+    def step(self, inputs=None):
+        if inputs:
+            self.set(inputs)
+        self.fmu.doStep(currentCommunicationPoint=self.k * H, communicationStepSize=H)
+        self.k += 1
+
+    def close(self):
+        try:
+            self.fmu.terminate()
+        finally:
+            self.fmu.freeInstance()
+
+
+def drive(k):
+    """Driver inputs of the reference run: player 1 accelerates into a left turn, player 2 brakes at 1 s."""
+    return {"avatar[1].throttle": 0.8, "avatar[1].steer": 0.3 if k > 15 else 0.0,
+            "avatar[2].throttle": 0.6 if k < 30 else -0.5, "avatar[2].steer": -0.1}
+
+
+def simulate_reference(path, n_steps=60):
+    r = Runner(path, params=PARAMS)
+    rows = []
+    try:
+        for k in range(n_steps):
+            r.step(drive(k))
+            rows.append(np.concatenate([[(k + 1) * H], r.get(REF_OUTPUTS)]))
+    finally:
+        r.close()
+    return np.array(rows)
+
+
+def test_validates(fmu):
+    assert validate_fmu(str(fmu)) == []
+    md = read_model_description(str(fmu))
+    assert md.coSimulation.canGetAndSetFMUstate
+
+
+def unit_class():
+    sys.path.insert(0, str(UNIT))
+    try:
+        from network_fmu import network
+    finally:
+        sys.path.pop(0)
+    return network
+
+
+def test_readme_holds_the_generated_table():
+    assert markdown_table(unit_class().VARIABLES) in (UNIT / "README.md").read_text()
+
+
+def test_golden_reference(fmu):
+    ref = np.genfromtxt(UNIT / "reference.csv", delimiter=",", names=True)
+    got = simulate_reference(fmu, len(ref))
+    for j, name in enumerate(REF_OUTPUTS):
+        col = ref[ref.dtype.names[j + 1]]
+        np.testing.assert_allclose(got[:, j + 1], col, rtol=1e-6, atol=1e-6, err_msg=name)
+    assert np.ptp(got[:, 1]) > 1.0            # the avatar moved
+
+
+def test_two_instances_in_one_process_are_identical_and_independent(fmu):
+    a, b = Runner(fmu, "a", PARAMS), Runner(fmu, "b", PARAMS)
+    try:
+        for k in range(30):
+            a.step(drive(k))
+            b.step(drive(k))
+        assert np.array_equal(a.get(REF_OUTPUTS), b.get(REF_OUTPUTS))
+        for k in range(30, 36):                    # the ControllerPacket needs ~70 ms to reach the master
+            b.step({"avatar[1].throttle": -1.0})
+            a.step(drive(k))
+        assert not np.array_equal(a.get(["avatar[1].vx"]), b.get(["avatar[1].vx"]))
+    finally:
+        a.close()
+        b.close()
+
+
+def test_nan_input_is_an_error_naming_the_variable(fmu):
+    r = Runner(fmu, "nanny", PARAMS)
+    try:
+        r.step(drive(0))
+        with pytest.raises(FMICallException):
+            r.step({"avatar[2].steer": float("nan")})
+        assert any("avatar[2].steer" in m and "nanny" in m for m in r.messages), r.messages
+    finally:
+        r.close()
+
+
+def test_bad_parameter_is_named(fmu):
+    md = read_model_description(str(fmu))
+    messages = []
+    with pytest.raises(FMICallException):
+        r = Runner.__new__(Runner)
+        try:
+            Runner.__init__(r, fmu, "badtopo", {"topology": "ring"})
+        finally:
+            messages += r.messages
+    assert any("topology" in m and "ring" in m and "badtopo" in m for m in messages), messages
+    del md
+
+
+def test_state_round_trip_covers_queue_and_rng(fmu):
+    r = Runner(fmu, "st", {**PARAMS, "loss": 0.2})
+    try:
+        for k in range(10):
+            r.step(drive(k))
+        state = r.fmu.getFMUstate()
+        k0 = r.k
+        first = []
+        for k in range(15):
+            r.step(drive(k0 + k))
+            first.append(r.get(REF_OUTPUTS + ["messages", "bytes"]))
+        r.fmu.setFMUstate(state)
+        r.k = k0
+        for k in range(15):
+            r.step(drive(k0 + k))
+            assert np.array_equal(r.get(REF_OUTPUTS + ["messages", "bytes"]), first[k])
+        r.fmu.freeFMUstate(state)
+    finally:
+        r.close()
+
+
+def test_collision_input_bounces_and_reports_a_jolt(fmu):
+    r = Runner(fmu, "bump", PARAMS)
+    try:
+        for k in range(20):
+            r.step({"avatar[1].throttle": 1.0})
+        vx, vy = r.get(["avatar[1].vx", "avatar[1].vy"])
+        speed = np.hypot(vx, vy)
+        n = -np.array([vx, vy]) / speed                      # head-on obstacle
+        r.step({"contact[1].active": True, "contact[1].nx": n[0], "contact[1].ny": n[1]})
+        jolt, vx2, vy2 = r.get(["avatar[1].jolt", "avatar[1].vx", "avatar[1].vy"])
+        assert jolt == pytest.approx(1.5 * speed, rel=0.05)   # restitution 0.5
+        assert vx2 * vx + vy2 * vy < 0                        # moving away
+        r.step({"contact[1].active": False})
+        assert r.get(["avatar[1].jolt"])[0] == 0.0
+    finally:
+        r.close()
+
+
+def test_same_outputs_under_fmpy_and_libcosim(fmu):
+    from immersim.orchestrator.crosscheck import simulate_fmpy, simulate_libcosim
+    start = {**PARAMS, "avatar[1].throttle": 0.7, "avatar[1].steer": 0.2, "avatar[2].throttle": 0.4}
+    outs = REF_OUTPUTS
+    a = simulate_fmpy(fmu, start, 40, outs)[0]
+    b = simulate_libcosim(fmu, start, 40, outs)[0]
+    for name in outs:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+if __name__ == "__main__" and "--write-reference" in sys.argv:
+    path = build_unit(UNIT, default_build_dir())
+    data = simulate_reference(path)
+    header = ",".join(["time"] + [n.replace("[", "_").replace("]", "").replace(".", "_") for n in REF_OUTPUTS])
+    np.savetxt(UNIT / "reference.csv", data, delimiter=",", header=header, comments="", fmt="%.12g")
+    print(f"wrote {UNIT / 'reference.csv'} ({len(data)} rows)")
