@@ -106,6 +106,7 @@ class NetworkConfig:
     entity_speed: float = 2.0
     entity_drag: float = 0.02
     autopilot_change_s: float = 2.0
+    avatar_start: str = "cluster"    # 'cluster' (disc of radius 5 sqrt(G) m at the centre) or 'uniform'
     substeps: int = 4
     # membership
     heartbeat_s: float = 1.0
@@ -125,6 +126,7 @@ class NetworkConfig:
             (self.ownership in OWNERSHIP_RULES, f"ownership {self.ownership!r} not in {OWNERSHIP_RULES}"),
             (self.prediction_order in (0, 1, 2), f"prediction_order = {self.prediction_order} must be 0, 1 or 2"),
             (self.scene_size > 0, f"scene_size = {self.scene_size} must be > 0"),
+            (self.avatar_start in ("cluster", "uniform"), f"avatar_start {self.avatar_start!r} not in ('cluster', 'uniform')"),
             (self.grid_cells >= 1, f"grid_cells = {self.grid_cells} must be >= 1"),
             (self.frame_s > 0, f"frame_s = {self.frame_s} must be > 0"),
             (self.ownership_scale > 0.5, f"ownership_scale = {self.ownership_scale} must be > 0.5 (eq. 3-12)"),

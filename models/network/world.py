@@ -32,10 +32,12 @@ class World:
         G, E, S = cfg.groups, cfg.entities, cfg.scene_size
         self.cfg = cfg
         self.t = self.ta = self.te = 0.0
-        # avatars start spread on a ring around the scene centre (a common start area)
-        ring = min(5.0 * np.sqrt(G), 0.4 * S) * np.sqrt(rng.uniform(0.05, 1.0, G))
-        phi = rng.uniform(-np.pi, np.pi, G)
-        self.apos = 0.5 * S + ring[:, None] * np.c_[np.cos(phi), np.sin(phi)]
+        if cfg.avatar_start == "uniform":
+            self.apos = rng.uniform(0.05 * S, 0.95 * S, (G, 2))
+        else:  # a common start area: a disc around the scene centre
+            ring = min(5.0 * np.sqrt(G), 0.4 * S) * np.sqrt(rng.uniform(0.05, 1.0, G))
+            phi = rng.uniform(-np.pi, np.pi, G)
+            self.apos = 0.5 * S + ring[:, None] * np.c_[np.cos(phi), np.sin(phi)]
         self.yaw = rng.uniform(-np.pi, np.pi, G)
         self.speed = np.zeros(G)
         self.throttle = np.zeros(G)

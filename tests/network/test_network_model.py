@@ -34,7 +34,7 @@ def test_inconsistency_zero_without_latency_and_loss(topology, grid):
 
 def _messages(topology, groups):
     cfg = NetworkConfig(groups=groups, render_nodes=2, entities=4 * groups, topology=topology, scene_size=1000.0,
-                        seed=3)
+                        seed=3, avatar_start="uniform")
     m, out = run(cfg, 6)
     return np.mean([s.messages for s in out[1:]]), np.mean([s.bytes for s in out[1:]])
 
