@@ -1,0 +1,757 @@
+"""Ablation sweeps: run a grid of scenario variants in parallel, summarise and compare them.
+
+A sweep file (TOML) names a base scenario and the variants to run::
+
+    scenario = "../campus_drive.toml"     # relative to the sweep file
+
+    [grid]                                # cartesian product of override values
+    "simulation.algorithm" = ["jacobi", "gauss-seidel"]
+    "coll.backend" = ["fcl", "basis_point"]
+    "net:fmu" = ["network", "other/network.fmu"]   # swap a unit's FMU (path relative to the sweep file)
+
+    [[variants]]                          # explicit extra runs (overrides on the base scenario)
+    name = "baseline"
+    "simulation.step" = 0.01
+
+    [metrics]                             # one number per run, computed from its MCAP log
+    max_err = { signal = "net.inconsistency_max", reduce = "max" }  # max|min|mean|rms|final|absmax
+    late = { signal = "plat.stroke*", reduce = "absmax", after = 2.0 }  # glob; samples t >= 2 s
+    wall_s = "wall_time"                  # built-ins: wall_time, steps, status
+
+    [plot]                                # or [[plot]] for several figures
+    x = "simulation.step"
+    y = ["max_err"]
+    hue = "coll.backend"                  # optional; default: every other override that varies
+    logx = true                           # optional log axes
+
+Override keys are those of :func:`immersim.orchestrator.scenario.load_scenario`:
+``"unit.param"``, ``"simulation.<stop|step|start|algorithm|extrapolation|tolerance>"`` and
+``"unit:fmu"``. Every variant is checked against the scenario before anything runs, so a bad
+sweep file fails at once with a :class:`ScenarioError` naming the file and the key.
+
+Runs execute in worker processes (``spawn`` start method: pythonfmu FMUs embed the
+interpreter, so forking a process that has loaded FMUs is unsafe) or, given a scheduler
+address, as tasks on a Dask cluster (whose workers must see the output folder, e.g. a shared
+file system). Each run writes one MCAP file; the worker computes the metrics from it. A failed
+run does not stop the sweep: its row in ``summary.csv`` says ``failed`` and why, and
+:func:`run_sweep` raises :class:`SweepFailed` at the end (the CLI exits non-zero).
+"""
+from __future__ import annotations
+
+import csv
+import itertools
+import logging
+import math
+import os
+import re
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .errors import ImmersimError, ScenarioError
+from .scenario import tomllib
+
+log = logging.getLogger(__name__)
+
+REDUCERS: Dict[str, Callable[[np.ndarray], float]] = {
+    "max": lambda y: float(np.max(y)),
+    "min": lambda y: float(np.min(y)),
+    "mean": lambda y: float(np.mean(y)),
+    "rms": lambda y: float(np.sqrt(np.mean(np.square(y)))),
+    "absmax": lambda y: float(np.max(np.abs(y))),
+    "final": lambda y: float(y[-1]),
+}
+BUILTIN_METRICS = ("wall_time", "steps", "status")
+SIM_KEYS = ("start", "stop", "step", "algorithm", "extrapolation", "tolerance")
+FIXED_COLUMNS = ("run", "id", "status", "steps", "t_end_s", "wall_time_s")
+TAIL_COLUMNS = ("reason", "mcap")
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.+\-]+")
+
+
+class SweepFailed(ImmersimError, RuntimeError):
+    """Some runs of a sweep failed; ``result`` holds every row (the summary is written)."""
+
+    def __init__(self, message: str, result: "SweepResult") -> None:
+        super().__init__(message)
+        self.result = result
+
+
+# -- the sweep file ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class MetricSpec:
+    """One summary number per run.
+
+    Attributes
+    ----------
+    name : str
+        Column name in ``summary.csv``.
+    builtin : str, optional
+        ``wall_time`` (s), ``steps`` or ``status``; then ``signal`` is unused.
+    signal : str
+        Glob pattern over ``unit.variable`` of the logged signals; the samples of every
+        matching signal are pooled before reducing.
+    reduce : str
+        One of :data:`REDUCERS`; ``final`` needs exactly one matching signal.
+    after : float
+        Only samples at simulation time ``t >= after`` (s) count.
+    """
+
+    name: str
+    builtin: Optional[str] = None
+    signal: str = ""
+    reduce: str = "max"
+    after: float = -math.inf
+
+
+@dataclass(frozen=True)
+class PlotSpec:
+    """One comparison figure: a subplot per ``y`` column against ``x``, a line per ``hue`` group."""
+
+    x: str
+    y: Tuple[str, ...]
+    hue: Optional[Tuple[str, ...]] = None
+    logx: bool = False
+    logy: bool = False
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One run of the sweep.
+
+    Attributes
+    ----------
+    index : int
+        Position in the sweep (grid first, then explicit variants).
+    id : str
+        Short, file-system-safe id, unique in the sweep (``<index>_<values or name>``).
+    overrides : dict
+        As written in the sweep file (shown in the summary).
+    resolved : dict
+        Passed to the run: FMU paths made absolute relative to the sweep file.
+    """
+
+    index: int
+    id: str
+    overrides: Dict[str, Any]
+    resolved: Dict[str, Any]
+
+
+@dataclass
+class SweepSpec:
+    """A parsed sweep file."""
+
+    file: Path
+    scenario: Path
+    keys: List[str]
+    variants: List[Variant]
+    metrics: List[MetricSpec]
+    plots: List[PlotSpec]
+
+
+@dataclass
+class SweepOptions:
+    """How to run a sweep.
+
+    Attributes
+    ----------
+    output_dir : path
+        Folder for the MCAP files, ``summary.csv`` and the plots.
+    workers : int, optional
+        Local worker processes (default: ``os.cpu_count()``, at most one per run).
+    scheduler : str, optional
+        Dask scheduler address (``tcp://host:port``); runs go to that cluster instead.
+    check : bool
+        Raise :class:`SweepFailed` at the end if any run failed.
+    """
+
+    output_dir: Path
+    workers: Optional[int] = None
+    scheduler: Optional[str] = None
+    check: bool = True
+
+
+def _err(spec_file: Path, msg: str) -> ScenarioError:
+    return ScenarioError(f"{spec_file}: {msg}")
+
+
+def load_sweep(path: Path | str) -> SweepSpec:
+    """Parse and check a sweep file; every variant is checked against the scenario's structure.
+
+    Raises
+    ------
+    ScenarioError
+        Naming the sweep file and the offending key (or variant).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ScenarioError(f"sweep file {path} does not exist")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise _err(path, f"invalid TOML: {exc}") from None
+    known = {"scenario", "grid", "variants", "metrics", "plot", "description", "title"}
+    for key in data:
+        if key not in known:
+            raise _err(path, f"unknown top-level key {key!r} (expected one of {', '.join(sorted(known))})")
+    scenario = _parse_scenario_path(data.get("scenario"), path)
+    grid = _parse_grid(data.get("grid", {}), path)
+    explicit = _parse_variants(data.get("variants", []), path)
+    if not grid and not explicit:
+        raise _err(path, "nothing to run: give a [grid] or [[variants]]")
+    keys = list(dict.fromkeys(list(grid) + [k for _, ov in explicit for k in ov]))
+    variants = _make_variants(grid, explicit, path)
+    _check_variants(variants, scenario, path)
+    metrics = _parse_metrics(data.get("metrics", {}), path, keys)
+    plots = _parse_plots(data.get("plot", []), path, keys + [m.name for m in metrics])
+    return SweepSpec(path, scenario, keys, variants, metrics, plots)
+
+
+def _parse_scenario_path(value: Any, path: Path) -> Path:
+    if not isinstance(value, str) or not value:
+        raise _err(path, "'scenario' must be the path of a scenario file (relative to the sweep file)")
+    scenario = (path.parent / value).resolve()
+    if not scenario.exists():
+        raise _err(path, f"scenario {value!r} does not exist (looked for {scenario})")
+    return scenario
+
+
+def _check_override_key(key: str, where: str, path: Path) -> None:
+    if key.endswith(":fmu"):
+        if not key[:-4]:
+            raise _err(path, f"{where}: {key!r} names no unit (expected 'unit:fmu')")
+        return
+    if key.startswith("simulation."):
+        if key.split(".", 1)[1] not in SIM_KEYS:
+            raise _err(path, f"{where}: unknown simulation setting {key!r} "
+                             f"(expected simulation.{'|'.join(SIM_KEYS)})")
+        return
+    unit, _, var = key.partition(".")
+    if not unit or not var:
+        raise _err(path, f"{where}: {key!r} is not an override key ('unit.param', 'simulation.<setting>' "
+                         "or 'unit:fmu')")
+
+
+def _parse_grid(grid: Any, path: Path) -> Dict[str, List[Any]]:
+    if not isinstance(grid, dict):
+        raise _err(path, "[grid] must be a table of override key -> list of values")
+    for key, values in grid.items():
+        _check_override_key(key, f"grid key {key!r}", path)
+        if not isinstance(values, list) or not values:
+            raise _err(path, f"grid key {key!r} must be a non-empty list of values, got {values!r}")
+    return {k: list(v) for k, v in grid.items()}
+
+
+def _parse_variants(raw: Any, path: Path) -> List[Tuple[str, Dict[str, Any]]]:
+    if not isinstance(raw, list):
+        raise _err(path, "'variants' must be an array of tables ([[variants]])")
+    out: List[Tuple[str, Dict[str, Any]]] = []
+    for i, v in enumerate(raw):
+        where = f"variants[{i}]"
+        if not isinstance(v, dict):
+            raise _err(path, f"{where} must be a table")
+        name = v.get("name", f"variant{i}")
+        if not isinstance(name, str) or not name.strip():
+            raise _err(path, f"{where}: 'name' must be a non-empty string, got {name!r}")
+        if any(n == name for n, _ in out):
+            raise _err(path, f"{where}: duplicate variant name {name!r}")
+        overrides = {k: x for k, x in v.items() if k != "name"}
+        for key, value in overrides.items():
+            _check_override_key(key, f"{where} ({name}) key {key!r}", path)
+            if isinstance(value, (dict, list)):
+                raise _err(path, f"{where} ({name}) key {key!r}: expected a single value, got {value!r}")
+        out.append((name, overrides))
+    return out
+
+
+def _short(value: Any) -> str:
+    """A short text for a value in a run id (file names shortened to their stem)."""
+    if isinstance(value, str) and (value.endswith(".fmu") or "/" in value):
+        value = Path(value).stem
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def safe_id(index: int, parts: Iterable[Any], max_len: int = 60) -> str:
+    """``<index>_<part>_<part>...``, characters outside ``[A-Za-z0-9_.+-]`` replaced by ``-``."""
+    body = "_".join(_UNSAFE.sub("-", _short(p)).strip("-") for p in parts)
+    return f"{index:03d}" + (f"_{body[:max_len]}" if body else "")
+
+
+def _resolve(overrides: Dict[str, Any], path: Path) -> Dict[str, Any]:
+    """Make ``unit:fmu`` file paths absolute relative to the sweep file (built-in names stay)."""
+    out = dict(overrides)
+    for key, value in overrides.items():
+        if key.endswith(":fmu"):
+            if not isinstance(value, str) or not value:
+                raise _err(path, f"{key!r} must be a built-in unit name or an FMU path, got {value!r}")
+            p = Path(value)
+            if p.suffix == ".fmu" or "/" in value:
+                out[key] = str(p if p.is_absolute() else (path.parent / p).resolve())
+    return out
+
+
+def _make_variants(grid: Dict[str, List[Any]], explicit: List[Tuple[str, Dict[str, Any]]],
+                   path: Path) -> List[Variant]:
+    varying = [k for k, vs in grid.items() if len(vs) > 1]
+    variants: List[Variant] = []
+    if grid:
+        for combo in itertools.product(*grid.values()):
+            ov = dict(zip(grid, combo))
+            i = len(variants)
+            variants.append(Variant(i, safe_id(i, [ov[k] for k in varying]), ov, _resolve(ov, path)))
+    for name, ov in explicit:
+        i = len(variants)
+        variants.append(Variant(i, safe_id(i, [name]), ov, _resolve(ov, path)))
+    return variants
+
+
+def _check_variants(variants: Sequence[Variant], scenario: Path, path: Path) -> None:
+    from .scenario import load_scenario
+
+    for v in variants:
+        try:
+            load_scenario(scenario, v.resolved)
+        except ScenarioError as exc:
+            raise _err(path, f"variant {v.id} {v.overrides}: {exc}") from None
+
+
+def _parse_metrics(raw: Any, path: Path, keys: Sequence[str]) -> List[MetricSpec]:
+    if not isinstance(raw, dict):
+        raise _err(path, "[metrics] must be a table of name -> {signal, reduce} or a built-in name")
+    taken = set(FIXED_COLUMNS) | set(TAIL_COLUMNS) | set(keys)
+    out: List[MetricSpec] = []
+    for name, m in raw.items():
+        where = f"metrics.{name}"
+        if name in taken:
+            raise _err(path, f"{where}: the name {name!r} is already a summary column")
+        if isinstance(m, str):
+            if m not in BUILTIN_METRICS:
+                raise _err(path, f"{where}: unknown built-in metric {m!r} (expected one of "
+                                 f"{', '.join(BUILTIN_METRICS)}, or a table {{signal, reduce}})")
+            out.append(MetricSpec(name, builtin=m))
+            continue
+        if not isinstance(m, dict):
+            raise _err(path, f"{where} must be a built-in name or a table {{signal, reduce}}")
+        extra = set(m) - {"signal", "reduce", "after"}
+        if extra:
+            raise _err(path, f"{where}: unknown key {sorted(extra)[0]!r} (expected signal, reduce, after)")
+        signal, reduce, after = m.get("signal"), m.get("reduce", "max"), m.get("after", -math.inf)
+        if not isinstance(signal, str) or "." not in signal:
+            raise _err(path, f"{where}: 'signal' must be a 'unit.variable' pattern, got {signal!r}")
+        if reduce not in REDUCERS:
+            raise _err(path, f"{where}: reduce {reduce!r} is not one of {'|'.join(REDUCERS)}")
+        if isinstance(after, bool) or not isinstance(after, (int, float)):
+            raise _err(path, f"{where}: 'after' must be a time in s, got {after!r}")
+        out.append(MetricSpec(name, None, signal, reduce, float(after)))
+    return out
+
+
+def _names(value: Any, where: str, path: Path, columns: Sequence[str]) -> Tuple[str, ...]:
+    names = (value,) if isinstance(value, str) else tuple(value) if isinstance(value, list) else None
+    if not names or not all(isinstance(n, str) for n in names):
+        raise _err(path, f"{where} must be a column name or a list of them, got {value!r}")
+    for n in names:
+        if n not in columns:
+            raise _err(path, f"{where}: {n!r} is not an override key or metric (columns: {', '.join(columns)})")
+    return names
+
+
+def _parse_plots(raw: Any, path: Path, columns: Sequence[str]) -> List[PlotSpec]:
+    tables = [raw] if isinstance(raw, dict) else raw
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise _err(path, "[plot] must be a table or an array of tables")
+    cols = list(columns) + ["steps", "t_end_s", "wall_time_s"]
+    plots: List[PlotSpec] = []
+    for i, t in enumerate(tables):
+        where = f"plot[{i}]" if isinstance(raw, list) else "plot"
+        extra = set(t) - {"x", "y", "hue", "logx", "logy", "name"}
+        if extra:
+            raise _err(path, f"{where}: unknown key {sorted(extra)[0]!r} (expected x, y, hue, logx, logy, name)")
+        if "x" not in t or "y" not in t:
+            raise _err(path, f"{where}: needs 'x' and 'y'")
+        x = _names(t["x"], f"{where}.x", path, cols)
+        if len(x) != 1:
+            raise _err(path, f"{where}.x must be one column, got {t['x']!r}")
+        y = _names(t["y"], f"{where}.y", path, cols)
+        hue = _names(t["hue"], f"{where}.hue", path, cols) if "hue" in t else None
+        name = t.get("name", "")
+        if not isinstance(name, str):
+            raise _err(path, f"{where}.name must be a string")
+        plots.append(PlotSpec(x[0], y, hue, bool(t.get("logx", False)), bool(t.get("logy", False)), name))
+    return plots
+
+
+# -- one run (executed in a worker process or on a Dask worker) --------------------------
+@dataclass
+class RunTask:
+    """Everything a worker needs for one run (picklable)."""
+
+    scenario: str
+    overrides: Dict[str, Any]
+    mcap: str
+    metrics: List[MetricSpec]
+    index: int = 0
+    id: str = ""
+
+
+@dataclass
+class RunRow:
+    """The outcome of one run: a row of ``summary.csv``."""
+
+    index: int
+    id: str
+    status: str
+    steps: int = 0
+    t_end_s: float = math.nan
+    wall_time_s: float = math.nan
+    metrics: Dict[str, Any] = field(default_factory=dict)
+    reason: str = ""
+    mcap: str = ""
+
+
+def reduce_signals(series: Dict[str, Tuple[np.ndarray, np.ndarray, str]], metric: MetricSpec) -> float:
+    """Reduce the pooled samples (``t >= after``) of every matched signal to one number.
+
+    Parameters
+    ----------
+    series : dict
+        ``unit.variable`` -> (t in s, values, unit) as returned by
+        :func:`immersim.orchestrator.mcapio.read_series`.
+    metric : MetricSpec
+
+    Returns
+    -------
+    float
+        The reduced value; NaN when no sample lies after ``metric.after``.
+    """
+    if metric.reduce == "final" and len(series) != 1:
+        raise ValueError(f"metric {metric.name}: reduce 'final' needs exactly one signal, "
+                         f"{metric.signal!r} matches {len(series)}: {', '.join(sorted(series))}")
+    pooled = [y[t >= metric.after] for t, y, _ in series.values()]
+    y = np.concatenate(pooled) if pooled else np.empty(0)
+    return REDUCERS[metric.reduce](y) if y.size else math.nan
+
+
+def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow) -> Dict[str, Any]:
+    """Every metric of one run: built-ins from ``row``, signal metrics from the MCAP log."""
+    from .mcapio import read_series
+
+    out: Dict[str, Any] = {}
+    for m in metrics:
+        if m.builtin:
+            out[m.name] = {"wall_time": row.wall_time_s, "steps": row.steps, "status": row.status}[m.builtin]
+        else:
+            out[m.name] = reduce_signals(read_series(mcap, [m.signal]), m)
+    return out
+
+
+def run_one(task: RunTask) -> RunRow:
+    """Run one variant and compute its metrics; never raises for a failed run.
+
+    The returned row has status ``completed``, ``failed`` or ``interrupted`` and the reason.
+    Metrics are computed only for completed runs (a partial log would bias the comparison).
+    """
+    from .execution import RunFailed, run_scenario
+
+    row = RunRow(task.index, task.id, "failed", mcap=Path(task.mcap).name)
+    t0 = time.perf_counter()
+    try:
+        res = run_scenario(task.scenario, task.mcap, progress=False, overrides=task.overrides)
+        row.status, row.steps, row.t_end_s = res.status, res.steps_done, res.t_ns / 1e9
+    except RunFailed as exc:
+        r = exc.result
+        row.status, row.steps, row.t_end_s, row.reason = r.status, r.steps_done, r.t_ns / 1e9, r.reason
+    except Exception as exc:  # a bad FMU swap, a parameter the FMU refuses, ... : the row says why
+        row.reason = f"{type(exc).__name__}: {exc}"
+    row.wall_time_s = time.perf_counter() - t0
+    if not Path(task.mcap).exists():
+        row.mcap = ""
+    if row.status == "completed":
+        try:
+            row.metrics = compute_metrics(task.mcap, task.metrics, row)
+        except Exception as exc:
+            row.status, row.reason = "failed", f"metrics: {type(exc).__name__}: {exc}"
+    return row
+
+
+# -- executors ---------------------------------------------------------------------------
+def _failed_row(task: RunTask, exc: BaseException) -> RunRow:
+    return RunRow(task.index, task.id, "failed", reason=f"worker: {type(exc).__name__}: {exc}",
+                  mcap=Path(task.mcap).name if Path(task.mcap).exists() else "")
+
+
+def _run_local(tasks: Sequence[RunTask], workers: int, on_row: Callable[[RunRow], None]) -> None:
+    """Run ``tasks`` on a pool of spawned processes; ``on_row`` gets each row as it completes."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        futures = {pool.submit(run_one, t): t for t in tasks}
+        try:
+            for fut in as_completed(futures):
+                try:
+                    on_row(fut.result())
+                except Exception as exc:  # the worker process died (e.g. a crash inside an FMU)
+                    on_row(_failed_row(futures[fut], exc))
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+
+
+def _run_dask(tasks: Sequence[RunTask], address: str, on_row: Callable[[RunRow], None]) -> None:
+    """Run ``tasks`` on the Dask cluster at ``address``; ``on_row`` gets each row as it completes."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise ImmersimError("--scheduler needs dask.distributed: pip install 'immersim[dask]'") from None
+    try:
+        client = Client(address, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise ImmersimError(f"cannot connect to the Dask scheduler at {address}: {exc}") from None
+    try:
+        tag = uuid.uuid4().hex[:8]
+        futures = client.map(run_one, list(tasks), key=[f"immersim-run-{t.id}-{tag}" for t in tasks], pure=False)
+        by_key = {f.key: t for f, t in zip(futures, tasks)}
+        try:
+            for fut in as_completed(futures):
+                try:
+                    on_row(fut.result())
+                except Exception as exc:  # KilledWorker, lost connection, ...
+                    on_row(_failed_row(by_key[fut.key], exc))
+        except BaseException:
+            client.cancel(futures)
+            raise
+    finally:
+        client.close()
+
+
+# -- the summary -------------------------------------------------------------------------
+@dataclass
+class SweepResult:
+    """Rows of a finished sweep and the files written."""
+
+    spec: SweepSpec
+    rows: List[RunRow]
+    summary: Path
+    plots: List[Path] = field(default_factory=list)
+
+    @property
+    def failed(self) -> List[RunRow]:
+        return [r for r in self.rows if r.status != "completed"]
+
+    def __str__(self) -> str:
+        cols = ["id", "status", "steps", "wall_time_s"] + [m.name for m in self.spec.metrics]
+        table = [cols] + [[_fmt(_cell(r, c, self.spec)) for c in cols] for r in self.rows]
+        widths = [max(len(line[i]) for line in table) for i in range(len(cols))]
+        lines = ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in table]
+        lines.append(f"{len(self.rows) - len(self.failed)} of {len(self.rows)} runs completed; "
+                     f"summary: {self.summary}")
+        lines += [f"plot: {p}" for p in self.plots]
+        return "\n".join(lines)
+
+
+def _cell(row: RunRow, col: str, spec: SweepSpec) -> Any:
+    if col in spec.keys:
+        v = spec.variants[row.index].overrides
+        return v.get(col, "")
+    if col in ("run",):
+        return row.index
+    if hasattr(row, col) and col not in ("metrics",):
+        return getattr(row, col)
+    return row.metrics.get(col, "")
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return "" if math.isnan(value) else f"{value:.6g}"
+    return str(value)
+
+
+def summary_columns(spec: SweepSpec) -> List[str]:
+    """Columns of ``summary.csv``: run, id, every override key, status, steps, t_end_s,
+    wall_time_s, every metric, reason, mcap."""
+    return ["run", "id"] + spec.keys + list(FIXED_COLUMNS[2:]) + [m.name for m in spec.metrics] + list(TAIL_COLUMNS)
+
+
+def write_summary(spec: SweepSpec, rows: Sequence[RunRow], path: Path) -> Path:
+    """Write ``summary.csv`` (floats with full precision, ``repr``), rows in sweep order."""
+    cols = summary_columns(spec)
+    tmp = path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for r in sorted(rows, key=lambda r: r.index):
+            w.writerow([_csv_value(_cell(r, c, spec)) for c in cols])
+    os.replace(tmp, path)
+    return path
+
+
+def _csv_value(value: Any) -> str:
+    if isinstance(value, float):
+        return "" if math.isnan(value) else repr(value)
+    return str(value)
+
+
+def read_summary(path: Path | str) -> List[Dict[str, str]]:
+    """The rows of a ``summary.csv`` as dicts of strings."""
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+# -- plots -------------------------------------------------------------------------------
+def _as_number(v: Any) -> Optional[float]:
+    if isinstance(v, bool):
+        return None
+    if isinstance(v, (int, float)):
+        return float(v)
+    return None
+
+
+def plot_comparison(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec, output: Path) -> Path:
+    """One PNG: a subplot per ``plot.y`` against ``plot.x``, a line per hue group (completed runs).
+
+    A numeric ``x`` is plotted on its own scale; any other ``x`` as categories in sweep order.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    done = [r for r in sorted(rows, key=lambda r: r.index)  # (a run that does not set x has no place)
+            if r.status == "completed" and _cell(r, plot.x, spec) != ""]
+    xs = [_cell(r, plot.x, spec) for r in done]
+    numeric = bool(xs) and all(_as_number(x) is not None for x in xs)
+    cats = list(dict.fromkeys(map(str, xs)))
+    hue = plot.hue if plot.hue is not None else tuple(
+        k for k in spec.keys if k != plot.x and len({str(v.overrides.get(k, "")) for v in spec.variants}) > 1)
+    groups: Dict[Tuple[str, ...], List[RunRow]] = {}
+    for r in done:
+        groups.setdefault(tuple(_fmt(_cell(r, h, spec)) for h in hue), []).append(r)
+    fig, axes = plt.subplots(len(plot.y), 1, figsize=(7, 2.6 * len(plot.y) + 0.8), squeeze=False)
+    for ax, ycol in zip(axes[:, 0], plot.y):
+        for g, grp in groups.items():
+            pts = [(_as_number(_cell(r, plot.x, spec)) if numeric else cats.index(str(_cell(r, plot.x, spec))),
+                    _as_number(_cell(r, ycol, spec))) for r in grp]
+            pts = sorted((x, y) for x, y in pts if y is not None and math.isfinite(y))
+            if pts:
+                label = ", ".join(f"{h}={v}" for h, v in zip(hue, g)) or None
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", lw=1.2, label=label)
+        ax.set_xscale("log" if plot.logx and numeric else "linear")  # (resets the tick locator)
+        if not numeric:
+            ax.set_xticks(range(len(cats)), [_short(c) for c in cats])
+        if plot.logy:
+            ax.set_yscale("log")
+        ax.set_ylabel(ycol)
+        ax.grid(True, alpha=0.3)
+        if hue and ax is axes[0, 0]:
+            ax.legend(fontsize=7)
+    axes[-1, 0].set_xlabel(plot.x)
+    fig.suptitle(f"{spec.file.name}: {len(done)} of {len(rows)} runs plotted (completed, with {plot.x})",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(output, dpi=110)
+    plt.close(fig)
+    return output
+
+
+def plot_file_name(plot: PlotSpec) -> str:
+    """``<name>.png`` or ``<y1>-<y2>_vs_<x>.png``, file-system safe."""
+    stem = plot.name or f"{'-'.join(plot.y)}_vs_{plot.x}"
+    return _UNSAFE.sub("-", stem).strip("-") + ".png"
+
+
+# -- the sweep ---------------------------------------------------------------------------
+def _prebuild(spec: SweepSpec) -> None:
+    """Build the built-in units the variants use once, before workers start (no build races)."""
+    from .build import build_all, unit_names
+    from .scenario import load_scenario
+
+    builtin = set(unit_names())
+    used = {u.fmu for v in spec.variants for u in load_scenario(spec.scenario, v.resolved).units}
+    names = sorted(used & builtin)
+    if names:
+        log.info("building built-in units %s", ", ".join(names))
+        build_all(names)
+
+
+def make_tasks(spec: SweepSpec, output_dir: Path) -> List[RunTask]:
+    """One :class:`RunTask` per variant, its MCAP at ``output_dir/<id>.mcap``."""
+    return [RunTask(str(spec.scenario), v.resolved, str((output_dir / f"{v.id}.mcap").resolve()), spec.metrics,
+                    v.index, v.id) for v in spec.variants]
+
+
+def execute(spec: SweepSpec, options: SweepOptions) -> SweepResult:
+    """Run every variant of ``spec`` as ``options`` say; write ``summary.csv`` and the plots.
+
+    The summary is rewritten after every finished run, so an interrupted sweep leaves a
+    readable table of the runs done.
+    """
+    out = Path(options.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = out / "summary.csv"
+    tasks = make_tasks(spec, out)
+    rows: List[RunRow] = []
+
+    def on_row(row: RunRow) -> None:
+        rows.append(row)
+        log.info("run %s %s (%d/%d)%s", row.id, row.status, len(rows), len(tasks),
+                 f": {row.reason}" if row.reason else "")
+        write_summary(spec, rows, summary)
+
+    if options.scheduler:
+        log.info("sweep %s: %d runs on the Dask cluster at %s", spec.file, len(tasks), options.scheduler)
+        _run_dask(tasks, options.scheduler, on_row)
+    else:
+        _prebuild(spec)
+        workers = max(1, min(options.workers or os.cpu_count() or 1, len(tasks)))
+        log.info("sweep %s: %d runs on %d local processes", spec.file, len(tasks), workers)
+        _run_local(tasks, workers, on_row)
+    rows.sort(key=lambda r: r.index)
+    write_summary(spec, rows, summary)
+    plots = [plot_comparison(spec, rows, p, out / plot_file_name(p)) for p in spec.plots]
+    return SweepResult(spec, rows, summary, plots)
+
+
+def default_output_dir(sweepfile: Path | str) -> Path:
+    """``results/sweeps/<sweep file stem>`` (relative to the working directory)."""
+    return Path("results") / "sweeps" / Path(sweepfile).stem
+
+
+def run_sweep(sweepfile: Path | str, output_dir: Path | str | None = None, workers: Optional[int] = None,
+              scheduler: Optional[str] = None, check: bool = True) -> SweepResult:
+    """Run the sweep file; the entry point of ``immersim sweep``.
+
+    Parameters
+    ----------
+    sweepfile : path-like
+        The sweep TOML file.
+    output_dir : path-like, optional
+        Default :func:`default_output_dir`.
+    workers : int, optional
+        Local worker processes (default: the number of cores).
+    scheduler : str, optional
+        Dask scheduler address; when given the runs go to that cluster.
+    check : bool
+        Raise :class:`SweepFailed` (after writing everything) if any run failed.
+
+    Returns
+    -------
+    SweepResult
+        ``str()`` of it is the summary table printed by the CLI.
+    """
+    spec = load_sweep(sweepfile)
+    if workers is not None and workers < 1:
+        raise ScenarioError(f"--workers must be >= 1, got {workers}")
+    opts = SweepOptions(Path(output_dir) if output_dir else default_output_dir(sweepfile), workers, scheduler, check)
+    result = execute(spec, opts)
+    if opts.check and result.failed:
+        bad = "; ".join(f"{r.id}: {r.status}: {r.reason}" for r in result.failed)
+        raise SweepFailed(f"sweep {spec.file}: {len(result.failed)} of {len(result.rows)} runs did not complete "
+                          f"({bad}); summary: {result.summary}", result)
+    return result
