@@ -110,9 +110,9 @@ class Execution:
         for name in system.needed:
             inst = system.instances[name]
             sources = [c.src_var for c in conns if c.src_unit == name]
-            read = list(dict.fromkeys(system.logged[name] + sources))
-            slot = Slot(name, inst, read)
-            slot.reader = inst.reader(read)
+            reader = inst.reader(system.logged[name] + sources + (["at_rest"] if _lazy_capable(inst, sc) else []))
+            slot = Slot(name, inst, reader.names)
+            slot.reader = reader
             real_in = [c.dst_var for c in conns if c.dst_unit == name and inst.var(c.dst_var).family == "float"]
             real_in += [s.var for s in sc.inputs if s.unit == name]
             real_in += [f.var for f in sc.faults if f.unit == name and inst.var(f.var).family == "float"
@@ -178,7 +178,7 @@ class Execution:
         master: Optional[Master] = None
         bar = None
         try:
-            master = self._setup()
+            master = self.master = self._setup()
             result.delayed_connections = [str(c) for c in master.delayed] if sc.algorithm == "gauss-seidel" else []
             if self.output is not None:
                 self._open_log(master)
@@ -197,6 +197,7 @@ class Execution:
                         bar.update(1)
                     if sigint.requested:
                         raise KeyboardInterrupt
+            master.finish()
         except KeyboardInterrupt:
             result.status, result.reason = "interrupted", "interrupted by SIGINT"
             raise RunInterrupted(self._stop_message(result), result) from None
@@ -228,6 +229,12 @@ class Execution:
         finally:
             self.system.terminate()
             self._tmp.cleanup()
+
+
+def _lazy_capable(inst, scenario: Scenario) -> bool:
+    """A unit may be stepped lazily when it reports ``at_rest`` (a Boolean output)."""
+    v = inst.variables.get("at_rest")
+    return bool(scenario.lazy and v is not None and v.causality == "output" and v.family == "bool")
 
 
 def run_scenario(scenario: Scenario | Path | str, output: Optional[Path | str] = None,

@@ -328,46 +328,58 @@ class FmuInstance:
 
 
 class ValueReader:
-    """Reads a fixed list of variables of any types into a Python list, in that order."""
+    """Reads a fixed set of variables with one FMI call per type family.
 
-    def __init__(self, inst: FmuInstance, names: List[str]) -> None:
-        self.inst, self.names = inst, names
-        infos = [inst.var(n) for n in names]
-        self.families = [v.family for v in infos]
-        fmi2 = inst.fmi_version.startswith("2")
-        real_idx = [i for i, v in enumerate(infos) if v.family == "float" and (fmi2 or v.type == "Float64")]
-        self._real_idx = real_idx
-        self._real_vrs = (ctypes.c_uint * len(real_idx))(*[infos[i].vr for i in real_idx])
-        self._real_buf = (ctypes.c_double * len(real_idx))()
-        self._real_np = np.frombuffer(self._real_buf, dtype=np.float64) if real_idx else np.zeros(0)
-        self._other = [(i, infos[i].name) for i in range(len(infos)) if i not in set(real_idx)]
-        self._fast = fmi2 and bool(real_idx)
-        self._n_real = len(real_idx)
-        self._all_real_fast = self._fast and len(real_idx) == len(names)
+    ``names`` is reordered by family (floats, integers, booleans, strings) and :meth:`read`
+    returns the values in that order, so a step costs one ``fmi2GetReal`` (plus one
+    ``fmi2GetInteger``/``fmi2GetBoolean`` when such variables are read) into pre-built buffers.
+    """
+
+    _ORDER = {"float": 0, "int": 1, "bool": 2, "string": 3}
+
+    def __init__(self, inst: FmuInstance, names: Sequence[str]) -> None:
+        self.inst = inst
+        infos = sorted((inst.var(n) for n in dict.fromkeys(names)), key=lambda v: self._ORDER.get(v.family, 3))
+        self.names = [v.name for v in infos]
+        self.fmi2 = inst.fmi_version.startswith("2")
+        fam = [v.family for v in infos]
+        self.n_real = fam.count("float")
+        n_int, n_bool = fam.count("int"), fam.count("bool")
+        self._groups = []
+        start = 0
+        for family, n, getter, ctype in (("float", self.n_real, "fmi2GetReal", ctypes.c_double),
+                                         ("int", n_int, "fmi2GetInteger", ctypes.c_int),
+                                         ("bool", n_bool, "fmi2GetBoolean", ctypes.c_int)):
+            if n:
+                vrs = (ctypes.c_uint * n)(*[v.vr for v in infos[start:start + n]])
+                buf = (ctype * n)()
+                fn = getattr(inst.fmu.dll, getter) if self.fmi2 else None
+                self._groups.append((family, n, vrs, buf, fn, getter, infos[start:start + n]))
+            start += n
+        self._strings = [v.name for v in infos[start:]]
+        self._real_np = (np.frombuffer(self._groups[0][3], dtype=np.float64)
+                         if self.n_real else np.zeros(0))
 
     def read(self) -> List[Any]:
-        """Current values, in the order of ``names``."""
+        """Current values, in the order of ``self.names``."""
         inst = self.inst
-        if self._all_real_fast:
-            status = inst._get_real(inst.fmu.component, self._real_vrs, self._n_real, self._real_buf)
-            if status > 1:
-                inst._check("fmi2GetReal", status)
-            return self._real_np.tolist()
-        out: List[Any] = [None] * len(self.names)
-        if self._real_idx:
-            if self._fast:
-                inst._check("fmi2GetReal", inst._get_real(inst.fmu.component, self._real_vrs,
-                                                         self._n_real, self._real_buf))
-                vals = self._real_np.tolist()
-            else:
-                vals = inst._guard("fmi3GetFloat64", lambda: inst.fmu.getFloat64(list(self._real_vrs)))
-                self._real_np[:] = vals
-            for i, val in zip(self._real_idx, vals):
-                out[i] = val
-        if self._other:
-            vals = inst.get_values([n for _, n in self._other])
-            for (i, _), val in zip(self._other, vals):
-                out[i] = val
+        comp = inst._component
+        if self.fmi2:
+            out: List[Any] = []
+            for family, n, vrs, buf, fn, getter, _ in self._groups:
+                status = fn(comp, vrs, n, buf)
+                if status > 1:
+                    inst._check(getter, status)
+                if family == "float":
+                    out = self._real_np.tolist()
+                elif family == "int":
+                    out.extend(buf)
+                else:
+                    out.extend([v != 0 for v in buf])
+        else:
+            out = inst.get_values([n for g in self._groups for n in (v.name for v in g[6])])
+        if self._strings:
+            out.extend(inst.get_values(self._strings))
         return out
 
     def nonfinite(self, values: Sequence[Any]) -> Optional[str]:
@@ -376,14 +388,10 @@ class ValueReader:
         The sum of finite floats is finite unless it overflows, so one ``sum`` screens the
         common case; only a non-finite sum triggers the element-wise search.
         """
-        if not self._real_idx:
+        n = self.n_real
+        if not n or math.isfinite(sum(values[:n]) if n < len(values) else sum(values)):
             return None
-        if self._all_real_fast:
-            if math.isfinite(sum(values)):
-                return None
-        elif math.isfinite(sum(values[i] for i in self._real_idx)):
-            return None
-        for i in self._real_idx:
+        for i in range(n):
             if not math.isfinite(values[i]):
                 return self.names[i]
         return None

@@ -47,6 +47,11 @@ class Slot:
     faults: List[Tuple[Fault, Optional[int]]] = field(default_factory=list)
     stepped: bool = False
     has_inputs: bool = False  # anything to gather before a step
+    rest_idx: Optional[int] = None  # index of the at_rest output when the unit may be stepped lazily
+    applied: Optional[tuple] = None  # inputs applied for the last real step
+    pending_start: int = 0  # lazily skipped interval [pending_start, pending_start + pending_ns)
+    pending_ns: int = 0
+    skipped_steps: int = 0
 
     def index(self, name: str) -> int:
         return self.read_names.index(name)
@@ -103,10 +108,13 @@ class Master:
                 slot.faults.append((Fault(fs), idx))
         for slot in slots.values():
             slot.has_inputs = bool(slot.float_feeds or slot.other_feeds or slot.signals or slot.faults)
+            if "at_rest" in slot.read_names and scenario.lazy:
+                slot.rest_idx = slot.index("at_rest")
 
-    def _gather(self, slot: Slot, t_ns: int) -> None:
+    def _gather(self, slot: Slot, t_ns: int) -> Optional[tuple]:
+        """The inputs of ``slot`` for the step starting at ``t_ns`` (not yet applied)."""
         if not slot.has_inputs:
-            return
+            return None
         vals = slot.in_vals
         linear = self.linear
         for i, src, j, delayed in slot.float_feeds:
@@ -119,36 +127,72 @@ class Master:
             t = t_ns / 1e9
             for i, fn in slot.signals:
                 vals[i] = fn(t)
+        forced = []
         for fault, idx in slot.faults:
             if fault.active(t_ns):
                 if idx is None:
-                    slot.inst.set_values({fault.spec.var: fault.spec.value})
+                    forced.append((fault.spec.var, fault.spec.value))
                 else:
                     vals[idx] = float(fault.spec.value)
+        others = tuple((name, src.cur[j]) for name, src, j in slot.other_feeds)
+        return tuple(vals), others, tuple(forced)
+
+    def _apply(self, slot: Slot, inputs: Optional[tuple]) -> None:
+        if inputs is None:
+            return
+        vals, others, forced = inputs
         if slot.setter is not None:
             slot.setter.set(vals)
-        if slot.other_feeds:
-            slot.inst.set_values({name: src.cur[j] for name, src, j in slot.other_feeds})
+        if others:
+            slot.inst.set_values(dict(others))
+        if forced:
+            slot.inst.set_values(dict(forced))
+        slot.applied = inputs
+
+    def _advance(self, slot: Slot, t_ns: int, h_ns: int, inputs: Optional[tuple]) -> bool:
+        """Step one slot (or skip it lazily). Returns whether the FMU was called."""
+        if (slot.rest_idx is not None and slot.cur[slot.rest_idx] and inputs == slot.applied
+                and not (inputs is not None and inputs[2])):
+            if slot.pending_ns == 0:
+                slot.pending_start = t_ns
+            slot.pending_ns += h_ns
+            slot.skipped_steps += 1
+            slot.prev = slot.cur
+            return False
+        self.catch_up(slot)
+        self._apply(slot, inputs)
+        slot.inst.do_step(t_ns, h_ns)
+        return True
+
+    def catch_up(self, slot: Slot) -> None:
+        """One step over the lazily skipped interval, with the inputs it was skipped with."""
+        if slot.pending_ns:
+            start, span = slot.pending_start, slot.pending_ns
+            slot.pending_ns = 0
+            slot.inst.do_step(start, span)
 
     def step(self, t_ns: int, h_ns: int) -> None:
         """Advance every slot from ``t_ns`` by ``h_ns``."""
         slots = self.slots
         if self.algorithm == "jacobi":
-            for name in self.order:
-                self._gather(slots[name], t_ns)
-            for name in self.order:
-                slots[name].inst.do_step(t_ns, h_ns)
-            for name in self.order:
-                slots[name].read()
+            gathered = [(slots[name], self._gather(slots[name], t_ns)) for name in self.order]
+            called = [self._advance(slot, t_ns, h_ns, inputs) for slot, inputs in gathered]
+            for (slot, _), did in zip(gathered, called):
+                if did:
+                    slot.read()
             return
         for name in self.order:
             slots[name].stepped = False
         for name in self.order:
             slot = slots[name]
-            self._gather(slot, t_ns)
-            slot.inst.do_step(t_ns, h_ns)
-            slot.read()
+            if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns)):
+                slot.read()
             slot.stepped = True
+
+    def finish(self) -> None:
+        """Bring lazily stepped units to the final time."""
+        for slot in self.slots.values():
+            self.catch_up(slot)
 
     def initial(self, t_ns: int) -> None:
         """Read the values after initialization and apply initial inputs."""

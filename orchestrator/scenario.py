@@ -8,6 +8,7 @@ Example::
     step = 0.033           # s, the macro step (default 0.033)
     algorithm = "gauss-seidel"   # or "jacobi"
     extrapolation = "zoh"        # or "linear"
+    lazy = true                  # step units that report at_rest lazily (false: always step)
 
     [[units]]
     name = "plat"                # instance name
@@ -115,6 +116,7 @@ class Scenario:
     algorithm: str = "gauss-seidel"
     extrapolation: str = "zoh"
     tolerance: Optional[float] = None
+    lazy: bool = True
 
     @property
     def n_steps(self) -> int:
@@ -190,7 +192,7 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
         if k.startswith("simulation."):
             sim[k.split(".", 1)[1]] = v
     for key in sim:
-        if key not in ("start", "stop", "step", "algorithm", "extrapolation", "tolerance"):
+        if key not in ("start", "stop", "step", "algorithm", "extrapolation", "tolerance", "lazy"):
             raise ScenarioError(f"{f}: [simulation] unknown key {key!r}")
     start_ns = seconds_to_ns(sim.get("start", 0.0), f"{f}: simulation.start")
     step_ns = seconds_to_ns(sim.get("step", 0.033), f"{f}: simulation.step")
@@ -206,6 +208,9 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     if extrapolation not in EXTRAPOLATIONS:
         raise ScenarioError(f"{f}: simulation.extrapolation {extrapolation!r} is not one of {', '.join(EXTRAPOLATIONS)}")
     tolerance = sim.get("tolerance")
+    lazy = sim.get("lazy", True)
+    if not isinstance(lazy, bool):
+        raise ScenarioError(f"{f}: simulation.lazy must be true or false, got {lazy!r}")
 
     raw_units = data.get("units")
     if not isinstance(raw_units, list) or not raw_units:
@@ -303,7 +308,7 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     logspec = LogSpec(list(raw_log.get("include", ["*"])), list(raw_log.get("exclude", [])),
                       bool(raw_log.get("parameters", True)))
     return Scenario(path, text, units, connections, inputs, faults, logspec, start_ns, stop_ns, step_ns,
-                    algorithm, extrapolation, tolerance)
+                    algorithm, extrapolation, tolerance, lazy)
 
 
 def _check_input_params(kind: str, p: Dict[str, Any], where: str) -> None:

@@ -126,7 +126,7 @@ def test_info_and_plot_commands(tmp_path, test_fmus):
     cli = [sys.executable, "-m", "immersim.orchestrator.cli"]
     subprocess.run(cli + ["run", str(scn), "-o", str(out), "-q"], check=True, timeout=120)
     info = subprocess.run(cli + ["info", str(out)], capture_output=True, text=True, check=True).stdout
-    assert "channel m1: 31 messages, 0 .. 0.99 s, 4 signals" in info
+    assert "channel m1: 31 messages, 0 .. 0.99 s, 5 signals" in info
     assert "m1.x [m]" in info and "run: completed after 30 of 30 steps" in info
     png = tmp_path / "p.png"
     subprocess.run(cli + ["plot", str(out), "m*.x", "m1.v", "-o", str(png)], check=True, timeout=120)

@@ -23,6 +23,7 @@ class oscillator(TableSlave):
         Var("x", "output", "Real", 0.0, "m", "position"),
         Var("v", "output", "Real", 0.0, "m/s", "velocity"),
         Var("f_coupling", "output", "Real", 0.0, "N", "force of the coupling spring on this mass"),
+        Var("at_rest", "output", "Boolean", True, "", "at the equilibrium of the held input, v = 0"),
     )
 
     def setup_model(self):
@@ -31,6 +32,12 @@ class oscillator(TableSlave):
             raise ValueError(f"{self.instance_name}: parameter m = {val['m']} must be > 0")
         val["x"], val["v"] = val["x0"], 0.0
         val["f_coupling"] = -val["kc"] * (val["x"] - val["x_other"])
+        self._update_rest()
+
+    def _update_rest(self):
+        val = self.values
+        x_eq = val["kc"] * val["x_other"] / (val["k"] + val["kc"])
+        val["at_rest"] = val["v"] == 0.0 and val["x"] == x_eq
 
     def step_model(self, t, h):
         val = self.values
@@ -42,6 +49,7 @@ class oscillator(TableSlave):
         val["x"] = x_eq + dx * c + v / w * s
         val["v"] = -dx * w * s + v * c
         val["f_coupling"] = -kc * (val["x"] - xo)
+        self._update_rest()
 
     def get_model_state(self):
         return None
