@@ -1,0 +1,129 @@
+"""FMI 2.0 co-simulation wrapper of the collision unit (thesis ch. 4-5).
+
+Fixed capacities: 8 dynamic bodies (inputs ``body[i].*``, the i-th dynamic body of the
+scene in scene order; unused inputs are ignored) and 8 monitored pairs (outputs
+``pair[k].*``, the k-th pair of the ``pairs`` spec; unused outputs stay 0 / -1). The model is
+:func:`immersim.models.collision.make_backend`; this file only maps variables.
+"""
+import math
+
+from immersim.fmus.common import TableSlave, Var
+from immersim.models.collision import BACKENDS, BackendConfig, make_backend, parse_scene
+
+BODY_CAPACITY = 8
+PAIR_CAPACITY = 8
+POSE = (("x", "m"), ("y", "m"), ("z", "m"), ("roll", "rad"), ("pitch", "rad"), ("yaw", "rad"))
+PAIR_REALS = (
+    ("distance", "m", "minimum distance (0 in contact; -1 when the pair has no member)"),
+    ("depth", "m", "penetration depth (fcl: deepest contact; honeycomb: section overlap; basis_point: 0)"),
+    ("px", "m", "contact point x (in contact) or closest point on the first body, world frame"),
+    ("py", "m", "contact point y"),
+    ("pz", "m", "contact point z"),
+    ("nx", "1", "unit normal x from the first body towards the partner"),
+    ("ny", "1", "unit normal y"),
+    ("nz", "1", "unit normal z"),
+    ("toi", "s", "time of impact from the start of the step (fcl continuous collision), -1 when none"),
+    ("closing_speed", "m/s", "relative speed along the normal from the pose change over the step (collision jolt)"),
+)
+
+
+def _variables():
+    out = [
+        Var("scene", "parameter", "String", "tank:tris=5.4k;missile:x=0,y=0,z=8",
+            "", "scene: generator spec, JSON scene file or mesh file (see README)"),
+        Var("backend", "parameter", "String", "fcl", "", "detector: fcl | basis_point | honeycomb"),
+        Var("pairs", "parameter", "String", "", "",
+            "monitored pairs, e.g. 'missile vs any tank; a vs b; avatar_1 vs scene' (empty: each dynamic body vs scene)"),
+        Var("st", "parameter", "Real", 0.05, "1", "basis_point sampling threshold ST (eq. 5-8..5-11)"),
+        Var("cells_n", "parameter", "Integer", 8, "", "honeycomb cells n (rows, §4.4)"),
+        Var("cells_m", "parameter", "Integer", 8, "", "honeycomb cells m (columns, §4.4)"),
+        Var("max_distance", "parameter", "Real", 1.0e6, "m",
+            "distances beyond it are not refined (reported as max_distance); far bodies skip the narrow phase"),
+        Var("ccd", "parameter", "Boolean", True, "", "fcl: time of impact (conservative advancement) for moved bodies"),
+    ]
+    for i in range(1, BODY_CAPACITY + 1):
+        for axis, unit in POSE:
+            out.append(Var(f"body[{i}].{axis}", "input", "Real", 0.0, unit,
+                           f"pose {axis} of dynamic body {i} (world frame; R = Rz(yaw) Ry(pitch) Rx(roll), eq. 4-4)"))
+    for k in range(1, PAIR_CAPACITY + 1):
+        out.append(Var(f"pair[{k}].in_contact", "output", "Boolean", False, "", f"pair {k} in contact"))
+        for name, unit, desc in PAIR_REALS:
+            start = -1.0 if name in ("distance", "toi") else 0.0
+            out.append(Var(f"pair[{k}].{name}", "output", "Real", start, unit, f"pair {k}: {desc}"))
+    out += [
+        Var("n_bodies", "output", "Integer", 0, "", "bodies in the scene"),
+        Var("n_pairs", "output", "Integer", 0, "", "monitored pairs in use"),
+        Var("n_candidates", "output", "Integer", 0, "", "broad-phase candidate pairs examined in the step"),
+        Var("n_narrow", "output", "Integer", 0, "", "narrow-phase tests in the step"),
+        Var("at_rest", "output", "Boolean", False, "", "no pose changed in the step (cached results, no test run)"),
+    ]
+    return tuple(out)
+
+
+class collision(TableSlave):
+    modelName = "collision"
+    description = "contacts, distances, penetration and time of impact of a mesh scene: FCL or the thesis's detectors"
+    CAN_HANDLE_STATE = True
+    VARIABLES = _variables()
+
+    def setup_model(self):
+        val, who = self.values, self.instance_name
+        backend = val["backend"].strip()
+        if backend not in BACKENDS:
+            raise ValueError(f"{who}: parameter backend = {backend!r} must be one of {', '.join(BACKENDS)}")
+        try:
+            scene = parse_scene(val["scene"])
+        except (ValueError, OSError) as exc:
+            raise type(exc)(f"{who}: parameter scene: {exc}") from exc
+        n_dyn = len(scene.dynamic)
+        if n_dyn > BODY_CAPACITY:
+            raise ValueError(f"{who}: parameter scene has {n_dyn} dynamic bodies; the FMU takes at most {BODY_CAPACITY}")
+        try:
+            config = BackendConfig(max_distance=val["max_distance"], ccd=bool(val["ccd"]), st=val["st"],
+                                   cells_n=int(val["cells_n"]), cells_m=int(val["cells_m"]))
+        except ValueError as exc:
+            raise ValueError(f"{who}: parameters: {exc}") from exc
+        try:
+            self.model = make_backend(backend, scene, val["pairs"], config)
+        except ValueError as exc:
+            raise ValueError(f"{who}: parameter pairs: {exc}") from exc
+        if len(self.model.pairs) > PAIR_CAPACITY:
+            raise ValueError(f"{who}: parameter pairs lists {len(self.model.pairs)} pairs; the FMU reports at most {PAIR_CAPACITY}")
+        self._pose_names = [[f"body[{i + 1}].{axis}" for axis, _ in POSE] for i in range(n_dyn)]
+        self._publish(self.model.query(self._poses(0.0), 0.033))
+        val["at_rest"] = True
+
+    def _poses(self, t):
+        val = self.values
+        poses = [[val[n] for n in names] for names in self._pose_names]
+        for names, row in zip(self._pose_names, poses):
+            for n, x in zip(names, row):
+                if not math.isfinite(x):
+                    raise ValueError(f"{self.instance_name}: input {n} = {x} at t = {t:g} s is not finite")
+        return poses
+
+    def _publish(self, res):
+        val = self.values
+        for k, r in enumerate(res.pairs, start=1):
+            p = f"pair[{k}]."
+            val[p + "in_contact"] = bool(r.in_contact)
+            val[p + "distance"] = float(r.distance)
+            val[p + "depth"] = float(r.depth)
+            val[p + "px"], val[p + "py"], val[p + "pz"] = (float(x) for x in r.point)
+            val[p + "nx"], val[p + "ny"], val[p + "nz"] = (float(x) for x in r.normal)
+            val[p + "toi"] = float(r.toi)
+            val[p + "closing_speed"] = float(r.closing_speed)
+        val["n_bodies"] = int(res.n_bodies)
+        val["n_pairs"] = len(res.pairs)
+        val["n_candidates"] = int(res.n_candidates)
+        val["n_narrow"] = int(res.n_narrow)
+        val["at_rest"] = bool(res.at_rest)
+
+    def step_model(self, t, h):
+        self._publish(self.model.query(self._poses(t), h))
+
+    def get_model_state(self):
+        return self.model.get_state()
+
+    def set_model_state(self, state):
+        self.model.set_state(state)

@@ -1,0 +1,242 @@
+"""The collision FMU: validation, README table, golden reference, bad input, state, FMPy vs libcosim."""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.validation import validate_fmu
+
+from immersim.fmus.common import markdown_table
+from immersim.orchestrator.build import build_unit, default_build_dir
+
+UNIT = Path(__file__).resolve().parents[2] / "fmus" / "collision"
+H = 0.033
+SCENE = "tanks:n=4,tris=5.4k;missile:z=8"
+PARAMS = {"scene": SCENE, "pairs": "missile vs any tank; tank_0 vs tank_1"}
+REF_OUTPUTS = ["pair[1].in_contact", "pair[1].distance", "pair[1].depth", "pair[1].px", "pair[1].py", "pair[1].pz",
+               "pair[1].nx", "pair[1].ny", "pair[1].nz", "pair[1].toi", "pair[1].closing_speed",
+               "pair[2].distance", "n_candidates", "n_narrow", "at_rest"]
+
+
+@pytest.fixture(scope="module")
+def fmu():
+    return build_unit(UNIT, default_build_dir())
+
+
+class Runner:
+    """A minimal FMPy co-simulation loop with a capturing logger (FMU2Slave)."""
+
+    def __init__(self, path, name="c", params=None, init=True):
+        import tempfile
+        import zipfile
+
+        self.md = read_model_description(str(path))
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.types = {v.name: v.type for v in self.md.modelVariables}
+        self.tmp = tempfile.mkdtemp(prefix="coll_fmu_")
+        zipfile.ZipFile(path).extractall(self.tmp)
+        self.messages = []
+
+        def logger(env, inst, status, category, message):
+            self.messages.append(message.decode(errors="replace"))
+
+        self.cb = fmi2CallbackFunctions()
+        self._logger = fmi2CallbackLoggerTYPE(logger)
+        self.cb.logger = self._logger
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.tmp,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(callbacks=self.cb, loggingOn=True)
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        self.set(params or {})
+        if init:
+            self.fmu.exitInitializationMode()
+        self.k = 0
+
+    def set(self, values):
+        for name, value in values.items():
+            t = self.types[name]
+            if t == "Real":
+                self.fmu.setReal([self.vr[name]], [float(value)])
+            elif t == "Integer":
+                self.fmu.setInteger([self.vr[name]], [int(value)])
+            elif t == "Boolean":
+                self.fmu.setBoolean([self.vr[name]], [bool(value)])
+            else:
+                self.fmu.setString([self.vr[name]], [str(value)])
+
+    def get(self, names):
+        out = []
+        for n in names:
+            t = self.types[n]
+            if t == "Boolean":
+                out.append(float(self.fmu.getBoolean([self.vr[n]])[0]))
+            elif t == "Integer":
+                out.append(float(self.fmu.getInteger([self.vr[n]])[0]))
+            else:
+                out.append(self.fmu.getReal([self.vr[n]])[0])
+        return np.array(out)
+
+    def step(self, inputs=None):
+        if inputs:
+            self.set(inputs)
+        self.fmu.doStep(currentCommunicationPoint=self.k * H, communicationStepSize=H)
+        self.k += 1
+
+    def close(self):
+        try:
+            self.fmu.terminate()
+        finally:
+            self.fmu.freeInstance()
+
+
+def missile_inputs(k):
+    """A missile diving onto tank_0 (origin) at 15 m/s, nose down, reaching it around step 25."""
+    return {"body[1].x": 0.3, "body[1].y": 0.2, "body[1].z": 8.0 - 0.5 * (k + 1), "body[1].pitch": 1.2}
+
+
+def simulate_reference(path, n_steps=30):
+    r = Runner(path, params=dict(PARAMS, **missile_inputs(-1)))  # start poses before initialisation
+    rows = []
+    try:
+        for k in range(n_steps):
+            r.step(missile_inputs(k))
+            rows.append(np.concatenate([[(k + 1) * H], r.get(REF_OUTPUTS)]))
+    finally:
+        r.close()
+    return np.array(rows)
+
+
+def test_validates(fmu):
+    assert validate_fmu(str(fmu)) == []
+
+
+def test_readme_holds_generated_variable_table():
+    sys.path.insert(0, str(UNIT))
+    try:
+        from collision_fmu import collision
+    finally:
+        sys.path.remove(str(UNIT))
+    assert markdown_table(collision.VARIABLES) in (UNIT / "README.md").read_text()
+
+
+def test_golden_reference(fmu):
+    ref = np.loadtxt(UNIT / "reference.csv", delimiter=",", skiprows=1)
+    got = simulate_reference(fmu, len(ref))
+    np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-9)
+    contact = got[:, 1 + REF_OUTPUTS.index("pair[1].in_contact")]
+    assert contact[0] == 0 and contact.max() == 1  # the dive reaches the tank
+    toi = got[:, 1 + REF_OUTPUTS.index("pair[1].toi")]
+    first = int(np.argmax(contact))
+    assert 0 <= toi[first] <= H  # the step that first touches reports its time of impact
+
+
+def test_two_instances_in_one_process(fmu):
+    a = Runner(fmu, "a", PARAMS)
+    b = Runner(fmu, "b", {"scene": "box:name=wall,sx=1,sy=4,sz=4;sphere:name=ball,r=0.5,dynamic=1", "pairs": ""})
+    try:
+        for k in range(3):
+            a.step({"body[1].z": 20.0})
+            b.step({"body[1].x": 2.0 - 0.4 * k})
+        da, db = a.get(["pair[1].distance"])[0], b.get(["pair[1].distance"])[0]
+    finally:
+        a.close()
+        b.close()
+    assert 15.0 < da < 20.0
+    assert db == pytest.approx(2.0 - 0.8 - 0.5 - 0.5, abs=0.02)  # icosphere facets: within 2 cm
+
+
+def test_nan_pose_is_an_error_naming_the_variable(fmu):
+    r = Runner(fmu, "nanny", PARAMS)
+    try:
+        r.step({"body[1].z": 10.0})
+        with pytest.raises(FMICallException):
+            r.step({"body[1].yaw": float("nan")})
+        assert any("body[1].yaw" in m and "not finite" in m and "nanny" in m for m in r.messages), r.messages
+    finally:
+        r.close()
+
+
+def _init_error_messages(fmu, params):
+    """Initialise an instance with ``params`` in a fresh process (pythonfmu turns a failed
+    initialisation into fmi2Fatal, after which freeing the instance may crash the process)
+    and return the logged messages and whether exitInitializationMode failed."""
+    import json
+    import subprocess
+
+    code = (
+        "import json, sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from test_collision_fmu import Runner\n"
+        f"r = Runner({str(fmu)!r}, 'meshy', json.loads({json.dumps(json.dumps(params))}), init=False)\n"
+        "failed = False\n"
+        "try:\n    r.fmu.exitInitializationMode()\nexcept Exception:\n    failed = True\n"
+        "print(json.dumps({'failed': failed, 'messages': r.messages}))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    data = json.loads(out.stdout.strip().splitlines()[-1])
+    return data["failed"], data["messages"]
+
+
+def test_missing_mesh_is_an_error_at_initialisation_naming_the_file(fmu, tmp_path):
+    missing = tmp_path / "no_such_rock.stl"
+    failed, messages = _init_error_messages(fmu, {"scene": f"mesh:file={missing},dynamic=1"})
+    assert failed
+    assert any("no_such_rock.stl" in m and "does not exist" in m and "meshy" in m for m in messages), messages
+
+
+def test_corrupt_mesh_is_an_error_at_initialisation_naming_the_file(fmu, tmp_path):
+    bad = tmp_path / "garbage.ply"
+    bad.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n\x00\x01")
+    failed, messages = _init_error_messages(fmu, {"scene": f"mesh:file={bad},dynamic=1"})
+    assert failed
+    assert any("garbage.ply" in m and "meshy" in m for m in messages), messages
+
+
+def test_unknown_backend_is_an_error(fmu):
+    failed, messages = _init_error_messages(fmu, {"backend": "gjk"})
+    assert failed
+    assert any("backend" in m and "gjk" in m for m in messages), messages
+
+
+def test_fmu_state_roll_back(fmu):
+    r = Runner(fmu, params=dict(PARAMS, **missile_inputs(-1)))
+    try:
+        for k in range(20):
+            r.step(missile_inputs(k))
+        s = r.fmu.getFMUstate()
+        k0 = r.k
+        for k in range(20, 28):
+            r.step(missile_inputs(k))
+        first = r.get(REF_OUTPUTS)
+        r.fmu.setFMUstate(s)
+        r.k = k0
+        for k in range(20, 28):
+            r.step(missile_inputs(k))
+        np.testing.assert_array_equal(r.get(REF_OUTPUTS), first)
+        r.fmu.freeFMUstate(s)
+    finally:
+        r.close()
+
+
+def test_same_outputs_under_fmpy_and_libcosim(fmu):
+    from immersim.orchestrator.crosscheck import simulate_fmpy, simulate_libcosim
+
+    start = dict(PARAMS, **{"body[1].x": 0.5, "body[1].z": 2.5, "body[1].pitch": 0.3})
+    outs = ["pair[1].distance", "pair[1].depth", "pair[1].px", "pair[1].pz", "pair[1].nz", "pair[2].distance"]
+    a = simulate_fmpy(fmu, start, 5, outs)[0]
+    b = simulate_libcosim(fmu, start, 5, outs)[0]
+    for name in outs:
+        np.testing.assert_allclose(a[name], b[name], rtol=1e-12, atol=1e-15, err_msg=name)
+    assert a["pair[1].depth"][0] > 0  # the missile sits in the tank: a contact
+
+
+if __name__ == "__main__":  # regenerate the golden file: python tests/collision/test_collision_fmu.py
+    path = build_unit(UNIT, default_build_dir())
+    data = simulate_reference(path)
+    np.savetxt(UNIT / "reference.csv", data, delimiter=",", header="time," + ",".join(REF_OUTPUTS), comments="",
+               fmt="%.17g")
+    print(f"wrote {UNIT / 'reference.csv'} ({len(data)} rows)")
