@@ -1,0 +1,168 @@
+"""Backend ``fcl``: distances against an independent brute force, contacts, skip rules, time of impact."""
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from immersim.models.collision import BackendConfig, make_backend, parse_scene
+from immersim.models.collision.geometry import point_triangle_distance, pose_matrix
+
+
+def segment_distance(p1, q1, p2, q2):
+    """Vectorised closest distance between segments p1q1 and p2q2 (Ericson 5.1.9)."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a = np.einsum("ij,ij->i", d1, d1)
+    e = np.einsum("ij,ij->i", d2, d2)
+    f = np.einsum("ij,ij->i", d2, r)
+    c = np.einsum("ij,ij->i", d1, r)
+    b = np.einsum("ij,ij->i", d1, d2)
+    denom = a * e - b * b
+    s = np.where(denom > 1e-15, np.clip((b * f - c * e) / np.where(denom > 1e-15, denom, 1), 0, 1), 0.0)
+    t = (b * s + f) / e
+    s = np.where(t < 0, np.clip(-c / a, 0, 1), np.where(t > 1, np.clip((b - c) / a, 0, 1), s))
+    t = np.clip(t, 0, 1)
+    return np.linalg.norm(p1 + d1 * s[:, None] - (p2 + d2 * t[:, None]), axis=1)
+
+
+def brute_distance(ma: trimesh.Trimesh, mb: trimesh.Trimesh) -> float:
+    """Exact distance of two disjoint triangle meshes: vertex-triangle and edge-edge minima."""
+    best = math.inf
+    for m1, m2 in ((ma, mb), (mb, ma)):
+        V, F = m1.vertices, m2.triangles
+        P = np.repeat(V, len(F), axis=0)
+        Tr = np.tile(F, (len(V), 1, 1))
+        best = min(best, point_triangle_distance(P, Tr)[0].min())
+    ea, eb = ma.vertices[ma.edges_unique], mb.vertices[mb.edges_unique]
+    A = np.repeat(ea, len(eb), axis=0)
+    B = np.tile(eb, (len(ea), 1, 1))
+    return min(best, segment_distance(A[:, 0], A[:, 1], B[:, 0], B[:, 1]).min())
+
+
+def posed(scene, i, pose):
+    m = scene.mesh(i).copy()
+    m.apply_transform(pose_matrix(pose))
+    return m
+
+
+def test_point_triangle_distance_against_trimesh():
+    rng = np.random.default_rng(1)
+    tri = rng.normal(size=(300, 3, 3))
+    p = rng.normal(size=(300, 3)) * 2
+    d, c = point_triangle_distance(p, tri)
+    for k in range(0, 300, 7):
+        mesh = trimesh.Trimesh(tri[k], [[0, 1, 2]], process=False)
+        _, dist, _ = trimesh.proximity.closest_point(mesh, p[k:k + 1])
+        assert d[k] == pytest.approx(dist[0], abs=1e-9)
+
+
+def test_distances_match_brute_force_on_random_poses():
+    scene = parse_scene("box:name=block,sx=1.0,sy=0.6,sz=0.4;sphere:name=ball,r=0.3,subdiv=1,dynamic=1")
+    be = make_backend("fcl", scene, "ball vs block")
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(40):
+        pose = np.r_[rng.uniform(-1.5, 1.5, 3), rng.uniform(-np.pi, np.pi, 3)]
+        r = be.query([pose]).pairs[0]
+        ball, block = posed(scene, 1, pose), posed(scene, 0, np.zeros(6))
+        if r.in_contact:
+            assert trimesh.collision.CollisionManager is not None
+            continue
+        ref = brute_distance(ball, block)
+        assert r.distance == pytest.approx(ref, abs=1e-7)
+        # the reported point lies on the ball's surface and the normal points to the block
+        _, dp, _ = trimesh.proximity.closest_point(ball, r.point[None])
+        assert dp[0] < 1e-6
+        assert np.linalg.norm(r.normal) == pytest.approx(1.0)
+        checked += 1
+    assert checked >= 15
+
+
+def test_contact_depth_and_normal_of_an_overlap():
+    scene = parse_scene("box:name=floor,sx=10,sy=10,sz=1,z=-0.5;box:name=cube,sx=1,sy=1,sz=1,dynamic=1")
+    be = make_backend("fcl", scene, "cube vs floor")
+    r = be.query([[0, 0, 0.6, 0, 0, 0]]).pairs[0]
+    assert not r.in_contact and r.distance == pytest.approx(0.1)
+    assert r.normal == pytest.approx([0, 0, -1])
+    r = be.query([[0, 0, 0.4, 0, 0, 0]]).pairs[0]
+    assert r.in_contact and r.distance == 0.0
+    assert r.depth == pytest.approx(0.1, abs=1e-6)
+    assert abs(r.normal[2]) == pytest.approx(1.0, abs=1e-6)
+    assert r.closing_speed == pytest.approx(0.2 / 0.033 * abs(r.normal[2]) * np.sign(-r.normal[2]), rel=1e-6)
+
+
+def test_closing_speed_is_positive_when_approaching():
+    scene = parse_scene("box:name=wall,sx=1,sy=4,sz=4;box:name=cube,sx=1,sy=1,sz=1,dynamic=1,x=5")
+    be = make_backend("fcl", scene, "cube vs wall")
+    be.query([[5, 0, 0, 0, 0, 0]])
+    r = be.query([[4, 0, 0, 0, 0, 0]], dt=0.1).pairs[0]
+    assert r.normal == pytest.approx([-1, 0, 0])
+    assert r.closing_speed == pytest.approx(10.0)
+    r = be.query([[4.5, 0, 0, 0, 0, 0]], dt=0.1).pairs[0]
+    assert r.closing_speed == pytest.approx(-5.0)
+
+
+def test_time_of_impact_catches_tunnelling():
+    """A missile crossing a 0.1 m plate in one step: no contact at either end, toi inside."""
+    scene = parse_scene("box:name=plate,sx=0.1,sy=4,sz=4;missile:z=0,x=-3")
+    be = make_backend("fcl", scene, "missile vs plate")
+    be.query([[-3, 0, 0, 0, 0, 0]])
+    r = be.query([[3, 0, 0, 0, 0, 0]], dt=0.033).pairs[0]
+    assert not r.in_contact
+    # the nose (x + 1.5) meets the plate face x = -0.05 after travelling 1.45 of 6 m
+    assert r.toi == pytest.approx(1.45 / 6.0 * 0.033, abs=2e-4 * 0.033 / 6 + 1e-6)
+    off = make_backend("fcl", scene, "missile vs plate", BackendConfig(ccd=False))
+    off.query([[-3, 0, 0, 0, 0, 0]])
+    assert off.query([[3, 0, 0, 0, 0, 0]]).pairs[0].toi == -1.0
+
+
+def test_skip_rules_and_rest():
+    scene = parse_scene("tanks:n=100,tris=5.4k;missile:z=30;sphere:name=drone,r=0.5,dynamic=1,z=40")
+    be = make_backend("fcl", scene, "missile vs any tank; tank_0 vs tank_1; drone vs scene")
+    assert len(be.geoms) == 3  # one BVH for all 100 tanks
+    r0 = be.query([[0, 0, 30, 0, 0, 0], [0, 0, 40, 0, 0, 0]])
+    assert r0.n_bodies == 102
+    # the far missile: the tree hands out only the nearest tanks, not all 100
+    r1 = be.query([[45, 45, 30, 0, 0, 0], [0, 0, 40, 0, 0, 0]])
+    assert 1 <= r1.n_candidates <= 8 and not r1.at_rest  # over all three pairs
+    # nothing moves: cached answer, nothing tested
+    r2 = be.query([[45, 45, 30, 0, 0, 0], [0, 0, 40, 0, 0, 0]])
+    assert r2.at_rest and r2.n_candidates == 0 and r2.n_narrow == 0
+    assert [p.distance for p in r2.pairs] == [p.distance for p in r1.pairs]
+    # only the drone moves: the missile pair and the static-static pair are not re-tested
+    calls = []
+    orig = be._evaluate
+    be._evaluate = lambda pair, dt: calls.append(pair.label) or orig(pair, dt)
+    be.query([[45, 45, 30, 0, 0, 0], [0, 0, 41, 0, 0, 0]])
+    assert calls == ["drone vs scene"]
+
+
+def test_state_round_trip_restores_caches():
+    scene = parse_scene("tanks:n=4;missile:z=8")
+    be = make_backend("fcl", scene, "missile vs any tank")
+    be.query([[0.3, 0, 6, 0, 0.5, 0]])
+    state = be.get_state()
+    a = be.query([[0.3, 0, 3, 0, 0.5, 0]]).pairs[0]
+    be.query([[20, 0, 3, 0, 0, 0]])
+    be.set_state(state)
+    b = be.query([[0.3, 0, 3, 0, 0.5, 0]]).pairs[0]
+    assert (a.in_contact, a.distance, a.depth, a.toi, a.closing_speed) == \
+        (b.in_contact, b.distance, b.depth, b.toi, b.closing_speed)
+
+
+def test_non_watertight_mesh_keeps_exact_distances(tmp_path):
+    box = trimesh.creation.box((1, 1, 1))
+    trimesh.Trimesh(box.vertices, box.faces[2:], process=False).export(tmp_path / "open.stl")
+    with pytest.warns(Warning):
+        scene = parse_scene(f"mesh:file={tmp_path / 'open.stl'},name=open;sphere:name=ball,r=0.2,subdiv=1,dynamic=1")
+    be = make_backend("fcl", scene, "ball vs open")
+    pose = [1.3, 0.2, 0.1, 0, 0, 0]
+    r = be.query([pose]).pairs[0]
+    assert r.distance == pytest.approx(brute_distance(posed(scene, 1, pose), scene.mesh(0)), abs=1e-7)
+
+
+def test_nan_pose_is_rejected_naming_the_body():
+    scene = parse_scene("tank;missile:z=8")
+    be = make_backend("fcl", scene)
+    with pytest.raises(ValueError, match=r"'missile' \(pitch\) = nan is not finite"):
+        be.query([[0, 0, 8, 0, float("nan"), 0]])
