@@ -70,6 +70,7 @@ SIM_KEYS = ("start", "stop", "step", "algorithm", "extrapolation", "tolerance")
 FIXED_COLUMNS = ("run", "id", "status", "steps", "t_end_s", "wall_time_s")
 TAIL_COLUMNS = ("reason", "mcap")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.+\-]+")
+_EDGE = re.compile(r"^[^A-Za-z0-9_.+\-]+|[^A-Za-z0-9_.+\-]+$")
 
 
 class SweepFailed(ImmersimError, RuntimeError):
@@ -277,7 +278,7 @@ def _short(value: Any) -> str:
 
 def safe_id(index: int, parts: Iterable[Any], max_len: int = 60) -> str:
     """``<index>_<part>_<part>...``, characters outside ``[A-Za-z0-9_.+-]`` replaced by ``-``."""
-    body = "_".join(_UNSAFE.sub("-", _short(p)).strip("-") for p in parts)
+    body = "_".join(_UNSAFE.sub("-", _EDGE.sub("", _short(p))) for p in parts)
     return f"{index:03d}" + (f"_{body[:max_len]}" if body else "")
 
 

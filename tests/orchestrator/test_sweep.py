@@ -1,0 +1,242 @@
+"""Ablation sweeps: a grid over the coupled-oscillator scenario run on spawned processes and on
+a Dask cluster, metrics recomputed independently from the MCAP logs, failed runs reported per
+row, malformed sweep files rejected with exact messages."""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from immersim.orchestrator.cli import main as cli_main
+from immersim.orchestrator.errors import ScenarioError
+from immersim.orchestrator.execution import run_scenario
+from immersim.orchestrator.mcapio import read_info, read_series
+from immersim.orchestrator.sweep import (MetricSpec, SweepFailed, load_sweep, read_summary, reduce_signals,
+                                         run_sweep, safe_id)
+
+from .helpers import oscillator_scenario
+
+# A NaN forced into m2 at t = 3 s: beyond the base stop time (1 s), so only a variant that
+# runs longer meets it.
+FAULT = '[[faults]]\ntarget = "m2.x_other"\nat = 3.0\nvalue = nan\n'
+
+GRID = '''
+scenario = "osc.toml"
+[grid]
+"simulation.algorithm" = ["jacobi", "gauss-seidel"]
+"simulation.extrapolation" = ["zoh", "linear"]
+[metrics]
+x1_max = { signal = "m1.x", reduce = "max" }
+x2_min = { signal = "m2.x", reduce = "min" }
+v_absmax = { signal = "m*.v", reduce = "absmax" }
+x_rms_late = { signal = "m*.x", reduce = "rms", after = 0.5 }
+f_mean = { signal = "m1.f_coupling", reduce = "mean" }
+x2_final = { signal = "m2.x", reduce = "final" }
+n = "steps"
+[plot]
+x = "simulation.extrapolation"
+y = ["x2_final", "x_rms_late"]
+hue = "simulation.algorithm"
+'''
+IDS = ["000_jacobi_zoh", "001_jacobi_linear", "002_gauss-seidel_zoh", "003_gauss-seidel_linear"]
+# Columns that differ between two executions of the same sweep.
+TIMING = ("wall_time_s",)
+
+
+@pytest.fixture(scope="module")
+def sweep_dir(tmp_path_factory, test_fmus) -> Path:
+    """A folder with the oscillator scenario ``osc.toml`` (1 s, step 0.01 s) and ``grid.toml``."""
+    d = tmp_path_factory.mktemp("sweep")
+    oscillator_scenario(d, test_fmus["oscillator"], step=0.01, stop=1.0, extra=FAULT)
+    (d / "grid.toml").write_text(GRID)
+    return d
+
+
+@pytest.fixture(scope="module")
+def local_grid(sweep_dir):
+    """The 2x2 grid run once on 2 local worker processes."""
+    out = sweep_dir / "local"
+    return run_sweep(sweep_dir / "grid.toml", out, workers=2), out
+
+
+def independent_metrics(mcap: Path) -> dict:
+    """The [metrics] of GRID computed directly from the log with read_series and numpy."""
+    s = read_series(mcap, ["m1.*", "m2.*"])
+    t1, x1, _ = s["m1.x"]
+    t2, x2, _ = s["m2.x"]
+    late = np.concatenate([x1[t1 >= 0.5], x2[t2 >= 0.5]])
+    return {"x1_max": x1.max(), "x2_min": x2.min(),
+            "v_absmax": max(np.abs(s["m1.v"][1]).max(), np.abs(s["m2.v"][1]).max()),
+            "x_rms_late": math.sqrt(np.mean(late ** 2)), "f_mean": s["m1.f_coupling"][1].mean(),
+            "x2_final": x2[-1]}
+
+
+def test_grid_runs_every_variant_with_metrics_from_its_log(local_grid, sweep_dir):
+    result, out = local_grid
+    rows = read_summary(out / "summary.csv")
+    assert [r["id"] for r in rows] == IDS
+    assert sorted(p.name for p in out.glob("*.mcap")) == sorted(f"{i}.mcap" for i in IDS)
+    assert [(r["simulation.algorithm"], r["simulation.extrapolation"]) for r in rows] == [
+        ("jacobi", "zoh"), ("jacobi", "linear"), ("gauss-seidel", "zoh"), ("gauss-seidel", "linear")]
+    for r in rows:
+        assert (r["status"], r["steps"], r["n"], float(r["t_end_s"]), r["reason"]) == ("completed", "100", "100", 1.0, "")
+        assert float(r["wall_time_s"]) > 0
+        mcap = out / r["mcap"]
+        meta = read_info(mcap).metadata["immersim"]
+        assert (meta["algorithm"], meta["extrapolation"]) == (r["simulation.algorithm"], r["simulation.extrapolation"])
+        for name, value in independent_metrics(mcap).items():
+            assert float(r[name]) == pytest.approx(value, rel=1e-12, abs=1e-15), (r["id"], name)
+    # The variants really differ: the coupling error depends on algorithm and extrapolation.
+    assert len({r["x2_final"] for r in rows}) == 4
+    assert (out / "x2_final-x_rms_late_vs_simulation.extrapolation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert result.plots == [out / "x2_final-x_rms_late_vs_simulation.extrapolation.png"]
+    assert "4 of 4 runs completed" in str(result)
+
+
+def test_sweep_run_equals_a_direct_run(local_grid, sweep_dir, tmp_path):
+    """A variant run by the sweep worker ends where run_scenario with the same overrides ends."""
+    _, out = local_grid
+    row = read_summary(out / "summary.csv")[3]
+    res = run_scenario(sweep_dir / "osc.toml", None,
+                       overrides={"simulation.algorithm": "gauss-seidel", "simulation.extrapolation": "linear"})
+    assert float(row["x2_final"]) == res.values["m2"]["x"]
+
+
+def test_failed_runs_are_reported_in_their_rows(sweep_dir, tmp_path):
+    """A NaN fault met by the longer variant and a missing FMU fail their runs; the sweep
+    completes the others, writes every row and then raises SweepFailed."""
+    (sweep_dir / "fail.toml").write_text('''
+scenario = "osc.toml"
+[[variants]]
+name = "ok"
+[[variants]]
+name = "long run"
+"simulation.stop" = 4.0
+[[variants]]
+name = "swap"
+"m1:fmu" = "nowhere/other_osc.fmu"
+[metrics]
+x2_final = { signal = "m2.x", reduce = "final" }
+''')
+    out = tmp_path / "fail"
+    with pytest.raises(SweepFailed, match=r"2 of 3 runs did not complete \(001_long-run: failed: unit m2: fmi2DoStep "
+                                          r"returned discard at t = 3 s: .*; 002_swap: failed: FmuLoadError: unit m1: "
+                                          r"FMU '.*nowhere/other_osc.fmu' not found"):
+        run_sweep(sweep_dir / "fail.toml", out, workers=2)
+    rows = {r["id"]: r for r in read_summary(out / "summary.csv")}
+    assert list(rows) == ["000_ok", "001_long-run", "002_swap"]
+    ok, late, swap = rows.values()
+    assert (ok["status"], ok["steps"]) == ("completed", "100") and math.isfinite(float(ok["x2_final"]))
+    assert (late["status"], late["steps"], late["t_end_s"], late["x2_final"]) == ("failed", "300", "3.0", "")
+    assert re.search(r"FmuInputError: m2: input x_other = nan at t = 3 s", late["reason"])
+    assert read_info(out / late["mcap"]).channels["m2"].count == 301  # every completed step kept
+    assert (swap["status"], swap["steps"], swap["mcap"], swap["m1:fmu"]) == ("failed", "0", "", "nowhere/other_osc.fmu")
+    assert swap["reason"].startswith("FmuLoadError: unit m1: FMU")
+
+
+def test_cli_sweep_exits_nonzero_when_a_run_fails(sweep_dir, tmp_path, capsys):
+    (sweep_dir / "bad_swap.toml").write_text('scenario = "osc.toml"\n[grid]\n"m2:fmu" = ["missing.fmu"]\n')
+    code = cli_main(["sweep", str(sweep_dir / "bad_swap.toml"), "-o", str(tmp_path), "-j", "1"])
+    assert code != 0
+    assert re.search(r"sweep .*bad_swap.toml: 1 of 1 runs did not complete \(000: failed: FmuLoadError: unit m2",
+                     capsys.readouterr().err)
+    assert read_summary(tmp_path / "summary.csv")[0]["status"] == "failed"
+
+
+def test_dask_cluster_gives_the_same_summary(local_grid, sweep_dir):
+    """The same sweep on a one-worker Dask LocalCluster: identical rows except timing."""
+    distributed = pytest.importorskip("distributed")
+    try:
+        cluster = distributed.LocalCluster(n_workers=1, processes=True, threads_per_worker=1,
+                                           dashboard_address=None, silence_logs=50)
+    except Exception as exc:  # pragma: no cover - sandboxed machines without sockets
+        pytest.skip(f"cannot start a Dask LocalCluster: {exc}")
+    out = sweep_dir / "dask"
+    try:
+        with cluster:
+            run_sweep(sweep_dir / "grid.toml", out, scheduler=cluster.scheduler_address)
+    finally:
+        cluster.close()
+    local = read_summary(local_grid[1] / "summary.csv")
+    dask = read_summary(out / "summary.csv")
+    strip = [{k: v for k, v in r.items() if k not in TIMING} for r in (local, dask) for r in r]
+    assert strip[:4] == strip[4:]
+    assert sorted(p.name for p in out.glob("*.mcap")) == sorted(f"{i}.mcap" for i in IDS)
+
+
+def test_reduce_signals_pools_matches_and_windows_in_time():
+    t = np.array([0.0, 0.5, 1.0])
+    series = {"a.x": (t, np.array([3.0, -4.0, 1.0]), "m"), "b.x": (t, np.array([0.0, 2.0, -2.0]), "m")}
+    assert reduce_signals(series, MetricSpec("m", signal="*.x", reduce="absmax")) == 4.0
+    assert reduce_signals(series, MetricSpec("m", signal="*.x", reduce="rms", after=0.5)) == math.sqrt(25 / 4)
+    assert math.isnan(reduce_signals(series, MetricSpec("m", signal="*.x", reduce="max", after=2.0)))
+    with pytest.raises(ValueError, match=r"metric m: reduce 'final' needs exactly one signal, '\*.x' matches 2: a.x, b.x"):
+        reduce_signals(series, MetricSpec("m", signal="*.x", reduce="final"))
+
+
+def test_run_ids_are_short_and_file_system_safe():
+    assert safe_id(7, ["gauss-seidel", 0.01, "../fmus/my net.fmu", "a/b c"]) == "007_gauss-seidel_0.01_my-net_b-c"
+    assert len(safe_id(1, ["x" * 200])) == 4 + 60
+
+
+BAD = [
+    ("scenario = 1\n[grid]\n'm1.k' = [1.0]\n", r"bad.toml: 'scenario' must be the path of a scenario file"),
+    ("scenario = 'nope.toml'\n[grid]\n'm1.k' = [1.0]\n", r"bad.toml: scenario 'nope.toml' does not exist"),
+    ("scenario = 'osc.toml'\n[grid\n", r"bad.toml: invalid TOML"),
+    ("scenario = 'osc.toml'\nruns = 3\n", r"bad.toml: unknown top-level key 'runs'"),
+    ("scenario = 'osc.toml'\n", r"bad.toml: nothing to run: give a \[grid\] or \[\[variants\]\]"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = 2.0\n", r"bad.toml: grid key 'm1.k' must be a non-empty list of values, got 2.0"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = []\n", r"bad.toml: grid key 'm1.k' must be a non-empty list"),
+    ("scenario = 'osc.toml'\n[grid]\n'simulation.dt' = [0.1]\n",
+     r"bad.toml: grid key 'simulation.dt': unknown simulation setting 'simulation.dt'"),
+    ("scenario = 'osc.toml'\n[grid]\n'stiffness' = [1]\n", r"bad.toml: grid key 'stiffness': 'stiffness' is not an override key"),
+    ("scenario = 'osc.toml'\n[grid]\n'mx.k' = [1.0, 2.0]\n",
+     r"bad.toml: variant 000_1 \{'mx.k': 1.0\}: override 'mx.k': no unit 'mx' in .*osc.toml"),
+    ("scenario = 'osc.toml'\n[grid]\n'simulation.algorithm' = ['jacobi', 'euler']\n",
+     r"bad.toml: variant 001_euler \{'simulation.algorithm': 'euler'\}: .*osc.toml: simulation.algorithm 'euler' is not "
+     r"one of gauss-seidel, jacobi"),
+    ("scenario = 'osc.toml'\n[grid]\n'simulation.step' = [0.01, -1.0]\n",
+     r"bad.toml: variant 001_-1 .*simulation.step = -1.0 s must be > 0"),
+    ("scenario = 'osc.toml'\n[[variants]]\nname = 'a'\n[[variants]]\nname = 'a'\n",
+     r"bad.toml: variants\[1\]: duplicate variant name 'a'"),
+    ("scenario = 'osc.toml'\n[[variants]]\nname = 'a'\n'm1.k' = [1, 2]\n",
+     r"bad.toml: variants\[0\] \(a\) key 'm1.k': expected a single value, got \[1, 2\]"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = { signal = 'm1.x', reduce = 'median' }\n",
+     r"bad.toml: metrics.e: reduce 'median' is not one of max\|min\|mean\|rms\|absmax\|final"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = { signal = 'x' }\n",
+     r"bad.toml: metrics.e: 'signal' must be a 'unit.variable' pattern, got 'x'"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = 'cpu'\n",
+     r"bad.toml: metrics.e: unknown built-in metric 'cpu' \(expected one of wall_time, steps, status"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\nstatus = 'steps'\n",
+     r"bad.toml: metrics.status: the name 'status' is already a summary column"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = { signal = 'm1.x', window = 1 }\n",
+     r"bad.toml: metrics.e: unknown key 'window'"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[plot]\nx = 'm1.k'\ny = 'err'\n",
+     r"bad.toml: plot.y: 'err' is not an override key or metric \(columns: m1.k, steps, t_end_s, wall_time_s\)"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[[plot]]\ny = 'steps'\n", r"bad.toml: plot\[0\]: needs 'x' and 'y'"),
+]
+
+
+@pytest.mark.parametrize("text,match", BAD, ids=[f"bad{i}" for i in range(len(BAD))])
+def test_malformed_sweep_files_name_file_and_key(sweep_dir, text, match):
+    bad = sweep_dir / "bad.toml"
+    bad.write_text(text)
+    with pytest.raises(ScenarioError, match=match):
+        load_sweep(bad)
+
+
+def test_missing_sweep_file(tmp_path):
+    with pytest.raises(ScenarioError, match=r"sweep file .*none.toml does not exist"):
+        run_sweep(tmp_path / "none.toml", tmp_path)
+
+
+def test_fmu_swap_paths_resolve_against_the_sweep_file(sweep_dir, test_fmus):
+    sub = sweep_dir / "sub"
+    sub.mkdir(exist_ok=True)
+    (sub / "swap.toml").write_text(f'scenario = "../osc.toml"\n[grid]\n"m1:fmu" = ["../fmus/a.fmu", "{test_fmus["oscillator"]}"]\n')
+    spec = load_sweep(sub / "swap.toml")
+    assert [v.resolved["m1:fmu"] for v in spec.variants] == [str(sweep_dir / "fmus" / "a.fmu"), str(test_fmus["oscillator"])]
+    assert [v.id for v in spec.variants] == ["000_a", "001_oscillator"]
