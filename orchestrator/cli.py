@@ -42,6 +42,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"immersim: error: {exc}\n")
         return EXIT_FAILED
     sys.stdout.write(f"{res.scenario}: {res.steps_done} steps to t = {res.t_ns / 1e9:.6g} s -> {out}\n")
+    summary = res.timing_summary()
+    if summary:
+        sys.stdout.write(summary + "\n")
     if res.skipped_units:
         sys.stdout.write(f"not loaded (nothing uses their outputs): {', '.join(res.skipped_units)}\n")
     return 0

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional
@@ -72,11 +73,25 @@ class RunResult:
     steps_done: int
     steps_total: int
     t_ns: int
+    start_ns: int = 0
     status: str = "completed"
     reason: str = ""
     skipped_units: List[str] = field(default_factory=list)
     delayed_connections: List[str] = field(default_factory=list)
     values: Dict[str, Dict[str, Any]] = field(default_factory=dict)
+    #: wall seconds: "loop" (the whole step loop), "logging" (observers), "unit:<name>" per unit
+    timing: Dict[str, float] = field(default_factory=dict)
+
+    def timing_summary(self) -> str:
+        """One line: wall time of the loop, real-time factor, share of each unit and of logging."""
+        loop = self.timing.get("loop", 0.0)
+        if loop <= 0 or self.steps_done == 0:
+            return ""
+        sim = (self.t_ns - self.start_ns) / 1e9
+        parts = [f"{k[5:]} {v:.3g} s" for k, v in self.timing.items() if k.startswith("unit:")]
+        master = loop - sum(v for k, v in self.timing.items() if k.startswith("unit:")) - self.timing.get("logging", 0.0)
+        return (f"loop {loop:.3g} s for {sim:.6g} s simulated ({sim / loop:.1f}x real time); "
+                f"units: {', '.join(parts)}; logging {self.timing.get('logging', 0.0):.3g} s; master {master:.3g} s")
 
 
 class Execution:
@@ -100,6 +115,7 @@ class Execution:
         self._tmp = tempfile.TemporaryDirectory(prefix="immersim_run_")
         self.observer: Optional[McapObserver] = None
         self.observers: List[Callable[[int, int], None]] = []
+        self._observe_ns = 0
 
     # -- set-up --------------------------------------------------------------------------
     def _setup(self) -> Master:
@@ -160,6 +176,11 @@ class Execution:
                     write_parameters(obs, name, infos, slot.inst.get_values(pnames), sc.start_ns)
 
     def _observe(self, master: Master, k: int, t_ns: int) -> None:
+        t_start = time.perf_counter_ns()
+        self._observe_values(master, k, t_ns)
+        self._observe_ns += time.perf_counter_ns() - t_start
+
+    def _observe_values(self, master: Master, k: int, t_ns: int) -> None:
         obs = self.observer
         if obs is not None:
             for name, idx in self._log_index.items():
@@ -174,7 +195,9 @@ class Execution:
         """Run to the stop time. Raises :class:`RunFailed` after closing the log on failure."""
         sc = self.scenario
         n = sc.n_steps
-        result = RunResult(sc.file, self.output, 0, n, sc.start_ns, skipped_units=list(self.system.skipped))
+        result = RunResult(sc.file, self.output, 0, n, sc.start_ns, start_ns=sc.start_ns,
+                           skipped_units=list(self.system.skipped))
+        loop_start = None
         master: Optional[Master] = None
         bar = None
         try:
@@ -187,6 +210,7 @@ class Execution:
                 from tqdm import tqdm
                 bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None)
             t0, h, stop = sc.start_ns, sc.step_ns, sc.stop_ns
+            loop_start = time.perf_counter()
             with _DeferredSigint() as sigint:
                 for k in range(n):
                     t_ns, t_next = t0 + k * h, min(t0 + (k + 1) * h, stop)
@@ -209,6 +233,11 @@ class Execution:
                 bar.close()
             if master is not None:
                 result.values = {name: dict(zip(s.read_names, s.cur)) for name, s in master.slots.items()}
+                if loop_start is not None:
+                    result.timing["loop"] = time.perf_counter() - loop_start
+                    result.timing["logging"] = self._observe_ns / 1e9
+                    for name, s in master.slots.items():
+                        result.timing[f"unit:{name}"] = s.busy_ns / 1e9
             self._finish(result)
         return result
 

@@ -15,6 +15,7 @@ ZOH is first order (tests/orchestrator/test_convergence.py measures both).
 from __future__ import annotations
 
 import logging
+from time import perf_counter_ns
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
@@ -52,6 +53,7 @@ class Slot:
     pending_start: int = 0  # lazily skipped interval [pending_start, pending_start + pending_ns)
     pending_ns: int = 0
     skipped_steps: int = 0
+    busy_ns: int = 0  # wall time spent in this unit's FMI calls (gather, step, read)
 
     def index(self, name: str) -> int:
         return self.read_names.index(name)
@@ -176,17 +178,20 @@ class Master:
         slots = self.slots
         if self.algorithm == "jacobi":
             gathered = [(slots[name], self._gather(slots[name], t_ns)) for name in self.order]
-            called = [self._advance(slot, t_ns, h_ns, inputs) for slot, inputs in gathered]
-            for (slot, _), did in zip(gathered, called):
-                if did:
+            for slot, inputs in gathered:
+                t0 = perf_counter_ns()
+                if self._advance(slot, t_ns, h_ns, inputs):
                     slot.read()
+                slot.busy_ns += perf_counter_ns() - t0
             return
         for name in self.order:
             slots[name].stepped = False
         for name in self.order:
             slot = slots[name]
+            t0 = perf_counter_ns()
             if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns)):
                 slot.read()
+            slot.busy_ns += perf_counter_ns() - t0
             slot.stepped = True
 
     def finish(self) -> None:
