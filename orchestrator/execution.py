@@ -126,7 +126,9 @@ class Execution:
         for name in system.needed:
             inst = system.instances[name]
             sources = [c.src_var for c in conns if c.src_unit == name]
-            reader = inst.reader(system.logged[name] + sources + (["at_rest"] if _lazy_capable(inst, sc) else []))
+            viewed = [r.split(".", 1)[1] for b in sc.foxglove for r in b.refs() if r.split(".", 1)[0] == name]
+            reader = inst.reader(system.logged[name] + sources + viewed
+                                 + (["at_rest"] if _lazy_capable(inst, sc) else []))
             slot = Slot(name, inst, reader.names)
             slot.reader = reader
             real_in = [c.dst_var for c in conns if c.dst_unit == name and inst.var(c.dst_var).family == "float"]
@@ -174,6 +176,16 @@ class Execution:
                 if pnames:
                     infos = [slot.inst.var(n) for n in pnames]
                     write_parameters(obs, name, infos, slot.inst.get_values(pnames), sc.start_ns)
+        if sc.foxglove:
+            from .foxglove import FoxgloveObserver
+
+            def lookup(ref: str):
+                unit, var = ref.split(".", 1)
+                slot = master.slots[unit]
+                i = slot.index(var)
+                return lambda: slot.cur[i]
+
+            self.observers.append(FoxgloveObserver(obs, sc.foxglove, lookup))
 
     def _observe(self, master: Master, k: int, t_ns: int) -> None:
         t_start = time.perf_counter_ns()

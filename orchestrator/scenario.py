@@ -117,6 +117,7 @@ class Scenario:
     extrapolation: str = "zoh"
     tolerance: Optional[float] = None
     lazy: bool = True
+    foxglove: List[Any] = field(default_factory=list)  # foxglove.Body list (3D view)
 
     @property
     def n_steps(self) -> int:
@@ -180,7 +181,7 @@ def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) 
 def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
                    overrides: Optional[Dict[str, Any]] = None) -> Scenario:
     f = str(path)
-    known = {"simulation", "units", "connections", "inputs", "faults", "log", "description", "title"}
+    known = {"simulation", "units", "connections", "inputs", "faults", "log", "description", "title", "foxglove"}
     for key in data:
         if key not in known:
             raise ScenarioError(f"{f}: unknown top-level key {key!r} (expected one of {', '.join(sorted(known))})")
@@ -307,8 +308,14 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
             raise ScenarioError(f"{f}: [log] unknown key {key!r}")
     logspec = LogSpec(list(raw_log.get("include", ["*"])), list(raw_log.get("exclude", [])),
                       bool(raw_log.get("parameters", True)))
+    from .foxglove import parse_bodies
+
+    bodies = parse_bodies(data.get("foxglove"), f)
+    for b in bodies:
+        for ref in b.refs():
+            check_ref(ref, f"foxglove body {b.name!r}")
     return Scenario(path, text, units, connections, inputs, faults, logspec, start_ns, stop_ns, step_ns,
-                    algorithm, extrapolation, tolerance, lazy)
+                    algorithm, extrapolation, tolerance, lazy, bodies)
 
 
 def _check_input_params(kind: str, p: Dict[str, Any], where: str) -> None:

@@ -135,6 +135,11 @@ def check_system(scenario: Scenario) -> System:
         if v.causality not in ("input", "parameter"):
             raise ScenarioError(f"{f}: fault {s.unit}.{s.var}: only inputs can be forced, causality is {v.causality}")
 
+    for b in scenario.foxglove:
+        for ref in b.refs():
+            unit, var = ref.split(".", 1)
+            lookup(unit, var, f"foxglove body {b.name!r}")
+
     # what is logged
     logged: Dict[str, List[str]] = {}
     for u in scenario.units:
@@ -150,6 +155,7 @@ def check_system(scenario: Scenario) -> System:
     # needed: logs something, or feeds (transitively) a needed unit
     needed: Set[str] = {u for u, names in logged.items() if any(
         variables[u][n].causality in ("output", "local") for n in names)}
+    needed |= {ref.split(".", 1)[0] for b in scenario.foxglove for ref in b.refs()}
     changed = True
     while changed:
         changed = False

@@ -1,0 +1,165 @@
+"""A 3D view in the MCAP log for Foxglove: ``foxglove.FrameTransforms`` and ``foxglove.SceneUpdate``.
+
+A scenario lists the bodies to draw; each body's pose comes from logged signals (or constants)::
+
+    [[foxglove.bodies]]
+    name = "platform"                      # frame id and entity id
+    parent = "world"                       # default "world"
+    position = ["plat.pose.x", "plat.pose.y", "plat.pose.z"]   # signal refs or numbers [m]
+    euler = ["plat.pose.gamma", "plat.pose.beta", "plat.pose.alpha"]  # rad (default 0, 0, 0)
+    order = "xyz"                          # A = A_x(e1) A_y(e2) A_z(e3) (the platform's, eq. 6-8);
+                                           # "zyx": roll, pitch, yaw with R = R_z(e3) R_y(e2) R_x(e1)
+    offset = [0.0, 0.0, 1.2]               # added to the position [m]
+    shape = "cube"                         # cube | sphere | cylinder
+    size = [0.76, 0.70, 0.04]              # [m]
+    color = [0.2, 0.5, 0.9, 1.0]           # RGBA in 0..1
+
+Every macro step the observer writes one ``/tf`` message (all frames) and one ``/scene``
+message (one entity per body, frame-locked to its frame), JSON-encoded under Foxglove's
+schema names, so opening the log in Foxglove's 3D panel shows the platform, the avatars and
+the scene moving. It only reads values.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, List, Sequence, Tuple, Union
+
+from .errors import ScenarioError
+
+Ref = Union[str, float]
+SHAPES = {"cube": "cubes", "sphere": "spheres", "cylinder": "cylinders"}
+
+FRAME_TRANSFORMS_SCHEMA = {
+    "title": "foxglove.FrameTransforms", "type": "object",
+    "properties": {"transforms": {"type": "array", "items": {"type": "object", "properties": {
+        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}},
+        "parent_frame_id": {"type": "string"}, "child_frame_id": {"type": "string"},
+        "translation": {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}},
+        "rotation": {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}}}}},
+}
+SCENE_UPDATE_SCHEMA = {
+    "title": "foxglove.SceneUpdate", "type": "object",
+    "properties": {"deletions": {"type": "array"}, "entities": {"type": "array", "items": {"type": "object"}}},
+}
+
+
+@dataclass
+class Body:
+    name: str
+    parent: str
+    position: Tuple[Ref, Ref, Ref]
+    euler: Tuple[Ref, Ref, Ref]
+    order: str
+    offset: Tuple[float, float, float]
+    shape: str
+    size: Tuple[float, float, float]
+    color: Tuple[float, float, float, float]
+
+    def refs(self) -> List[str]:
+        return [r for r in (*self.position, *self.euler) if isinstance(r, str)]
+
+
+def parse_bodies(raw: Any, where: str) -> List[Body]:
+    """Check the ``[foxglove]`` table of a scenario; errors name the file and the key."""
+    if raw is None:
+        return []
+    if not isinstance(raw, dict) or set(raw) - {"bodies"}:
+        raise ScenarioError(f"{where}: [foxglove] must be a table with a 'bodies' array")
+    bodies = []
+    for i, b in enumerate(raw.get("bodies", [])):
+        w = f"{where}: foxglove.bodies[{i}]"
+        if not isinstance(b, dict) or not isinstance(b.get("name"), str):
+            raise ScenarioError(f"{w} needs a 'name'")
+        unknown = set(b) - {"name", "parent", "position", "euler", "order", "offset", "shape", "size", "color"}
+        if unknown:
+            raise ScenarioError(f"{w}: unknown key {sorted(unknown)[0]!r}")
+
+        def triple(key: str, default: Sequence[Any], refs: bool = True) -> Tuple:
+            v = b.get(key, default)
+            if not isinstance(v, list) or len(v) != len(default):
+                raise ScenarioError(f"{w}.{key} must be a list of {len(default)} values")
+            for x in v:
+                ok = isinstance(x, (int, float)) and not isinstance(x, bool) or (refs and isinstance(x, str) and "." in x)
+                if not ok:
+                    raise ScenarioError(f"{w}.{key}: {x!r} is neither a number nor a 'unit.variable' reference")
+            return tuple(x if isinstance(x, str) else float(x) for x in v)
+
+        shape = b.get("shape", "cube")
+        if shape not in SHAPES:
+            raise ScenarioError(f"{w}.shape {shape!r} is not one of {', '.join(SHAPES)}")
+        order = b.get("order", "xyz")
+        if order not in ("xyz", "zyx"):
+            raise ScenarioError(f"{w}.order {order!r} is not 'xyz' or 'zyx'")
+        bodies.append(Body(b["name"], str(b.get("parent", "world")), triple("position", [0.0] * 3),
+                           triple("euler", [0.0] * 3), order, triple("offset", [0.0] * 3, False), shape,
+                           triple("size", [1.0] * 3, False), triple("color", [0.6, 0.6, 0.6, 1.0], False)))
+    return bodies
+
+
+def _axis_quat(axis: int, angle: float) -> Tuple[float, float, float, float]:
+    s, c = math.sin(angle / 2), math.cos(angle / 2)
+    q = [0.0, 0.0, 0.0, c]
+    q[axis] = s
+    return tuple(q)  # (x, y, z, w)
+
+
+def _qmul(a, b):
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
+
+
+def euler_quaternion(e1: float, e2: float, e3: float, order: str = "xyz") -> Tuple[float, float, float, float]:
+    """Quaternion (x, y, z, w) of ``A_x(e1) A_y(e2) A_z(e3)`` (``xyz``, eq. 6-8/6-9) or of
+    ``R_z(e3) R_y(e2) R_x(e1)`` (``zyx``: roll e1, pitch e2, yaw e3)."""
+    qx, qy, qz = _axis_quat(0, e1), _axis_quat(1, e2), _axis_quat(2, e3)
+    return _qmul(_qmul(qx, qy), qz) if order == "xyz" else _qmul(_qmul(qz, qy), qx)
+
+
+class FoxgloveObserver:
+    """Writes ``/tf`` and ``/scene`` into an open :class:`~immersim.orchestrator.observers.McapObserver`.
+
+    Parameters
+    ----------
+    mcap : McapObserver
+    bodies : list of Body
+    lookup : callable
+        ``lookup("unit.var")`` returns a function giving that signal's current value.
+    """
+
+    def __init__(self, mcap, bodies: List[Body], lookup: Callable[[str], Callable[[], float]]) -> None:
+        self.mcap, self.bodies = mcap, bodies
+        self._get = [([lookup(r) if isinstance(r, str) else (lambda v=r: v) for r in (*b.position, *b.euler)])
+                     for b in bodies]
+        w = mcap.writer
+        sid = w.register_schema(name="foxglove.FrameTransforms", encoding="jsonschema",
+                                data=json.dumps(FRAME_TRANSFORMS_SCHEMA).encode())
+        self._tf = w.register_channel(topic="/tf", message_encoding="json", schema_id=sid)
+        sid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
+                                data=json.dumps(SCENE_UPDATE_SCHEMA).encode())
+        self._scene = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid)
+
+    def __call__(self, k: int, t_ns: int) -> None:
+        stamp = {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000}
+        transforms, entities = [], []
+        for body, getters in zip(self.bodies, self._get):
+            v = [g() for g in getters]
+            qx, qy, qz, qw = euler_quaternion(v[3], v[4], v[5], body.order)
+            transforms.append({
+                "timestamp": stamp, "parent_frame_id": body.parent, "child_frame_id": body.name,
+                "translation": {"x": v[0] + body.offset[0], "y": v[1] + body.offset[1], "z": v[2] + body.offset[2]},
+                "rotation": {"x": qx, "y": qy, "z": qz, "w": qw}})
+            prim = {"pose": {"position": {"x": 0, "y": 0, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}},
+                    "size": dict(zip("xyz", body.size)), "color": dict(zip("rgba", body.color))}
+            entities.append({"timestamp": stamp, "frame_id": body.name, "id": body.name, "frame_locked": True,
+                             "lifetime": {"sec": 0, "nsec": 0}, SHAPES[body.shape]: [prim]})
+        w = self.mcap.writer
+        w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k,
+                      data=json.dumps({"transforms": transforms}).encode())
+        w.add_message(self._scene, log_time=t_ns, publish_time=t_ns, sequence=k,
+                      data=json.dumps({"deletions": [], "entities": entities}).encode())

@@ -1,0 +1,64 @@
+"""Foxglove 3D view: quaternions against scipy's rotations, and /tf follows the logged pose."""
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mcap.reader import make_reader
+from scipy.spatial.transform import Rotation
+
+from immersim.orchestrator.errors import ScenarioError
+from immersim.orchestrator.execution import run_scenario
+from immersim.orchestrator.foxglove import euler_quaternion
+from immersim.orchestrator.mcapio import read_series
+
+from .helpers import oscillator_scenario
+
+angles = st.floats(-3.0, 3.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(angles, angles, angles)
+def test_quaternions_match_scipy(e1, e2, e3):
+    q = euler_quaternion(e1, e2, e3, "xyz")  # A = A_x A_y A_z: intrinsic X, Y, Z
+    ref = Rotation.from_euler("XYZ", [e1, e2, e3]).as_quat()
+    assert min(np.abs(np.subtract(q, ref)).max(), np.abs(np.add(q, ref)).max()) < 1e-12
+    q = euler_quaternion(e1, e2, e3, "zyx")  # R = R_z(yaw) R_y(pitch) R_x(roll)
+    ref = Rotation.from_euler("ZYX", [e3, e2, e1]).as_quat()
+    assert min(np.abs(np.subtract(q, ref)).max(), np.abs(np.add(q, ref)).max()) < 1e-12
+
+
+def test_tf_follows_the_signals(tmp_path, test_fmus):
+    extra = '''
+[[foxglove.bodies]]
+name = "mass1"
+position = ["m1.x", 0.0, 0.5]
+euler = [0.0, 0.0, "m2.x"]
+order = "zyx"
+size = [0.2, 0.2, 0.2]
+'''
+    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=0.66, extra=extra)
+    out = tmp_path / "fg.mcap"
+    run_scenario(scn, out)
+    series = read_series(out, ["m1.x", "m2.x"])
+    with open(out, "rb") as fh:
+        msgs = [(c.topic, json.loads(m.data)) for _, c, m in make_reader(fh).iter_messages(topics=["/tf", "/scene"])]
+    tf = [m["transforms"][0] for t, m in msgs if t == "/tf"]
+    scene = [m for t, m in msgs if t == "/scene"]
+    assert len(tf) == len(scene) == 21
+    np.testing.assert_allclose([x["translation"]["x"] for x in tf], series["m1.x"][1], atol=0)
+    yaw = series["m2.x"][1]
+    np.testing.assert_allclose([x["rotation"]["z"] for x in tf], np.sin(yaw / 2), atol=1e-15)
+    assert scene[5]["entities"][0]["cubes"][0]["size"] == {"x": 0.2, "y": 0.2, "z": 0.2}
+    assert tf[0]["child_frame_id"] == "mass1" and tf[0]["parent_frame_id"] == "world"
+
+
+def test_bad_body_reference(tmp_path, test_fmus):
+    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], extra='''
+[[foxglove.bodies]]
+name = "b"
+position = ["m1.nope", 0.0, 0.0]
+''')
+    with pytest.raises(ScenarioError, match=r"foxglove body 'b': unit m1 \(oscillator.fmu\) has no variable 'nope'"):
+        run_scenario(scn, tmp_path / "x.mcap")
