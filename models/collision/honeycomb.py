@@ -2,10 +2,9 @@
 
 For a monitored pair, body ``a`` is the thesis's A and each member B:
 
-1. **Depth direction**: the world axis along which A moves relative to B in the step (largest
-   component of the relative displacement); at rest, the axis along which the bodies' AABB
-   centres are farthest apart relative to their half extents. The projection plane is the
-   other two axes (the thesis projects on XOY with Z as depth, §4.3.1).
+1. **Depth direction**: the most separating world axis of the two AABBs (largest gap, or
+   least overlap, between them). The projection plane is the other two axes (the thesis
+   projects on XOY with Z as depth, §4.3.1; it leaves the choice of plane open).
 2. **Projection overlap** (§4.2.2, def. 1): the overlap of the projected AABBs; empty -> no
    collision (P(A) n P(B) = 0).
 3. **Depth relation** (fig. 4-1) of the depth intervals [A_min, A_max], [B_min, B_max]:
@@ -112,12 +111,10 @@ class HoneycombBackend(CollisionBackend):
         self.last_stats: Dict[str, float] = {}
 
     def _depth_axis(self, a: int, b: int) -> int:
-        rel = (self.T[a, :3, 3] - self.prev_T[a, :3, 3]) - (self.T[b, :3, 3] - self.prev_T[b, :3, 3])
-        if np.linalg.norm(rel) > 1e-12:
-            return int(np.argmax(np.abs(rel)))
+        """The most separating world axis of the two AABBs (largest gap, or least overlap)."""
         ca, cb = self.aabb[a].mean(0), self.aabb[b].mean(0)
         half = (self.aabb[a, 1] - self.aabb[a, 0] + self.aabb[b, 1] - self.aabb[b, 0]) / 2
-        return int(np.argmax(np.abs(cb - ca) / np.maximum(half, 1e-12)))
+        return int(np.argmax(np.abs(cb - ca) - half))
 
     def threshold(self, a: int, b: int) -> float:
         """Threshold distance d (§4.4.2): the larger displacement of the two bodies in the step."""
@@ -141,6 +138,7 @@ class HoneycombBackend(CollisionBackend):
         d_min = max(A[0, w], B[0, w]) - d
         d_max = min(A[1, w], B[1, w]) + d
         gap0 = max(A[0, w], B[0, w]) - min(A[1, w], B[1, w])  # > 0: disjoint depth intervals
+        self.last_stats = {"relation": rel, "axis": w, "cells_full": 0, "threshold": d, "rays": 0}
         if d_min > d_max:  # relations 1, 2 farther apart than the threshold
             return PairResult(False, float(gap0), 0.0, np.zeros(3), np.eye(3)[w])
         a_low = (A[0, w] + A[1, w]) < (B[0, w] + B[1, w])  # A below B along the depth axis
