@@ -16,7 +16,8 @@ A sweep file (TOML) names a base scenario and the variants to run::
     [metrics]                             # one number per run, computed from its MCAP log
     max_err = { signal = "net.inconsistency_max", reduce = "max" }  # max|min|mean|rms|final|absmax
     late = { signal = "plat.stroke*", reduce = "absmax", after = 2.0 }  # glob; samples t >= 2 s
-    wall_s = "wall_time"                  # built-ins: wall_time, steps, status
+    wall_s = "wall_time"                  # built-ins: wall_time, loop_time, realtime_factor,
+    plat_s = "unit_time:plat"             #   steps, status, unit_time:<unit>
 
     [plot]                                # or [[plot]] for several figures
     x = "simulation.step"
@@ -65,9 +66,9 @@ REDUCERS: Dict[str, Callable[[np.ndarray], float]] = {
     "absmax": lambda y: float(np.max(np.abs(y))),
     "final": lambda y: float(y[-1]),
 }
-BUILTIN_METRICS = ("wall_time", "steps", "status")
+BUILTIN_METRICS = ("wall_time", "loop_time", "realtime_factor", "steps", "status", "unit_time:<unit>")
 SIM_KEYS = ("start", "stop", "step", "algorithm", "extrapolation", "tolerance")
-FIXED_COLUMNS = ("run", "id", "status", "steps", "t_end_s", "wall_time_s")
+FIXED_COLUMNS = ("run", "id", "status", "steps", "t_end_s", "wall_time_s", "loop_time_s")
 TAIL_COLUMNS = ("reason", "mcap")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.+\-]+")
 _EDGE = re.compile(r"^[^A-Za-z0-9_.+\-]+|[^A-Za-z0-9_.+\-]+$")
@@ -91,7 +92,10 @@ class MetricSpec:
     name : str
         Column name in ``summary.csv``.
     builtin : str, optional
-        ``wall_time`` (s), ``steps`` or ``status``; then ``signal`` is unused.
+        ``wall_time`` (s, the whole run in the worker: loading the FMUs, the loop, closing
+        the log), ``loop_time`` (s, the step loop only), ``realtime_factor`` (simulated time /
+        loop time), ``steps``, ``status``, or ``unit_time:<unit>`` (s spent stepping that unit);
+        then ``signal`` is unused.
     signal : str
         Glob pattern over ``unit.variable`` of the logged signals; the samples of every
         matching signal are pooled before reducing.
@@ -330,7 +334,7 @@ def _parse_metrics(raw: Any, path: Path, keys: Sequence[str]) -> List[MetricSpec
         if name in taken:
             raise _err(path, f"{where}: the name {name!r} is already a summary column")
         if isinstance(m, str):
-            if m not in BUILTIN_METRICS:
+            if m not in BUILTIN_METRICS[:-1] and not (m.startswith("unit_time:") and len(m) > 10):
                 raise _err(path, f"{where}: unknown built-in metric {m!r} (expected one of "
                                  f"{', '.join(BUILTIN_METRICS)}, or a table {{signal, reduce}})")
             out.append(MetricSpec(name, builtin=m))
@@ -365,7 +369,7 @@ def _parse_plots(raw: Any, path: Path, columns: Sequence[str]) -> List[PlotSpec]
     tables = [raw] if isinstance(raw, dict) else raw
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise _err(path, "[plot] must be a table or an array of tables")
-    cols = list(columns) + ["steps", "t_end_s", "wall_time_s"]
+    cols = list(columns) + list(FIXED_COLUMNS[3:])
     plots: List[PlotSpec] = []
     for i, t in enumerate(tables):
         where = f"plot[{i}]" if isinstance(raw, list) else "plot"
@@ -409,6 +413,8 @@ class RunRow:
     steps: int = 0
     t_end_s: float = math.nan
     wall_time_s: float = math.nan
+    loop_time_s: float = math.nan
+    timing: Dict[str, float] = field(default_factory=dict)
     metrics: Dict[str, Any] = field(default_factory=dict)
     reason: str = ""
     mcap: str = ""
@@ -437,6 +443,16 @@ def reduce_signals(series: Dict[str, Tuple[np.ndarray, np.ndarray, str]], metric
     return REDUCERS[metric.reduce](y) if y.size else math.nan
 
 
+def builtin_metric(row: RunRow, name: str) -> Any:
+    """The value of a built-in metric (see :class:`MetricSpec`) for one run; NaN if unknown."""
+    if name.startswith("unit_time:"):
+        return row.timing.get(f"unit:{name[10:]}", math.nan)
+    if name == "realtime_factor":
+        return row.timing.get("simulated", math.nan) / row.loop_time_s if row.loop_time_s > 0 else math.nan
+    return {"wall_time": row.wall_time_s, "loop_time": row.loop_time_s, "steps": row.steps,
+            "status": row.status}[name]
+
+
 def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow) -> Dict[str, Any]:
     """Every metric of one run: built-ins from ``row``, signal metrics from the MCAP log."""
     from .mcapio import read_series
@@ -444,10 +460,19 @@ def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow
     out: Dict[str, Any] = {}
     for m in metrics:
         if m.builtin:
-            out[m.name] = {"wall_time": row.wall_time_s, "steps": row.steps, "status": row.status}[m.builtin]
+            out[m.name] = builtin_metric(row, m.builtin)
         else:
             out[m.name] = reduce_signals(read_series(mcap, [m.signal]), m)
     return out
+
+
+def _take(row: RunRow, res: Any) -> None:
+    """Copy status, steps, end time, reason and timing of a RunResult into ``row``."""
+    row.status, row.steps, row.reason = res.status, res.steps_done, res.reason
+    row.t_end_s = res.t_ns / 1e9
+    row.timing = dict(getattr(res, "timing", {}) or {})
+    row.timing["simulated"] = (res.t_ns - getattr(res, "start_ns", 0)) / 1e9
+    row.loop_time_s = row.timing.get("loop", math.nan)
 
 
 def run_one(task: RunTask) -> RunRow:
@@ -462,10 +487,9 @@ def run_one(task: RunTask) -> RunRow:
     t0 = time.perf_counter()
     try:
         res = run_scenario(task.scenario, task.mcap, progress=False, overrides=task.overrides)
-        row.status, row.steps, row.t_end_s = res.status, res.steps_done, res.t_ns / 1e9
+        _take(row, res)
     except RunFailed as exc:
-        r = exc.result
-        row.status, row.steps, row.t_end_s, row.reason = r.status, r.steps_done, r.t_ns / 1e9, r.reason
+        _take(row, exc.result)
     except Exception as exc:  # a bad FMU swap, a parameter the FMU refuses, ... : the row says why
         row.reason = f"{type(exc).__name__}: {exc}"
     row.wall_time_s = time.perf_counter() - t0
@@ -576,7 +600,7 @@ def _fmt(value: Any) -> str:
 
 def summary_columns(spec: SweepSpec) -> List[str]:
     """Columns of ``summary.csv``: run, id, every override key, status, steps, t_end_s,
-    wall_time_s, every metric, reason, mcap."""
+    wall_time_s, loop_time_s, every metric, reason, mcap."""
     return ["run", "id"] + spec.keys + list(FIXED_COLUMNS[2:]) + [m.name for m in spec.metrics] + list(TAIL_COLUMNS)
 
 

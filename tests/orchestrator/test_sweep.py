@@ -36,6 +36,8 @@ x_rms_late = { signal = "m*.x", reduce = "rms", after = 0.5 }
 f_mean = { signal = "m1.f_coupling", reduce = "mean" }
 x2_final = { signal = "m2.x", reduce = "final" }
 n = "steps"
+rtf = "realtime_factor"
+m1_s = "unit_time:m1"
 [plot]
 x = "simulation.extrapolation"
 y = ["x2_final", "x_rms_late"]
@@ -43,7 +45,7 @@ hue = "simulation.algorithm"
 '''
 IDS = ["000_jacobi_zoh", "001_jacobi_linear", "002_gauss-seidel_zoh", "003_gauss-seidel_linear"]
 # Columns that differ between two executions of the same sweep.
-TIMING = ("wall_time_s",)
+TIMING = ("wall_time_s", "loop_time_s", "rtf", "m1_s")
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +85,8 @@ def test_grid_runs_every_variant_with_metrics_from_its_log(local_grid, sweep_dir
         ("jacobi", "zoh"), ("jacobi", "linear"), ("gauss-seidel", "zoh"), ("gauss-seidel", "linear")]
     for r in rows:
         assert (r["status"], r["steps"], r["n"], float(r["t_end_s"]), r["reason"]) == ("completed", "100", "100", 1.0, "")
-        assert float(r["wall_time_s"]) > 0
+        wall, loop, m1 = float(r["wall_time_s"]), float(r["loop_time_s"]), float(r["m1_s"])
+        assert 0 < m1 < loop < wall and float(r["rtf"]) == pytest.approx(1.0 / loop, rel=1e-12)
         mcap = out / r["mcap"]
         meta = read_info(mcap).metadata["immersim"]
         assert (meta["algorithm"], meta["extrapolation"]) == (r["simulation.algorithm"], r["simulation.extrapolation"])
@@ -209,13 +212,17 @@ BAD = [
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = { signal = 'x' }\n",
      r"bad.toml: metrics.e: 'signal' must be a 'unit.variable' pattern, got 'x'"),
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = 'cpu'\n",
-     r"bad.toml: metrics.e: unknown built-in metric 'cpu' \(expected one of wall_time, steps, status"),
+     r"bad.toml: metrics.e: unknown built-in metric 'cpu' \(expected one of wall_time, loop_time, realtime_factor, "
+     r"steps, status, unit_time:<unit>, or a table \{signal, reduce\}\)"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = 'unit_time:'\n",
+     r"bad.toml: metrics.e: unknown built-in metric 'unit_time:'"),
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\nstatus = 'steps'\n",
      r"bad.toml: metrics.status: the name 'status' is already a summary column"),
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = { signal = 'm1.x', window = 1 }\n",
      r"bad.toml: metrics.e: unknown key 'window'"),
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[plot]\nx = 'm1.k'\ny = 'err'\n",
-     r"bad.toml: plot.y: 'err' is not an override key or metric \(columns: m1.k, steps, t_end_s, wall_time_s\)"),
+     r"bad.toml: plot.y: 'err' is not an override key or metric \(columns: m1.k, steps, t_end_s, "
+     r"wall_time_s, loop_time_s\)"),
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[[plot]]\ny = 'steps'\n", r"bad.toml: plot\[0\]: needs 'x' and 'y'"),
 ]
 
