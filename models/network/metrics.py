@@ -24,13 +24,17 @@ def inconsistency(obj: np.ndarray, shown: np.ndarray, truth: np.ndarray, n_obj: 
     per_max, per_rms : (n_obj,) m, max and RMS over the nodes showing each object (0 if none)
     total_max, total_rms : float, m, over all copies
     """
+    dx = shown[:, 0] - np.take(truth[:, 0], obj)
+    dy = shown[:, 1] - np.take(truth[:, 1], obj)
+    return inconsistency_sq(obj, dx * dx + dy * dy, n_obj, mask)
+
+
+def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None):
+    """As :func:`inconsistency`, from squared errors ``err2`` (k,) m^2 of the copies."""
     n_valid = len(obj) if mask is None else int(np.count_nonzero(mask))
     if n_valid == 0:
         z = np.zeros(n_obj)
         return z, z.copy(), 0.0, 0.0
-    dx = shown[:, 0] - np.take(truth[:, 0], obj)
-    dy = shown[:, 1] - np.take(truth[:, 1], obj)
-    err2 = dx * dx + dy * dy
     if mask is not None:
         err2 = np.where(mask, err2, 0.0)
     per_max = np.zeros(n_obj)

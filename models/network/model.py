@@ -29,7 +29,7 @@ from . import links as lk
 from .config import NetworkConfig
 from .consistency import SceneGrid, assign_owners, dead_reckon
 from .ids import PastryOverlay
-from .metrics import StepMetrics, Totals, inconsistency
+from .metrics import StepMetrics, Totals, inconsistency_sq
 from .nodes import H, LAN, WAN, NodeRegistry, build_messages, control_bytes
 from .pdu import PduType, record_bytes
 from .supernode import CONTROLLER, RENDER, Supernode
@@ -81,7 +81,9 @@ class NetworkModel:
         self.owner = np.r_[np.arange(G), self._initial_entity_owners()]
         self.pending_contact = np.zeros(E, bool)
         # receivers' caches (viewer group x object): record time, position, velocity, acceleration
-        # one row per (viewer, object), flat index viewer * n_obj + object: t, p(2), v(2), a(2)
+        # one entry per (object, viewer), flat index object * G + viewer (object-major: the pairs
+        # of a frame are sorted by object, so gathers and scatters walk memory forward):
+        # rows t, p(2), v(2), a(2)
         # stored column-wise, cache[j] contiguous (fast gathers): rows t, px, py, vx, vy, ax, ay
         self.cache = np.zeros((7, G * self.n_obj))
         self.cache[0] = -np.inf
@@ -90,13 +92,15 @@ class NetworkModel:
         self.pub_p = np.zeros((self.n_obj, 2))
         self.pub_v = np.zeros((self.n_obj, 2))
         self.pub_a = np.zeros((self.n_obj, 2))
-        self._inflight: List[Dict[str, np.ndarray]] = []   # chunks in send order
+        # records in flight, bucketed by the frame at which they are due: k -> chunks in send order
+        self._inflight: Dict[int, List[tuple]] = {}
+        self._ncol = 1 + 2 * (1 + min(cfg.prediction_order, 2))   # cache columns the order uses
         self._frames: Dict[str, np.ndarray] = {k: np.zeros(0, t) for k, t in
                                                (("arr", float), ("slave", np.int64), ("frame", np.int64))}
         self.hist = np.zeros((HIST, G, G, 2))
         # subscription: which objects were in each viewer's neighbourhood, and since when
-        self.in_view = np.ones((G, self.n_obj), bool)
-        self.enter_t = np.zeros((G, self.n_obj))
+        self.in_view = np.ones((self.n_obj, G), bool)
+        self.enter_t = np.zeros((self.n_obj, G))
         self.per_object_max = np.zeros(self.n_obj)
         self.per_object_rms = np.zeros(self.n_obj)
         self.metrics = StepMetrics()
@@ -139,7 +143,7 @@ class NetworkModel:
         """Frame 0: every node starts from the same scene file (the shared initial state)."""
         P, V, A = self.world.positions(), self.world.velocities(), self.world.accelerations()
         rec = np.c_[np.zeros(self.n_obj), P, V, A]
-        self.cache[:] = np.tile(rec.T, (1, self.cfg.groups))
+        self.cache[:] = np.repeat(rec.T, self.cfg.groups, axis=1)
         self.pub_t[:] = 0.0
         self.pub_p, self.pub_v, self.pub_a = P.copy(), V.copy(), A.copy()
 
@@ -240,8 +244,9 @@ class NetworkModel:
                       arrival: Optional[float] = None) -> None:
         """Put a STATE record from ``sender_group`` for ``obj`` in flight (e.g. a forged one)."""
         t = self.t if arrival is None else arrival
-        rec = np.r_[self.t, np.asarray(pos, float), np.asarray(vel, float), 0.0, 0.0][None, :]
-        self._add_inflight(np.array([t]), np.array([viewer_group * self.n_obj + obj]), np.array([sender_group]), rec)
+        rec = np.r_[self.t, np.asarray(pos, float), np.asarray(vel, float), 0.0, 0.0][:, None]
+        self._add_inflight(np.array([t]), np.array([self.index(viewer_group, obj)]), np.array([sender_group]),
+                           rec, np.zeros(1, np.int64))
 
     # -- stepping ------------------------------------------------------------------------------
     def step(self, h: float) -> StepMetrics:
@@ -336,7 +341,8 @@ class NetworkModel:
             # the old owner knew the exact state when it let go: its cache starts from it
             w = self.world
             P, V, A = w.positions()[o], w.velocities()[o], w.accelerations()[o]
-            self._scatter(old * self.n_obj + o, np.c_[np.full(len(o), self.t), P, V, A])
+            rec = np.ascontiguousarray(np.c_[np.full(len(o), self.t), P, V, A].T)
+            self._scatter(self.index(old, o), rec, np.arange(len(o)))
             self.owner[o] = new[changed]
             self.metrics.handovers += n
             self._count(n, n * (H + record_bytes(self.cfg.prediction_order)), PduType.HANDOVER)
@@ -391,13 +397,14 @@ class NetworkModel:
         # 4. messages by topology, link sampling
         cells = self.grid.cell(P)
         viewers = np.flatnonzero(online_g)
-        vg_local, vo = self.grid.view_pairs(cells[viewers], cells)
+        vo, vg_local = self.grid.view_pairs(cells, cells[viewers])
         vg = viewers[vg_local]
         frame_size = np.bincount(vg, minlength=G)
+        fi = self.index(vg, vo)
+        og = np.take(self.owner, vo)
         if cfg.topology == "full_mesh":  # a broadcast subscribes everyone to everything
             newly = np.zeros(len(vg), bool)
         else:
-            fi = vg * self.n_obj + vo
             iv = self.in_view.ravel()
             newly = ~iv[fi]
             iv[:] = False
@@ -405,7 +412,7 @@ class NetworkModel:
             self.enter_t.ravel()[fi[newly]] = t
         send_pair = pub[vo] | newly
         tr = build_messages(cfg, self.reg, t, self.master, self.slaves, pub_obj, self.owner, vg, vo, frame_size,
-                            send_pair)
+                            send_pair, og)
         arrival, lost = self._transmit(tr)
         if len(tr.rec_msg):
             r_arr, r_lost = arrival[tr.rec_msg], lost[tr.rec_msg]
@@ -413,8 +420,11 @@ class NetworkModel:
                 r_lost = r_lost | np.where(tr.rec_hop1 >= 0, lost[np.maximum(tr.rec_hop1, 0)], False)
             ok = ~r_lost
             o = tr.rec_obj[ok]
-            self._add_inflight(r_arr[ok], tr.rec_viewer[ok] * self.n_obj + o, self.owner[o],
-                               np.c_[np.full(len(o), t), P[o], V[o], A[o]])
+            # one record table per frame (objects x 7, column-major); pairs refer to it by object
+            table = np.empty((7, self.n_obj))
+            table[0] = t
+            table[1:3], table[3:5], table[5:7] = P.T, V.T, A.T
+            self._add_inflight(r_arr[ok], self.index(tr.rec_viewer[ok], o), self.owner[o], table, o)
         if len(tr.frame_msg):
             f_arr = np.where(lost[tr.frame_msg], np.inf, arrival[tr.frame_msg])
             for key, val in (("arr", f_arr), ("slave", tr.frame_slave), ("frame", np.full(len(f_arr), self.k + 1))):
@@ -423,7 +433,7 @@ class NetworkModel:
         self._deliver(t)
         self._flip_frames(t)
         # 6. display and metrics (eq. 3-1/3-2)
-        self._display(vg, vo)
+        self._display(vg, vo, fi, og)
 
     def _transmit(self, tr):
         cfg = self.cfg
@@ -432,9 +442,10 @@ class NetworkModel:
         self.metrics.messages += n
         self.metrics.bytes += int(tr.nbytes.sum())
         bt = self.totals.by_type
-        for p in np.unique(tr.ptype):
+        per_type = np.bincount(tr.ptype, weights=tr.nbytes, minlength=64)
+        for p in np.flatnonzero(per_type):
             name = PduType(int(p)).name
-            bt[name] = bt.get(name, 0) + int(tr.nbytes[tr.ptype == p].sum())
+            bt[name] = bt.get(name, 0) + int(per_type[p])
         first = tr.hop_of == -1
         a1, l1 = lk.transmit(self.rng, cfg.links, tr.send_t[first], tr.sender[first], tr.link[first],
                              tr.nbytes[first], self.busy, self.latency_scale)
@@ -456,42 +467,59 @@ class NetworkModel:
         return arrival, lost
 
     # -- in-flight records ----------------------------------------------------------------------
-    def _add_inflight(self, arr: np.ndarray, fi: np.ndarray, sender: np.ndarray, rec: np.ndarray) -> None:
-        """Records in flight: arrival (s), flat cache index, sending group, record (k, 7)."""
-        if len(arr):
-            self._inflight.append({"arr": arr, "fi": fi, "sender": sender, "rec": rec})
+    def _add_inflight(self, arr: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
+                      ridx: np.ndarray) -> None:
+        """Put records in flight: arrival (s), flat cache index, sending group and the record
+        ``table[:, ridx]`` (rows t, p, v, a). Each is filed under the first frame ``k`` with
+        ``k T >= arrival``: it has arrived by that tick and not by the one before."""
+        if not len(arr):
+            return
+        T = self.cfg.frame_s
+        due = np.maximum(np.ceil(arr / T - 1e-9), self.k).astype(np.int64)
+        lo, hi = int(due.min()), int(due.max())
+        if lo == hi:
+            self._inflight.setdefault(lo, []).append((fi, sender, table, ridx))
+            return
+        if hi - lo <= 3:
+            for key in range(lo, hi + 1):
+                sel = due == key
+                if not sel.any():
+                    continue
+                self._inflight.setdefault(int(key), []).append((fi[sel], sender[sel], table, ridx[sel]))
+            return
+        order = np.argsort(due, kind="stable")
+        due, fi, sender, ridx = due[order], fi[order], sender[order], ridx[order]
+        cuts = np.flatnonzero(np.diff(due)) + 1
+        for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(due)]):
+            self._inflight.setdefault(int(due[lo]), []).append((fi[lo:hi], sender[lo:hi], table, ridx[lo:hi]))
 
     def _deliver(self, t: float) -> None:
         """Apply every record that has arrived by ``t``; reject records from non-owners (§3.6.1).
 
         Chunks are applied in send order and one chunk holds one record per (viewer, object),
-        so a newer record always overwrites an older one; a record older than the cached one
+        so a newer record overwrites an older one; a record older than the cached one
         (reordering) is ignored.
         """
-        keep = []
-        n_obj = self.n_obj
-        for c in self._inflight:
-            due = c["arr"] <= t + 1e-12
-            if not due.all():
-                keep.append({k: v[~due] for k, v in c.items()})
-                if not due.any():
-                    continue
-                c = {k: v[due] for k, v in c.items()}
-            fi, rec = c["fi"], c["rec"]
-            valid = c["sender"] == self.owner[fi % n_obj]
-            if not valid.all():
-                self.metrics.rejected_updates += int((~valid).sum())
-                fi, rec = fi[valid], rec[valid]
-            newer = rec[:, 0] > np.take(self.cache[0], fi)
-            if not newer.all():
-                fi, rec = fi[newer], rec[newer]
-            self._scatter(fi, rec)
-        self._inflight = keep
+        G = self.cfg.groups
+        for key in sorted(k for k in self._inflight if k <= self.k):
+            for fi, sender, table, ridx in self._inflight.pop(key):
+                valid = sender == np.take(self.owner, fi // G)
+                if not valid.all():
+                    self.metrics.rejected_updates += int((~valid).sum())
+                    fi, ridx = fi[valid], ridx[valid]
+                newer = np.take(table[0], ridx) > np.take(self.cache[0], fi)
+                if not newer.all():
+                    fi, ridx = fi[newer], ridx[newer]
+                self._scatter(fi, table, ridx)
 
-    def _scatter(self, fi: np.ndarray, rec: np.ndarray) -> None:
-        """Write records ``rec`` (k, 7) into the cache rows ``fi`` (k,)."""
-        for j in range(7):
-            self.cache[j][fi] = rec[:, j]
+    def index(self, viewer, obj):
+        """Flat cache index of (viewer group, object)."""
+        return np.asarray(obj) * self.cfg.groups + np.asarray(viewer)
+
+    def _scatter(self, fi: np.ndarray, table: np.ndarray, ridx: np.ndarray) -> None:
+        """Write records ``table[:, ridx]`` into the cache rows ``fi`` (the columns in use)."""
+        for j in range(self._ncol):
+            self.cache[j][fi] = np.take(table[j], ridx)
 
     def _gather(self, fi: np.ndarray):
         """Cached record time (k,), position, velocity, acceleration (k, 2) of rows ``fi``."""
@@ -514,28 +542,46 @@ class NetworkModel:
         self._frames = {k: v[~due] for k, v in fr.items()}
 
     # -- display ----------------------------------------------------------------------------------
-    def _display(self, vg: Optional[np.ndarray] = None, vo: Optional[np.ndarray] = None) -> None:
+    def _display(self, vg: Optional[np.ndarray] = None, vo: Optional[np.ndarray] = None,
+                 fi: Optional[np.ndarray] = None, og: Optional[np.ndarray] = None) -> None:
         cfg, G = self.cfg, self.cfg.groups
         t = self.k * cfg.frame_s
         P = self.world.positions()
         if vg is None:
             online = np.flatnonzero(self.master >= 0)
             cells = self.grid.cell(P)
-            vl, vo = self.grid.view_pairs(cells[online], cells)
+            vo, vl = self.grid.view_pairs(cells, cells[online])
             vg = online[vl]
-        # copies shown by non-owners that have a record of the object
-        fi = vg * self.n_obj + vo
-        ct, cp, cv, ca = self._gather(fi)
-        remote = (self.owner[vo] != vg) & (ct >= np.take(self.enter_t.ravel(), fi) - 1e-12)
-        shown = dead_reckon(cp, cv, ca, t - ct, cfg.prediction_order)
-        pm, pr, mx, rms = inconsistency(vo, shown, P, self.n_obj, remote)
+        # copies shown by non-owners that have a record of the object; dead reckoning (§3.6.3)
+        # evaluated column by column: e = p + v dt (+ a dt^2 / 2) - truth
+        if fi is None:
+            fi = self.index(vg, vo)
+        if og is None:
+            og = np.take(self.owner, vo)
+        c, order = self.cache, cfg.prediction_order
+        ct = np.take(c[0], fi)
+        remote = (og != vg) & (ct >= np.take(self.enter_t.ravel(), fi) - 1e-12)
+        ex = np.take(c[1], fi) - np.take(P[:, 0], vo)
+        ey = np.take(c[2], fi) - np.take(P[:, 1], vo)
+        if order >= 1:
+            dt = t - ct
+            ex += np.take(c[3], fi) * dt
+            ey += np.take(c[4], fi) * dt
+            if order >= 2:
+                h = 0.5 * dt * dt
+                ex += np.take(c[5], fi) * h
+                ey += np.take(c[6], fi) * h
+        ex *= ex
+        ey *= ey
+        ex += ey
+        pm, pr, mx, rms = inconsistency_sq(vo, ex, self.n_obj, remote)
         self.per_object_max, self.per_object_rms = pm, pr
         self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
         self.metrics.inconsistency_rms = rms
         # displayed avatars at every master (for slaves showing an older frame)
-        fa = (np.arange(G)[:, None] * self.n_obj + np.arange(G)[None, :]).ravel()
+        fa = np.arange(G * G)                     # avatars are objects 0..G-1: object-major block
         at, ap, avv, aa = self._gather(fa)
-        av = dead_reckon(ap, avv, aa, t - at, cfg.prediction_order).reshape(G, G, 2)
+        av = dead_reckon(ap, avv, aa, t - at, cfg.prediction_order).reshape(G, G, 2).transpose(1, 0, 2)
         av[np.arange(G), np.arange(G)] = P[:G]
         self.hist[self.k % HIST] = av
         sl = np.concatenate([s for s in self.slaves if len(s)]) if any(len(s) for s in self.slaves) else np.zeros(0, int)
@@ -554,7 +600,7 @@ class NetworkModel:
         """No input changed, nothing moves, no record or input/impulse event pending."""
         pending = any(kind in ("input", "impulse") for _, _, kind, _ in self._heap)
         return (not self.inputs_changed and not self.world.moving() and not pending
-                and not self._inflight and self.cfg.driven_groups == self.cfg.groups)
+                and not any(self._inflight.values()) and self.cfg.driven_groups == self.cfg.groups)
 
     def heartbeat_table(self) -> List[dict]:
         return self.supernode.table()

@@ -129,7 +129,7 @@ def _group_pairs(a: np.ndarray, b: np.ndarray, nb: int):
 
 def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.ndarray, slaves: List[np.ndarray],
                    pub_obj: np.ndarray, owner: np.ndarray, view_g: np.ndarray, view_o: np.ndarray,
-                   frame_size: np.ndarray, send_pair: np.ndarray) -> Traffic:
+                   frame_size: np.ndarray, send_pair: np.ndarray, view_owner=None) -> Traffic:
     """Aggregated messages of one frame at time ``t``.
 
     Parameters
@@ -179,9 +179,9 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
                 b.add(t, np.full(len(others), s), others, np.where(same, LAN, WAN), H + rep, PduType.REPORT)
     else:
         # STATE: owner's master -> viewer's master for published objects in the viewer's neighbourhood
-        sel = send_pair & (owner[view_o] != view_g) & (master[owner[view_o]] >= 0)
-        vg, vo = view_g[sel], view_o[sel]
-        og = owner[vo]
+        vown = owner[view_o] if view_owner is None else view_owner
+        sel = send_pair & (vown != view_g) & (np.take(master, vown) >= 0)
+        vg, vo, og = view_g[sel], view_o[sel], vown[sel]
         if cfg.topology == "hybrid_p2p":
             sg, rg, cnt, inv = _group_pairs(og, vg, G)
             idx = b.add(t, master[sg], master[rg], WAN, H + cnt * rec, PduType.STATE)

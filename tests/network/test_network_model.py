@@ -78,16 +78,16 @@ def test_forged_update_from_non_owner_is_rejected_and_counted():
     owner = int(m.owner[obj])
     forger = (owner + 1) % G
     viewer = (owner + 2) % G
-    before = m.cache[:, viewer * m.n_obj + obj].copy()
+    before = m.cache[:, m.index(viewer, obj)].copy()
     m.inject_update(forger, viewer, obj, pos=(1e4, 1e4))
     m._deliver(m.t)
     assert m.metrics.rejected_updates == 1
-    assert np.array_equal(m.cache[:, viewer * m.n_obj + obj], before)
+    assert np.array_equal(m.cache[:, m.index(viewer, obj)], before)
     # the same record from the owner is accepted
     m.inject_update(owner, viewer, obj, pos=(5.0, 6.0))
     m._deliver(m.t)
     assert m.metrics.rejected_updates == 1
-    assert tuple(m.cache[1:3, viewer * m.n_obj + obj]) == (5.0, 6.0)
+    assert tuple(m.cache[1:3, m.index(viewer, obj)]) == (5.0, 6.0)
 
 
 def _trace(seed):
