@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -210,23 +211,28 @@ def workspace_check(poses: np.ndarray, p: PlatformParams = PlatformParams(),
 
 
 def clamp_to_workspace(pose: np.ndarray, p: PlatformParams = PlatformParams(),
-                       origin: np.ndarray | None = None, iters: int = 40) -> tuple[np.ndarray, bool]:
+                       origin: np.ndarray | None = None, iters: int = 24,
+                       inside: Callable[[np.ndarray], bool] | None = None) -> tuple[np.ndarray, bool]:
     """Pull ``pose`` (6,) back along the segment from ``origin`` (default home) into the workspace.
 
-    Bisection on the segment parameter; the workspace is star-shaped about home in practice.
+    Bisection on the segment parameter (the workspace is star-shaped about home in practice);
+    ``inside(pose) -> bool`` may replace :func:`workspace_check` (e.g. a compiled IK).
     Returns ``(pose_inside, clamped)``.
     """
+    if inside is None:
+        def inside(x):
+            return bool(workspace_check(x, p).inside[0])
     pose = np.asarray(pose, float)
     origin = np.zeros(6) if origin is None else np.asarray(origin, float)
-    if workspace_check(pose, p).inside[0]:
+    if inside(pose):
         return pose.copy(), False
-    if not workspace_check(origin, p).inside[0]:
+    if not inside(origin):
         origin = np.zeros(6)
     lo, hi = 0.0, 1.0
     d = pose - origin
     for _ in range(iters):
         mid = 0.5 * (lo + hi)
-        if workspace_check(origin + mid * d, p).inside[0]:
+        if inside(origin + mid * d):
             lo = mid
         else:
             hi = mid

@@ -129,7 +129,8 @@ class PlatformSim:
         x = self.integ.step(self.x, self.u, self.p, self.c, h)
         if not np.isfinite(x).all():
             raise ArithmeticError(f"platform state became non-finite in the step ending at t = {t + h:g} s "
-                                  f"(integrator {cfg.integrator.method})")
+                                  f"(integrator {cfg.integrator.method}): a rod lost its slider (out of reach) "
+                                  f"or the integration diverged")
         self.x = x
         self.out = self._outputs()
         if not np.isfinite(self.out.stroke).all():
@@ -152,7 +153,8 @@ class PlatformSim:
             raise OutsideWorkspaceError(
                 f"pose reference {np.array2string(ref, precision=4)} at t = {t:g} s is outside the workspace "
                 f"(strokes {self.cfg.params.stroke_min:g}..{self.cfg.params.stroke_max:g} m, rod reach)")
-        return clamp_to_workspace(ref, self.cfg.params)[0], True
+        inside = lambda pose: self._inside(pose)[0]  # noqa: E731
+        return clamp_to_workspace(ref, self.cfg.params, inside=inside)[0], True
 
     def _outputs(self) -> StepOutputs:
         q, dq, r = self.x[:6], self.x[6:12], self.x[12:18]

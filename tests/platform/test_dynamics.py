@@ -3,7 +3,7 @@ Newton-Euler, energy conservation."""
 import casadi as ca
 import numpy as np
 import pytest
-from platform_thesis_forms import corrected_Q_gamma_F456, thesis_QF
+from tests.platform.platform_thesis_forms import corrected_Q_gamma_F456, thesis_QF
 
 from immersim.models.platform.dynamics import NP, energy, forward_dynamics, functions, model_terms
 from immersim.models.platform.integrators import IntegratorConfig, StepIntegrator
