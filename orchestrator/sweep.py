@@ -45,6 +45,7 @@ import logging
 import math
 import os
 import re
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -71,6 +72,9 @@ SIM_KEYS = ("start", "stop", "step", "algorithm", "extrapolation", "tolerance")
 FIXED_COLUMNS = ("run", "id", "status", "steps", "t_end_s", "wall_time_s", "loop_time_s")
 TAIL_COLUMNS = ("reason", "mcap")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.+\-]+")
+# One run at a time per process: pythonfmu FMUs share the embedding interpreter, and a Dask
+# worker with several threads would otherwise step FMUs of different runs concurrently.
+_RUN_LOCK = threading.Lock()
 _EDGE = re.compile(r"^[^A-Za-z0-9_.+\-]+|[^A-Za-z0-9_.+\-]+$")
 
 
@@ -484,15 +488,16 @@ def run_one(task: RunTask) -> RunRow:
     from .execution import RunFailed, run_scenario
 
     row = RunRow(task.index, task.id, "failed", mcap=Path(task.mcap).name)
-    t0 = time.perf_counter()
-    try:
-        res = run_scenario(task.scenario, task.mcap, progress=False, overrides=task.overrides)
-        _take(row, res)
-    except RunFailed as exc:
-        _take(row, exc.result)
-    except Exception as exc:  # a bad FMU swap, a parameter the FMU refuses, ... : the row says why
-        row.reason = f"{type(exc).__name__}: {exc}"
-    row.wall_time_s = time.perf_counter() - t0
+    Path(task.mcap).unlink(missing_ok=True)  # never report the log of an earlier sweep
+    with _RUN_LOCK:
+        t0 = time.perf_counter()
+        try:
+            _take(row, run_scenario(task.scenario, task.mcap, progress=False, overrides=task.overrides))
+        except RunFailed as exc:
+            _take(row, exc.result)
+        except Exception as exc:  # a bad FMU swap, a parameter the FMU refuses, ... : the row says why
+            row.reason = f"{type(exc).__name__}: {exc}"
+        row.wall_time_s = time.perf_counter() - t0
     if not Path(task.mcap).exists():
         row.mcap = ""
     if row.status == "completed":
@@ -509,24 +514,50 @@ def _failed_row(task: RunTask, exc: BaseException) -> RunRow:
                   mcap=Path(task.mcap).name if Path(task.mcap).exists() else "")
 
 
-def _run_local(tasks: Sequence[RunTask], workers: int, on_row: Callable[[RunRow], None]) -> None:
-    """Run ``tasks`` on a pool of spawned processes; ``on_row`` gets each row as it completes."""
+def _pool(workers: int):
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import ProcessPoolExecutor
 
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+
+
+def _run_pool(tasks: Sequence[RunTask], workers: int, on_row: Callable[[RunRow], None]) -> List[RunTask]:
+    """Run ``tasks`` on one pool; returns the tasks lost because a worker process died."""
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    lost: List[RunTask] = []
+    with _pool(workers) as pool:
         futures = {pool.submit(run_one, t): t for t in tasks}
         try:
             for fut in as_completed(futures):
                 try:
                     on_row(fut.result())
-                except Exception as exc:  # the worker process died (e.g. a crash inside an FMU)
+                except BrokenProcessPool:
+                    lost.append(futures[fut])
+                except Exception as exc:  # e.g. a row that cannot be pickled back
                     on_row(_failed_row(futures[fut], exc))
         except BaseException:
             for fut in futures:
                 fut.cancel()
             raise
+    return lost
+
+
+def _run_local(tasks: Sequence[RunTask], workers: int, on_row: Callable[[RunRow], None]) -> None:
+    """Run ``tasks`` on a pool of spawned processes; ``on_row`` gets each row as it completes.
+
+    A worker that dies (a crash inside an FMU) breaks the whole pool and every unfinished run
+    with it; those runs are then retried one per fresh process, so only the run that crashes
+    again is reported failed.
+    """
+    lost = _run_pool(tasks, workers, on_row)
+    if lost:
+        log.warning("a worker process died; retrying %d unfinished runs one per process", len(lost))
+    for task in sorted(lost, key=lambda t: t.index):
+        if _run_pool([task], 1, on_row):
+            on_row(RunRow(task.index, task.id, "failed", reason="worker process died (crash inside an FMU?)",
+                          mcap=Path(task.mcap).name if Path(task.mcap).exists() else ""))
 
 
 def _run_dask(tasks: Sequence[RunTask], address: str, on_row: Callable[[RunRow], None]) -> None:

@@ -247,3 +247,65 @@ def test_fmu_swap_paths_resolve_against_the_sweep_file(sweep_dir, test_fmus):
     spec = load_sweep(sub / "swap.toml")
     assert [v.resolved["m1:fmu"] for v in spec.variants] == [str(sweep_dir / "fmus" / "a.fmu"), str(test_fmus["oscillator"])]
     assert [v.id for v in spec.variants] == ["000_a", "001_oscillator"]
+
+
+CRASHER = '''"""Test unit that kills its process at t >= crash_at (a crash inside an FMU)."""
+import os
+
+from immersim.fmus.common import TableSlave, Var
+
+
+class crasher(TableSlave):
+    modelName = "crasher"
+    VARIABLES = (
+        Var("crash_at", "parameter", "Real", 1e9, "s", "time of the crash"),
+        Var("x_other", "input", "Real", 0.0, "m", "ignored"),
+        Var("x", "output", "Real", 0.0, "m", "always 0"),
+    )
+
+    def setup_model(self):
+        self.values["x"] = 0.0
+
+    def step_model(self, t, h):
+        if t >= self.values["crash_at"]:
+            os._exit(3)
+'''
+
+
+def test_a_worker_that_dies_fails_only_its_own_run(sweep_dir, tmp_path):
+    """A process crash breaks the local pool; the unfinished runs are retried one per process
+    and only the crashing one is reported failed."""
+    from immersim.orchestrator.build import build_unit
+
+    unit = tmp_path / "crasher"
+    unit.mkdir()
+    (unit / "crasher_fmu.py").write_text(CRASHER)
+    fmu = build_unit(unit, tmp_path / "fmus")
+    (sweep_dir / "crash.toml").write_text(f'''
+scenario = "osc.toml"
+[grid]
+"m1.k" = [1.0, 2.0]
+[[variants]]
+name = "crash"
+"m2:fmu" = "{fmu}"
+"m2.crash_at" = 0.5
+[[variants]]
+name = "after"
+"m1.k" = 3.0
+''')
+    out = tmp_path / "crash"
+    res = run_sweep(sweep_dir / "crash.toml", out, workers=2, check=False)
+    assert [(r.id, r.status) for r in res.rows] == [("000_1", "completed"), ("001_2", "completed"),
+                                                    ("002_crash", "failed"), ("003_after", "completed")]
+    assert res.rows[2].reason == "worker process died (crash inside an FMU?)"
+    assert [r["status"] for r in read_summary(out / "summary.csv")] == ["completed", "completed", "failed", "completed"]
+
+
+def test_example_sweep_file_is_valid():
+    """scenarios/sweeps/platform_ablation.toml parses and every variant fits its scenario."""
+    from ..conftest import TESTS
+
+    spec = load_sweep(TESTS.parent / "scenarios" / "sweeps" / "platform_ablation.toml")
+    assert [v.id for v in spec.variants] == ["000_computed_torque_rk4", "001_computed_torque_cvode_bdf", "002_pd_rk4",
+                                             "003_pd_cvode_bdf", "004_planar"]
+    assert [p.x for p in spec.plots] == ["plat.control"]
