@@ -62,6 +62,7 @@ class NetworkConfig:
     prediction_order : dead-reckoning order 0, 1 or 2 (§3.6.3).
     ownership : 'mahalanobis' (eq. 3-11/3-12), 'euclidean' (nearest avatar, Yonekura) or
         'none' (a fixed owner per entity, never handed over).
+    ownership_foci : reading of eq. 3-12, see :func:`consistency.ellipsoid_axes`.
     grid : 10x10 scene grid with 9-cell neighbourhoods (§3.3) on/off.
     dis_threshold : DIS-style update: an owner publishes an object only when the receivers'
         dead-reckoned position would be off by more than this (m) or ``dis_heartbeat_s`` has
@@ -92,6 +93,7 @@ class NetworkConfig:
     ownership: str = "mahalanobis"
     ownership_scale: float = 30.0
     ownership_min_axis: float = 5.0
+    ownership_foci: str = "frame"    # eq. 3-12 reading: 'frame' (foci one frame apart) or 'reach
     dis_threshold: float = 0.0
     dis_heartbeat_s: float = 1.0
     # world
@@ -126,6 +128,7 @@ class NetworkConfig:
             (self.ownership in OWNERSHIP_RULES, f"ownership {self.ownership!r} not in {OWNERSHIP_RULES}"),
             (self.prediction_order in (0, 1, 2), f"prediction_order = {self.prediction_order} must be 0, 1 or 2"),
             (self.scene_size > 0, f"scene_size = {self.scene_size} must be > 0"),
+            (self.ownership_foci in ("frame", "reach"), f"ownership_foci {self.ownership_foci!r} not in ('frame', 'reach')"),
             (self.avatar_start in ("cluster", "uniform"), f"avatar_start {self.avatar_start!r} not in ('cluster', 'uniform')"),
             (self.grid_cells >= 1, f"grid_cells = {self.grid_cells} must be >= 1"),
             (self.frame_s > 0, f"frame_s = {self.frame_s} must be > 0"),

@@ -61,7 +61,7 @@ class SceneGrid:
 
 
 # -- ownership §3.6.2 ----------------------------------------------------------------------------
-def ellipsoid_axes(vel: np.ndarray, frame_s: float, scale: float, min_axis: float):
+def ellipsoid_axes(vel: np.ndarray, frame_s: float, scale: float, min_axis: float, foci: str = "frame"):
     """Control ellipsoid of each avatar, eq. 3-11/3-12.
 
     The avatar moves ``D = |v| T`` per frame; the long semi-axis is ``a = D * Scale`` (eq. 3-11)
@@ -69,7 +69,11 @@ def ellipsoid_axes(vel: np.ndarray, frame_s: float, scale: float, min_axis: floa
     foci are the current position ``A(t0)`` and the dead-reckoned next position
     ``A(t1) = A(t0) + v T``, so the focal half-distance is ``D/2`` and the short semi-axes are
     ``b = c = sqrt(a^2 - (D/2)^2)`` (eq. 3-12, reading the seed's ``c/2`` as half the focal
-    distance). The centre is ``A(t0) + v T / 2``.
+    distance). The centre is ``A(t0) + v T / 2``. Since ``a = 30 D >> D/2`` this ellipsoid is
+    nearly a sphere. ``foci='reach'`` is the other reading: the foci are ``A(t0)`` and the
+    position ``Scale`` frames ahead, ``A(t0) + v T Scale``, so the focal distance is ``a`` itself,
+    ``b = c = sqrt(a^2 - (a/2)^2)`` and the centre is ``A(t0) + a u / 2``: a region stretched
+    ahead of the avatar ("nearest arrival" rather than nearest distance).
 
     Parameters
     ----------
@@ -82,12 +86,13 @@ def ellipsoid_axes(vel: np.ndarray, frame_s: float, scale: float, min_axis: floa
     speed = np.linalg.norm(vel, axis=1)
     D = speed * frame_s
     a = np.maximum(D * scale, min_axis)
-    b = np.sqrt(a ** 2 - (0.5 * D) ** 2)
+    focal = D * scale if foci == "reach" else D
+    b = np.sqrt(a ** 2 - (0.5 * focal) ** 2)
     u = np.zeros_like(vel)
     moving = speed > 0
     u[moving] = vel[moving] / speed[moving, None]
     u[~moving, 0] = 1.0
-    return a, b, u, 0.5 * vel * frame_s
+    return a, b, u, 0.5 * focal[:, None] * u
 
 
 def mahalanobis_ellipsoid(x: np.ndarray, centre: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -109,7 +114,8 @@ def covariance(u: np.ndarray, a: float, b: float) -> np.ndarray:
 
 
 def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, entity_pos: np.ndarray,
-                  current: np.ndarray, frame_s: float, scale: float, min_axis: float) -> np.ndarray:
+                  current: np.ndarray, frame_s: float, scale: float, min_axis: float,
+                  foci: str = "frame") -> np.ndarray:
     """Owning avatar (group index) of every entity, or the current one where nobody claims it.
 
     ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
@@ -121,7 +127,7 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
         return current
     from scipy.spatial import cKDTree
 
-    a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis)
+    a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis, foci)
     centre = avatar_pos + shift if rule == "mahalanobis" else avatar_pos
     sd = cKDTree(centre).sparse_distance_matrix(cKDTree(entity_pos), float(a.max()), output_type="ndarray")
     gi, ei = sd["i"].astype(np.int64), sd["j"].astype(np.int64)

@@ -377,7 +377,7 @@ class NetworkModel:
             cur = self.owner[G:]
             new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos,
                                       np.searchsorted(cand, cur).clip(0, max(len(cand) - 1, 0)),
-                                      cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis)
+                                      cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci)
             claimed = new_local != np.searchsorted(cand, cur).clip(0, max(len(cand) - 1, 0))
             new = cur.copy()
             new[claimed] = cand[new_local[claimed]]

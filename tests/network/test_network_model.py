@@ -112,6 +112,8 @@ def test_mahalanobis_matches_scipy():
         v = rng.normal(size=3) * 10
         a, b, u, shift = ellipsoid_axes(v[None, :], T, 30.0, 2.0)
         assert b[0] == pytest.approx(math.sqrt(a[0] ** 2 - (0.5 * np.linalg.norm(v) * T) ** 2))  # eq. 3-12
+        ar, br, _, sr = ellipsoid_axes(v[None, :], T, 30.0, 2.0, foci="reach")
+        assert br[0] == pytest.approx(math.sqrt(3) / 2 * ar[0]) and np.linalg.norm(sr) == pytest.approx(ar[0] / 2)
         assert a[0] == pytest.approx(max(np.linalg.norm(v) * T * 30.0, 2.0))                    # eq. 3-11
         centre = rng.normal(size=3)
         x = centre + rng.normal(size=3) * 5
@@ -130,6 +132,11 @@ def test_mahalanobis_ownership_prefers_the_avatar_heading_to_the_entity():
     assert assign_owners("euclidean", apos, avel, epos, cur, T, 30.0, 6.0)[0] == 1
     assert assign_owners("mahalanobis", apos, avel, epos, cur, T, 30.0, 6.0)[0] == 0
     assert assign_owners("none", apos, avel, epos, cur, T, 30.0, 6.0)[0] == 1
+    # the 'reach' reading stretches the region ahead: an entity 13 m ahead is claimed
+    far = np.array([[13.0, 0.5]])
+    a2 = np.array([[0.0, 0.0], [40.0, 0.0]])
+    assert assign_owners("mahalanobis", a2, avel, far, cur, T, 30.0, 6.0, foci="frame")[0] == 1
+    assert assign_owners("mahalanobis", a2, avel, far, cur, T, 30.0, 6.0, foci="reach")[0] == 0
 
 
 @pytest.mark.parametrize("dist", ["exponential", "uniform", "normal"])
