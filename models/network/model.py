@@ -597,10 +597,25 @@ class NetworkModel:
         return self.hist[frame % HIST, grp, g].copy()
 
     def at_rest(self) -> bool:
-        """No input changed, nothing moves, no record or input/impulse event pending."""
-        pending = any(kind in ("input", "impulse") for _, _, kind, _ in self._heap)
+        """Nothing to do: no input changed in the step, nothing moves, no input or collision
+        event is queued and every node shows the true state.
+
+        Periodic traffic (heartbeats, frame sync, unchanged state records) never stops in a
+        live network and is not counted as pending work.
+        """
+        pending = any(kind in ("input", "impulse", "join", "leave") for _, _, kind, _ in self._heap)
         return (not self.inputs_changed and not self.world.moving() and not pending
-                and not any(self._inflight.values()) and self.cfg.driven_groups == self.cfg.groups)
+                and self.metrics.inconsistency_max == 0.0 and self.cfg.driven_groups == self.cfg.groups)
+
+    def shown_position(self, viewer: int, obj: int) -> np.ndarray:
+        """Position (2,) m of object ``obj`` as the master of group ``viewer`` shows it at the
+        current frame (its cache dead-reckoned to the frame time; the truth for its own objects)."""
+        if self.owner[obj] == viewer:
+            return self.world.positions()[obj].copy()
+        fi = int(self.index(viewer, obj))
+        c = self.cache[:, fi]
+        dt = np.array([self.k * self.cfg.frame_s - c[0]])
+        return dead_reckon(c[None, 1:3], c[None, 3:5], c[None, 5:7], dt, self.cfg.prediction_order)[0]
 
     def heartbeat_table(self) -> List[dict]:
         return self.supernode.table()

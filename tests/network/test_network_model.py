@@ -176,3 +176,19 @@ def test_input_acts_at_its_own_arrival_time_inside_a_frame():
     d = np.linalg.norm(m.world.apos[0] - p0)
     assert d == pytest.approx(0.5 * 4.0 * (T - 0.010) ** 2, rel=1e-9)
     assert m.world.speed[0] == pytest.approx(4.0 * (T - 0.010), rel=1e-9)
+
+
+def test_at_rest_when_nothing_moves_and_shown_positions_match_truth():
+    cfg = NetworkConfig(groups=2, render_nodes=2, entities=6, driven_groups=2, entity_speed=0.0)
+    m = NetworkModel(cfg)
+    for _ in range(5):
+        m.step(T)
+    assert m.at_rest()
+    truth = m.world.positions()
+    for g in range(2):
+        for o in range(m.n_obj):
+            if m.in_view[o, g]:
+                assert np.allclose(m.shown_position(g, o), truth[o])
+    m.set_input(0, 0.5, 0.0)
+    m.step(T)
+    assert not m.at_rest()
