@@ -176,12 +176,15 @@ class SweepOptions:
         Dask scheduler address (``tcp://host:port``); runs go to that cluster instead.
     check : bool
         Raise :class:`SweepFailed` at the end if any run failed.
+    progress : bool
+        Show a progress bar of finished runs on stderr (only when it is a terminal).
     """
 
     output_dir: Path
     workers: Optional[int] = None
     scheduler: Optional[str] = None
     check: bool = True
+    progress: bool = True
 
 
 def _err(spec_file: Path, msg: str) -> ScenarioError:
@@ -696,7 +699,7 @@ def plot_comparison(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec, out
                     _as_number(_cell(r, ycol, spec))) for r in grp]
             pts = sorted((x, y) for x, y in pts if y is not None and math.isfinite(y))
             if pts:
-                label = ", ".join(f"{h}={v}" for h, v in zip(hue, g)) or None
+                label = ", ".join(f"{h}={_short(v)}" for h, v in zip(hue, g)) or None
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", lw=1.2, label=label)
         ax.set_xscale("log" if plot.logx and numeric else "linear")  # (resets the tick locator)
         if not numeric:
@@ -754,24 +757,41 @@ def execute(spec: SweepSpec, options: SweepOptions) -> SweepResult:
     tasks = make_tasks(spec, out)
     rows: List[RunRow] = []
 
+    bar = _progress_bar(len(tasks), spec.file.stem, options.progress)
+
     def on_row(row: RunRow) -> None:
         rows.append(row)
         log.info("run %s %s (%d/%d)%s", row.id, row.status, len(rows), len(tasks),
                  f": {row.reason}" if row.reason else "")
         write_summary(spec, rows, summary)
+        if bar is not None:
+            bar.update(1)
 
-    if options.scheduler:
-        log.info("sweep %s: %d runs on the Dask cluster at %s", spec.file, len(tasks), options.scheduler)
-        _run_dask(tasks, options.scheduler, on_row)
-    else:
-        _prebuild(spec)
-        workers = max(1, min(options.workers or os.cpu_count() or 1, len(tasks)))
-        log.info("sweep %s: %d runs on %d local processes", spec.file, len(tasks), workers)
-        _run_local(tasks, workers, on_row)
+    _prebuild(spec)  # also for Dask: workers on this machine share the build folder
+    try:
+        if options.scheduler:
+            log.info("sweep %s: %d runs on the Dask cluster at %s", spec.file, len(tasks), options.scheduler)
+            _run_dask(tasks, options.scheduler, on_row)
+        else:
+            workers = max(1, min(options.workers or os.cpu_count() or 1, len(tasks)))
+            log.info("sweep %s: %d runs on %d local processes", spec.file, len(tasks), workers)
+            _run_local(tasks, workers, on_row)
+    finally:
+        if bar is not None:
+            bar.close()
     rows.sort(key=lambda r: r.index)
     write_summary(spec, rows, summary)
     plots = [plot_comparison(spec, rows, p, out / plot_file_name(p)) for p in spec.plots]
     return SweepResult(spec, rows, summary, plots)
+
+
+def _progress_bar(total: int, desc: str, enabled: bool):
+    """A tqdm bar on stderr counting finished runs (off when stderr is not a terminal)."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="run", desc=desc, leave=False, disable=None)
 
 
 def default_output_dir(sweepfile: Path | str) -> Path:
@@ -780,7 +800,7 @@ def default_output_dir(sweepfile: Path | str) -> Path:
 
 
 def run_sweep(sweepfile: Path | str, output_dir: Path | str | None = None, workers: Optional[int] = None,
-              scheduler: Optional[str] = None, check: bool = True) -> SweepResult:
+              scheduler: Optional[str] = None, check: bool = True, progress: bool = True) -> SweepResult:
     """Run the sweep file; the entry point of ``immersim sweep``.
 
     Parameters
@@ -795,6 +815,8 @@ def run_sweep(sweepfile: Path | str, output_dir: Path | str | None = None, worke
         Dask scheduler address; when given the runs go to that cluster.
     check : bool
         Raise :class:`SweepFailed` (after writing everything) if any run failed.
+    progress : bool
+        Progress bar of finished runs on stderr (only when it is a terminal).
 
     Returns
     -------
@@ -804,10 +826,17 @@ def run_sweep(sweepfile: Path | str, output_dir: Path | str | None = None, worke
     spec = load_sweep(sweepfile)
     if workers is not None and workers < 1:
         raise ScenarioError(f"--workers must be >= 1, got {workers}")
-    opts = SweepOptions(Path(output_dir) if output_dir else default_output_dir(sweepfile), workers, scheduler, check)
+    opts = SweepOptions(Path(output_dir) if output_dir else default_output_dir(sweepfile), workers, scheduler,
+                        check, progress)
     result = execute(spec, opts)
     if opts.check and result.failed:
-        bad = "; ".join(f"{r.id}: {r.status}: {r.reason}" for r in result.failed)
-        raise SweepFailed(f"sweep {spec.file}: {len(result.failed)} of {len(result.rows)} runs did not complete "
-                          f"({bad}); summary: {result.summary}", result)
+        raise SweepFailed(failure_message(result), result)
     return result
+
+
+def failure_message(result: SweepResult, shown: int = 5) -> str:
+    """One line naming the failed runs (the first ``shown`` with their reasons)."""
+    bad = [f"{r.id}: {r.status}: {r.reason}" for r in result.failed]
+    more = f"; and {len(bad) - shown} more" if len(bad) > shown else ""
+    return (f"sweep {result.spec.file}: {len(bad)} of {len(result.rows)} runs did not complete "
+            f"({'; '.join(bad[:shown])}{more}); summary: {result.summary}")
