@@ -672,46 +672,76 @@ def _as_number(v: Any) -> Optional[float]:
     return None
 
 
-def plot_comparison(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec, output: Path) -> Path:
-    """One PNG: a subplot per ``plot.y`` against ``plot.x``, a line per hue group (completed runs).
+@dataclass
+class ComparisonData:
+    """What a comparison plot draws.
 
-    A numeric ``x`` is plotted on its own scale; any other ``x`` as categories in sweep order.
+    Attributes
+    ----------
+    numeric : bool
+        ``x`` is numeric (else categories, plotted at 0, 1, ... with ``categories`` as labels).
+    categories : list of str
+    lines : dict
+        ``y column -> {hue label -> (x values, y values)}``, sorted by x, non-finite y dropped.
+    plotted : int
+        Runs drawn (completed and setting ``x``).
     """
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    numeric: bool
+    categories: List[str]
+    lines: Dict[str, Dict[str, Tuple[List[float], List[float]]]]
+    plotted: int
 
-    done = [r for r in sorted(rows, key=lambda r: r.index)  # (a run that does not set x has no place)
+
+def comparison_data(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec) -> ComparisonData:
+    """The lines of one comparison plot: completed runs that set ``plot.x``, grouped by hue
+    (default: every other override key that varies), one line per group and ``y`` column."""
+    done = [r for r in sorted(rows, key=lambda r: r.index)
             if r.status == "completed" and _cell(r, plot.x, spec) != ""]
     xs = [_cell(r, plot.x, spec) for r in done]
     numeric = bool(xs) and all(_as_number(x) is not None for x in xs)
     cats = list(dict.fromkeys(map(str, xs)))
     hue = plot.hue if plot.hue is not None else tuple(
         k for k in spec.keys if k != plot.x and len({str(v.overrides.get(k, "")) for v in spec.variants}) > 1)
-    groups: Dict[Tuple[str, ...], List[RunRow]] = {}
-    for r in done:
-        groups.setdefault(tuple(_fmt(_cell(r, h, spec)) for h in hue), []).append(r)
+    groups: Dict[str, List[Tuple[float, RunRow]]] = {}
+    for r, x in zip(done, xs):
+        label = ", ".join(f"{h}={_short(_cell(r, h, spec))}" for h in hue)
+        groups.setdefault(label, []).append((_as_number(x) if numeric else float(cats.index(str(x))), r))
+    lines: Dict[str, Dict[str, Tuple[List[float], List[float]]]] = {}
+    for ycol in plot.y:
+        lines[ycol] = {}
+        for label, pts in groups.items():
+            xy = sorted((x, _as_number(_cell(r, ycol, spec))) for x, r in pts)
+            xy = [(x, y) for x, y in xy if y is not None and math.isfinite(y)]
+            if xy:
+                lines[ycol][label] = ([x for x, _ in xy], [y for _, y in xy])
+    return ComparisonData(numeric, cats, lines, len(done))
+
+
+def plot_comparison(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec, output: Path) -> Path:
+    """One PNG (matplotlib Agg): a subplot per ``plot.y`` column against ``plot.x``, a line per
+    hue group; see :func:`comparison_data`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data = comparison_data(spec, rows, plot)
     fig, axes = plt.subplots(len(plot.y), 1, figsize=(7, 2.6 * len(plot.y) + 0.8), squeeze=False)
     for ax, ycol in zip(axes[:, 0], plot.y):
-        for g, grp in groups.items():
-            pts = [(_as_number(_cell(r, plot.x, spec)) if numeric else cats.index(str(_cell(r, plot.x, spec))),
-                    _as_number(_cell(r, ycol, spec))) for r in grp]
-            pts = sorted((x, y) for x, y in pts if y is not None and math.isfinite(y))
-            if pts:
-                label = ", ".join(f"{h}={_short(v)}" for h, v in zip(hue, g)) or None
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", lw=1.2, label=label)
-        ax.set_xscale("log" if plot.logx and numeric else "linear")  # (resets the tick locator)
-        if not numeric:
-            ax.set_xticks(range(len(cats)), [_short(c) for c in cats])
+        for label, (x, y) in data.lines[ycol].items():
+            ax.plot(x, y, marker="o", lw=1.2, label=label or None)
+        ax.set_xscale("log" if plot.logx and data.numeric else "linear")  # (resets the tick locator)
+        if not data.numeric:
+            ax.set_xticks(range(len(data.categories)), [_short(c) for c in data.categories])
         if plot.logy:
             ax.set_yscale("log")
         ax.set_ylabel(ycol)
         ax.grid(True, alpha=0.3)
-        if hue and ax is axes[0, 0]:
+        if any(data.lines[ycol]) and ax is axes[0, 0]:
             ax.legend(fontsize=7)
     axes[-1, 0].set_xlabel(plot.x)
-    fig.suptitle(f"{spec.file.name}: {len(done)} of {len(rows)} runs plotted (completed, with {plot.x})",
+    fig.suptitle(f"{spec.file.name}: {data.plotted} of {len(rows)} runs plotted (completed, with {plot.x})",
                  fontsize=9)
     fig.tight_layout()
     fig.savefig(output, dpi=110)

@@ -309,3 +309,31 @@ def test_example_sweep_file_is_valid():
     assert [v.id for v in spec.variants] == ["000_computed_torque_rk4", "001_computed_torque_cvode_bdf", "002_pd_rk4",
                                              "003_pd_cvode_bdf", "004_planar"]
     assert [p.x for p in spec.plots] == ["plat.control"]
+
+
+def test_comparison_plot_lines(sweep_dir, tmp_path):
+    """Numeric x sorted on its scale, one line per hue value, failed runs and NaN left out."""
+    from immersim.orchestrator.sweep import RunRow, comparison_data, plot_comparison
+
+    (sweep_dir / "steps.toml").write_text('''
+scenario = "osc.toml"
+[grid]
+"m1.k" = [2.0, 1.0]
+"simulation.step" = [0.02, 0.01, 0.04]
+[[variants]]
+name = "default step"
+[metrics]
+err = { signal = "m1.x", reduce = "max" }
+[plot]
+x = "simulation.step"
+y = "err"
+logx = true
+''')
+    spec = load_sweep(sweep_dir / "steps.toml")
+    rows = [RunRow(v.index, v.id, "completed", metrics={"err": 10.0 * v.index}) for v in spec.variants]
+    rows[1].status, rows[2].metrics["err"] = "failed", math.nan
+    data = comparison_data(spec, rows, spec.plots[0])
+    assert data.numeric and data.plotted == 5
+    assert data.lines == {"err": {"m1.k=2": ([0.02], [0.0]), "m1.k=1": ([0.01, 0.02, 0.04], [40.0, 30.0, 50.0])}}
+    png = plot_comparison(spec, rows, spec.plots[0], tmp_path / "p.png")
+    assert png.read_bytes()[:4] == b"\x89PNG"
