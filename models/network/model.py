@@ -95,6 +95,8 @@ class NetworkModel:
         # records in flight, bucketed by the frame at which they are due: k -> chunks in send order
         self._inflight: Dict[int, List[tuple]] = {}
         self._ncol = 1 + 2 * (1 + min(cfg.prediction_order, 2))   # cache columns the order uses
+        self._epoch = 0            # bumped at every ownership change: older chunks are re-checked
+        self._newest = -np.inf     # newest record time written into the cache so far
         self._frames: Dict[str, np.ndarray] = {k: np.zeros(0, t) for k, t in
                                                (("arr", float), ("slave", np.int64), ("frame", np.int64))}
         self.hist = np.zeros((HIST, G, G, 2))
@@ -246,7 +248,7 @@ class NetworkModel:
         t = self.t if arrival is None else arrival
         rec = np.r_[self.t, np.asarray(pos, float), np.asarray(vel, float), 0.0, 0.0][:, None]
         self._add_inflight(np.array([t]), np.array([self.index(viewer_group, obj)]), np.array([sender_group]),
-                           rec, np.zeros(1, np.int64))
+                           rec, np.zeros(1, np.int64), epoch=-1)
 
     # -- stepping ------------------------------------------------------------------------------
     def step(self, h: float) -> StepMetrics:
@@ -343,6 +345,8 @@ class NetworkModel:
             P, V, A = w.positions()[o], w.velocities()[o], w.accelerations()[o]
             rec = np.ascontiguousarray(np.c_[np.full(len(o), self.t), P, V, A].T)
             self._scatter(self.index(old, o), rec, np.arange(len(o)))
+            self._newest = max(self._newest, self.t)
+            self._epoch += 1
             self.owner[o] = new[changed]
             self.metrics.handovers += n
             self._count(n, n * (H + record_bytes(self.cfg.prediction_order)), PduType.HANDOVER)
@@ -418,13 +422,16 @@ class NetworkModel:
             r_arr, r_lost = arrival[tr.rec_msg], lost[tr.rec_msg]
             if (tr.rec_hop1 >= 0).any():
                 r_lost = r_lost | np.where(tr.rec_hop1 >= 0, lost[np.maximum(tr.rec_hop1, 0)], False)
-            ok = ~r_lost
-            o = tr.rec_obj[ok]
             # one record table per frame (objects x 7, column-major); pairs refer to it by object
             table = np.empty((7, self.n_obj))
             table[0] = t
             table[1:3], table[3:5], table[5:7] = P.T, V.T, A.T
-            self._add_inflight(r_arr[ok], self.index(tr.rec_viewer[ok], o), self.owner[o], table, o)
+            if r_lost.any():
+                ok = ~r_lost
+                o, viewer, r_arr = tr.rec_obj[ok], tr.rec_viewer[ok], r_arr[ok]
+            else:
+                o, viewer = tr.rec_obj, tr.rec_viewer
+            self._add_inflight(r_arr, self.index(viewer, o), np.take(self.owner, o), table, o)
         if len(tr.frame_msg):
             f_arr = np.where(lost[tr.frame_msg], np.inf, arrival[tr.frame_msg])
             for key, val in (("arr", f_arr), ("slave", tr.frame_slave), ("frame", np.full(len(f_arr), self.k + 1))):
@@ -468,30 +475,32 @@ class NetworkModel:
 
     # -- in-flight records ----------------------------------------------------------------------
     def _add_inflight(self, arr: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
-                      ridx: np.ndarray) -> None:
+                      ridx: np.ndarray, epoch: Optional[int] = None) -> None:
         """Put records in flight: arrival (s), flat cache index, sending group and the record
         ``table[:, ridx]`` (rows t, p, v, a). Each is filed under the first frame ``k`` with
-        ``k T >= arrival``: it has arrived by that tick and not by the one before."""
+        ``k T >= arrival``: it has arrived by that tick and not by the one before. ``epoch``
+        is the ownership epoch the senders were checked against (-1: never checked)."""
         if not len(arr):
             return
+        meta = (self._epoch if epoch is None else epoch, float(table[0].max()))
         T = self.cfg.frame_s
         due = np.maximum(np.ceil(arr / T - 1e-9), self.k).astype(np.int64)
         lo, hi = int(due.min()), int(due.max())
         if lo == hi:
-            self._inflight.setdefault(lo, []).append((fi, sender, table, ridx))
+            self._inflight.setdefault(lo, []).append((fi, sender, table, ridx, meta))
             return
         if hi - lo <= 3:
             for key in range(lo, hi + 1):
                 sel = due == key
                 if not sel.any():
                     continue
-                self._inflight.setdefault(int(key), []).append((fi[sel], sender[sel], table, ridx[sel]))
+                self._inflight.setdefault(int(key), []).append((fi[sel], sender[sel], table, ridx[sel], meta))
             return
         order = np.argsort(due, kind="stable")
         due, fi, sender, ridx = due[order], fi[order], sender[order], ridx[order]
         cuts = np.flatnonzero(np.diff(due)) + 1
         for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(due)]):
-            self._inflight.setdefault(int(due[lo]), []).append((fi[lo:hi], sender[lo:hi], table, ridx[lo:hi]))
+            self._inflight.setdefault(int(due[lo]), []).append((fi[lo:hi], sender[lo:hi], table, ridx[lo:hi], meta))
 
     def _deliver(self, t: float) -> None:
         """Apply every record that has arrived by ``t``; reject records from non-owners (§3.6.1).
@@ -502,15 +511,18 @@ class NetworkModel:
         """
         G = self.cfg.groups
         for key in sorted(k for k in self._inflight if k <= self.k):
-            for fi, sender, table, ridx in self._inflight.pop(key):
-                valid = sender == np.take(self.owner, fi // G)
-                if not valid.all():
-                    self.metrics.rejected_updates += int((~valid).sum())
-                    fi, ridx = fi[valid], ridx[valid]
-                newer = np.take(table[0], ridx) > np.take(self.cache[0], fi)
-                if not newer.all():
-                    fi, ridx = fi[newer], ridx[newer]
+            for fi, sender, table, ridx, (epoch, t_send) in self._inflight.pop(key):
+                if epoch != self._epoch:  # owners changed since it was sent: check the senders
+                    valid = sender == np.take(self.owner, fi // G)
+                    if not valid.all():
+                        self.metrics.rejected_updates += int((~valid).sum())
+                        fi, ridx = fi[valid], ridx[valid]
+                if t_send < self._newest:  # possibly older than what the cache holds
+                    newer = np.take(table[0], ridx) > np.take(self.cache[0], fi)
+                    if not newer.all():
+                        fi, ridx = fi[newer], ridx[newer]
                 self._scatter(fi, table, ridx)
+                self._newest = max(self._newest, t_send)
 
     def index(self, viewer, obj):
         """Flat cache index of (viewer group, object)."""
