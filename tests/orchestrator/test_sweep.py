@@ -301,14 +301,20 @@ name = "after"
     assert [r["status"] for r in read_summary(out / "summary.csv")] == ["completed", "completed", "failed", "completed"]
 
 
-def test_example_sweep_file_is_valid():
-    """scenarios/sweeps/platform_ablation.toml parses and every variant fits its scenario."""
+EXAMPLES = {
+    "platform_ablation.toml": ["000_computed_torque_rk4", "001_computed_torque_cvode_bdf", "002_pd_rk4",
+                               "003_pd_cvode_bdf", "004_planar"],
+    "prediction_orders.toml": ["000_0_20", "001_0_80", "002_1_20", "003_1_80", "004_2_20", "005_2_80"],
+}
+
+
+@pytest.mark.parametrize("name", sorted(EXAMPLES))
+def test_example_sweep_files_are_valid(name):
+    """The example sweeps in scenarios/sweeps/ parse and every variant fits its scenario."""
     from ..conftest import TESTS
 
-    spec = load_sweep(TESTS.parent / "scenarios" / "sweeps" / "platform_ablation.toml")
-    assert [v.id for v in spec.variants] == ["000_computed_torque_rk4", "001_computed_torque_cvode_bdf", "002_pd_rk4",
-                                             "003_pd_cvode_bdf", "004_planar"]
-    assert [p.x for p in spec.plots] == ["plat.control"]
+    spec = load_sweep(TESTS.parent / "scenarios" / "sweeps" / name)
+    assert [v.id for v in spec.variants] == EXAMPLES[name]
 
 
 def test_comparison_plot_lines(sweep_dir, tmp_path):
