@@ -51,7 +51,12 @@ class BackendConfig:
         m; distances beyond it are not computed exactly (reported as ``max_distance``) and
         bodies farther apart never reach the narrow phase. ``inf``: always exact.
     ccd : bool
-        fcl: time of impact (conservative advancement) for bodies that moved in the step.
+        fcl: time of impact for bodies that moved in the step.
+    ccd_fast : float
+        fcl: a body is a fast mover when its travel in the step (translation + angle x radius)
+        exceeds ``ccd_fast`` times its thinnest extent; fast movers get conservative
+        advancement over the swept volume (it cannot miss a tunnelling contact); slow movers,
+        which cannot tunnel, get the time of impact from the distances at both ends of the step.
     max_contacts : int
         fcl: contacts requested per narrow-phase collision (deepest one is reported).
     st : float
@@ -65,10 +70,13 @@ class BackendConfig:
         honeycomb: equal-ratio shrink start (5 %) and decrement (0.1 %), eq. 4-7.
     rays_per_cell : int
         honeycomb: k x k depth rays per cell (the ray-cast depth buffer of §4.2.2).
+    honeycomb_axes : {'all', 'separating'}
+        honeycomb: project on the three coordinate planes, or only across the most separating axis.
     """
 
     max_distance: float = math.inf
     ccd: bool = True
+    ccd_fast: float = 0.5
     max_contacts: int = 32
     st: float = 0.05
     dn_rule: str = "strict"
@@ -77,6 +85,7 @@ class BackendConfig:
     shrink_ratio: float = 0.05
     shrink_step: float = 0.001
     rays_per_cell: int = 2
+    honeycomb_axes: str = "all"
 
     def __post_init__(self) -> None:
         if not 0 < self.st < 1:
@@ -89,6 +98,8 @@ class BackendConfig:
             raise ValueError(f"max_distance = {self.max_distance} must be > 0")
         if not 0 < self.shrink_step <= self.shrink_ratio < 1:
             raise ValueError("need 0 < shrink_step <= shrink_ratio < 1")
+        if self.honeycomb_axes not in ("all", "separating"):
+            raise ValueError(f"honeycomb_axes = {self.honeycomb_axes!r} must be 'all' or 'separating'")
         if self.rays_per_cell < 1:
             raise ValueError(f"rays_per_cell = {self.rays_per_cell} must be >= 1")
 
@@ -227,6 +238,7 @@ class CollisionBackend(ABC):
         self._dyn_list = self.dyn.tolist()
         self._dyn_poses = {i: self.poses[i].tolist() for i in self._dyn_list}
         self._cache: List[Optional[PairResult]] = [None] * len(self.pairs)
+        self._previous: Optional[PairResult] = None
         self._last: Optional[QueryResult] = None
         self._setup()
 
@@ -311,6 +323,7 @@ class CollisionBackend(ABC):
         out, n_cand, n_narrow = [], 0, 0
         for k, pair in enumerate(self.pairs):
             cached = self._cache[k]
+            self._previous = cached  # the pair's result at the start of the step (for _evaluate)
             if cached is not None and moved_set.isdisjoint(self._pair_dyn[k]):
                 out.append(replace(cached, toi=-1.0, closing_speed=0.0))
                 continue

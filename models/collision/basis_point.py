@@ -40,6 +40,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Dict, List, Tuple
 
 import numpy as np
@@ -150,6 +151,15 @@ def threading_features(grid: np.ndarray) -> Tuple[List[Tuple[int, int]], List[Tu
     return segments, triangles, points
 
 
+@lru_cache(maxsize=65536)
+def _threading_cached(key: bytes, n: int):
+    """Threading of a related-point pattern as index arrays (segments, triangles, points)."""
+    grid = np.frombuffer(key, dtype=np.int64).reshape(n, 2)
+    segs, tris, pts = threading_features(grid)
+    return (np.asarray(segs, int).reshape(-1, 2), np.asarray(tris, int).reshape(-1, 3),
+            np.asarray(pts, int))
+
+
 class BasisPointBackend(CollisionBackend):
     """Basis-point scan-line collision detection (thesis ch. 5)."""
 
@@ -207,38 +217,43 @@ class BasisPointBackend(CollisionBackend):
                     continue
                 tree = cKDTree(S)
                 related = tree.query_ball_point(scn, radius)
-                seg_p, seg_a, seg_b = [], [], []
-                tri_p, tri = [], []
-                pp_p, pp_q = [], []
+                pp_p, pp_q, seg_p, seg_ab, tri_p, tri = [], [], [], [], [], []
                 for i, rel in enumerate(related):
-                    if not rel:
+                    n_rel = len(rel)
+                    if n_rel == 0:
                         continue
-                    if len(rel) == 1:  # point-point
+                    if n_rel == 1:  # point-point
                         pp_p.append(i)
                         pp_q.append(rel[0])
-                    elif len(rel) == 2:  # point-line
-                        seg_p.append(i)
-                        seg_a.append(rel[0])
-                        seg_b.append(rel[1])
-                    else:  # point-face: threading
+                    elif n_rel == 2:  # point-line
+                        seg_p.append(np.array([i]))
+                        seg_ab.append(np.array([rel]))
+                    else:  # point-face: threading (memoised on the related points' pattern)
                         rel = np.asarray(rel)
-                        segs, tris, pts = threading_features(grid[rel])
-                        for s0, s1 in segs:
-                            seg_p.append(i)
-                            seg_a.append(rel[s0])
-                            seg_b.append(rel[s1])
-                        for t in tris:
-                            tri_p.append(i)
-                            tri.append(rel[list(t)])
-                        for q in pts:
-                            pp_p.append(i)
-                            pp_q.append(rel[q])
+                        g = grid[rel]
+                        segs, tris, pts = _threading_cached((g - g.min(0)).tobytes(), n_rel)
+                        if len(segs):
+                            seg_p.append(np.full(len(segs), i))
+                            seg_ab.append(rel[segs])
+                        if len(tris):
+                            tri_p.append(np.full(len(tris), i))
+                            tri.append(rel[tris])
+                        if len(pts):
+                            pp_p += [i] * len(pts)
+                            pp_q += rel[pts].tolist()
+                seg_p = np.concatenate(seg_p) if seg_p else []
+                if len(seg_p):
+                    seg_ab = np.concatenate(seg_ab)
+                    seg_a, seg_b = seg_ab[:, 0], seg_ab[:, 1]
+                tri_p = np.concatenate(tri_p) if tri_p else []
+                if len(tri_p):
+                    tri = np.concatenate(tri)
                 if pp_p:
                     p, q = scn[pp_p], S[pp_q]
                     ds.append(np.linalg.norm(p - q, axis=1))
                     ps.append(p)
                     qs.append(q)
-                if seg_p:
+                if len(seg_p):
                     p, A, B = scn[seg_p], S[seg_a], S[seg_b]
                     AB = B - A
                     L2 = np.einsum("ij,ij->i", AB, AB)
@@ -249,8 +264,8 @@ class BasisPointBackend(CollisionBackend):
                     ds.append(np.linalg.norm(p[on] - V, axis=1))
                     ps.append(p[on])
                     qs.append(V)
-                if tri_p:
-                    p, Tr = scn[tri_p], S[np.asarray(tri)]
+                if len(tri_p):
+                    p, Tr = scn[tri_p], S[tri]
                     nrm = np.cross(Tr[:, 1] - Tr[:, 0], Tr[:, 2] - Tr[:, 0])
                     nn = np.linalg.norm(nrm, axis=1)
                     ok = nn > 1e-12

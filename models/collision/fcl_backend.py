@@ -10,8 +10,11 @@
   (penetration depth = deepest contact's ``penetration_depth``). Without contact,
   ``manager.distance(a)`` finds the nearest member: the tree prunes every member whose AABB is
   farther than the best distance so far (or than ``max_distance``).
-* Time of impact for bodies that moved: the swept AABB of ``a`` over the step is queried
-  against the tree, and each candidate gets conservative advancement (Mirtich 1996) driven by
+* Time of impact for bodies that moved. Slow movers (travel in the step below
+  ``ccd_fast`` x their thinnest extent: they cannot tunnel) that enter contact get
+  ``toi = h d0 / (d0 + depth)`` from the distance at the start and the depth at the end of
+  the step (0 when the contact already held). For fast movers the swept AABB of ``a`` over
+  the step is queried against the tree, and each candidate gets conservative advancement (Mirtich 1996) driven by
   ``fcl.distance``: ``s += d(s) / mu`` with ``mu`` a bound on the relative speed of any surface
   point (translation + angle x radius), until ``d <= toi_tol`` (contact at ``s``) or ``s > 1``.
   fcl's own ``continuousCollide`` is not used: its conservative-advancement solver rejects
@@ -78,6 +81,7 @@ class FclBackend(CollisionBackend):
             self._pair_parts[id(pair)] = (mask, members[~self.is_dynamic[members]], members[self.is_dynamic[members]])
         self._creq = fcl.CollisionRequest(num_max_contacts=self.config.max_contacts, enable_contact=True)
         self._dreq = fcl.DistanceRequest(enable_nearest_points=True)
+        self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
         self._radius = self.sphere_r + np.linalg.norm(
             np.array([self._local[b.mesh_key][1] for b in self.scene.bodies]), axis=1)
 
@@ -158,7 +162,17 @@ class FclBackend(CollisionBackend):
         if res.distance > self.config.max_distance:
             res.distance = self.config.max_distance
         if self.config.ccd and (self.prev_T[a] != self.T[a]).any():
-            res.toi = self._time_of_impact(a, stat, dyn, counts, dt)
+            T0, T1 = self.prev_T[a], self.T[a]
+            travel = (np.linalg.norm(T1[:3, 3] - T0[:3, 3])
+                      + rotation_angle(T1[:3, :3] @ T0[:3, :3].T) * self._radius[a])
+            if travel > self.config.ccd_fast * self._thin[a]:
+                res.toi = self._time_of_impact(a, stat, dyn, counts, dt)
+            elif res.in_contact:
+                prev = self._previous
+                if prev is None or prev.in_contact or prev.distance < 0:
+                    res.toi = 0.0
+                else:  # signed distance linear over the step: d0 -> -depth
+                    res.toi = dt * prev.distance / (prev.distance + max(res.depth, 1e-12))
         return res, counts[0], counts[1]
 
     def _nearest(self, a, stat, dyn, counts) -> List[Tuple[int, PairResult]]:

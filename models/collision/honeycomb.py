@@ -2,9 +2,12 @@
 
 For a monitored pair, body ``a`` is the thesis's A and each member B:
 
-1. **Depth direction**: the most separating world axis of the two AABBs (largest gap, or
-   least overlap, between them). The projection plane is the other two axes (the thesis
-   projects on XOY with Z as depth, §4.3.1; it leaves the choice of plane open).
+1. **Depth direction**: the thesis projects on XOY with Z as depth (§4.3.1) and leaves the
+   choice of plane open. A single plane misses contacts whose surfaces are parallel to the
+   depth rays (a missile in a turret's top seen along Y), so by default
+   (``honeycomb_axes='all'``) the detector runs on the three coordinate planes and reports a
+   contact when any of them finds one; ``'separating'`` uses only the most separating axis of
+   the two AABBs (largest gap or least overlap).
 2. **Projection overlap** (§4.2.2, def. 1): the overlap of the projected AABBs; empty -> no
    collision (P(A) n P(B) = 0).
 3. **Depth relation** (fig. 4-1) of the depth intervals [A_min, A_max], [B_min, B_max]:
@@ -35,6 +38,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import replace
 from typing import Dict, Tuple
 
 import numpy as np
@@ -125,7 +129,27 @@ class HoneycombBackend(CollisionBackend):
         return float(max(da, db))
 
     def _narrow(self, a: int, b: int) -> PairResult | None:
-        w = self._depth_axis(a, b)
+        """Run the detector with each configured depth axis; contact if any projection finds
+        a colliding cell; distance = the smallest section gap (each is an upper bound)."""
+        axes = [self._depth_axis(a, b)] if self.config.honeycomb_axes == "separating" else [0, 1, 2]
+        best, stats = None, []
+        for w in axes:
+            r = self._narrow_axis(a, b, w)
+            stats.append(dict(self.last_stats))
+            if r is None:
+                continue
+            if best is None or (r.in_contact, r.depth, -r.distance) > (best.in_contact, best.depth, -best.distance):
+                dist = min(best.distance, r.distance) if best is not None and not r.in_contact else r.distance
+                best = replace(r, distance=dist)
+            elif not best.in_contact:
+                best.distance = min(best.distance, r.distance)
+        self.last_stats = stats[0] if len(stats) == 1 else {
+            "relation": [st["relation"] for st in stats], "axis": [st["axis"] for st in stats],
+            "cells_full": sum(st["cells_full"] for st in stats), "threshold": stats[0]["threshold"],
+            "rays": sum(st["rays"] for st in stats)}
+        return best
+
+    def _narrow_axis(self, a: int, b: int, w: int) -> PairResult | None:
         u, v = [k for k in range(3) if k != w]
         A, B = self.aabb[a], self.aabb[b]
         # projection overlap (def. 1)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from immersim.models.collision import make_backend, parse_scene
+from immersim.models.collision import BackendConfig, make_backend, parse_scene
 from immersim.models.collision.basis_point import (point_in_triangle_angles, scan_counts,
                                                    threading_features)
 from immersim.models.collision.honeycomb import depth_relation, equal_ratio_shrink
@@ -122,7 +122,7 @@ def test_honeycomb_at_rest_agrees_with_fcl_on_contact():
 def test_honeycomb_threshold_predicts_the_next_step():
     """A cube 0.3 m from a wall moving 0.4 m per step is flagged one step early (d = 0.4)."""
     scene = parse_scene("box:name=wall,sx=1,sy=4,sz=4;box:name=cube,sx=1,sy=1,sz=1,dynamic=1,x=3")
-    hc = make_backend("honeycomb", scene, "cube vs wall")
+    hc = make_backend("honeycomb", scene, "cube vs wall", BackendConfig(honeycomb_axes="separating"))
     fc = make_backend("fcl", scene, "cube vs wall")
     for be in (hc, fc):
         be.query([[3.0, 0, 0, 0, 0, 0]])
@@ -141,7 +141,7 @@ def test_honeycomb_empty_cells_cannot_collide():
     """A ball sunk 5 cm into a plate: only the central cells hold a part of the ball inside
     the depth window; the others have D_ij = -1 and are never tested."""
     scene = parse_scene("box:name=plate,sx=4,sy=4,sz=0.2;sphere:name=ball,r=0.5,subdiv=3,dynamic=1,z=2")
-    hc = make_backend("honeycomb", scene, "ball vs plate")
+    hc = make_backend("honeycomb", scene, "ball vs plate", BackendConfig(honeycomb_axes="separating"))
     fc = make_backend("fcl", scene, "ball vs plate")
     hc.fixed_threshold = 0.0
     q = hc.query([[1.0, 1.0, 0.65, 0, 0, 0]])  # ball bottom about 0.05 m above the plate

@@ -1,0 +1,480 @@
+"""Benchmark of the collision unit: the thesis's workloads for every backend beside raw python-fcl.
+
+Run: ``python benchmarks/bench_collision.py [--quick]`` -> ``results/collision/`` (markdown
+tables, CSV, PNG plots, README with the measured figures against the issue's targets).
+
+Workloads (thesis §4.5 and §5.7):
+
+* tables 4-1 / 5-1 / 5-2: a missile against one tank of 5.4k .. 26.4k triangles, intersecting
+  (hit) and close but apart (miss); time per query of each backend and of raw python-fcl
+  (``fcl.collide`` then, without contact, ``fcl.distance`` on the same BVHs);
+* table 5-3: a missile diving onto one tank of a field of 1 .. 5040 tanks (26.4k triangles
+  each, one shared BVH); time per step of each backend and of raw python-fcl (the same
+  ``DynamicAABBTreeCollisionManager`` queries with python-fcl's default callbacks), plus the
+  cost of a step in which nothing moves;
+* table 5-5: the ST sweep of the basis-point detector (time, basis points, DN, accuracy);
+  the n x m sweep of the honeycomb detector;
+* accuracy: >= 1000 random missile poses around a tank (quick: 150): contact flag of each
+  thesis backend against FCL's exact answer (false positives / negatives) and distance error.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import platform
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import fcl
+from immersim.models.collision import BackendConfig, make_backend, parse_scene
+from immersim.models.collision.fcl_backend import fcl_transform
+from immersim.models.collision.geometry import pose_matrix
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "results" / "collision"
+RNG_SEED = 2010
+
+
+def random_poses(n, lo, hi, rng, margin=1.0):
+    """Missile centres uniform in the box [lo - margin, hi + margin], orientations uniform."""
+    c = rng.uniform(lo - margin, hi + margin, size=(n, 3))
+    ang = rng.uniform(-np.pi, np.pi, size=(n, 3))
+    ang[:, 1] /= 2
+    return np.c_[c, ang]
+
+
+def classify(scene, poses, pair="missile vs tank"):
+    """Exact contact flags and distances (FCL) of each pose."""
+    ref = make_backend("fcl", scene, pair, BackendConfig(ccd=False))
+    flags, dist = [], []
+    for p in poses:
+        r = ref.query([p]).pairs[0]
+        flags.append(r.in_contact)
+        dist.append(r.distance)
+    return np.array(flags), np.array(dist)
+
+
+def time_queries(be, poses, reps=1):
+    """Median and mean seconds per query over changing poses (no cache hits)."""
+    ts = []
+    for _ in range(reps):
+        for p in poses:
+            t = time.perf_counter()
+            be.query([p])
+            ts.append(time.perf_counter() - t)
+    return float(np.median(ts)), float(np.mean(ts))
+
+
+class RawPair:
+    """Raw python-fcl on one pair: collide, then distance if apart (same BVHs)."""
+
+    def __init__(self, fcl_backend, a, b):
+        self.oa = fcl.CollisionObject(fcl_backend.geoms[fcl_backend.scene.bodies[a].mesh_key], fcl.Transform())
+        self.ob = fcl.CollisionObject(fcl_backend.geoms[fcl_backend.scene.bodies[b].mesh_key],
+                                      fcl_transform(fcl_backend.T[b]))
+        self.creq = fcl.CollisionRequest(num_max_contacts=32, enable_contact=True)
+        self.dreq = fcl.DistanceRequest(enable_nearest_points=True)
+
+    def query(self, poses):
+        self.oa.setTransform(fcl_transform(pose_matrix(poses[0])))
+        cres = fcl.CollisionResult()
+        if fcl.collide(self.oa, self.ob, self.creq, cres) == 0:
+            fcl.distance(self.oa, self.ob, self.dreq, fcl.DistanceResult())
+
+
+class RawField:
+    """Raw python-fcl on a field: the same static manager queried with default callbacks."""
+
+    def __init__(self, fcl_backend, a):
+        be = fcl_backend
+        self.manager = fcl.DynamicAABBTreeCollisionManager()
+        self.manager.registerObjects([fcl.CollisionObject(be.geoms[be.scene.bodies[i].mesh_key],
+                                                          fcl_transform(be.T[i])) for i in be.static_idx])
+        self.manager.setup()
+        self.obj = fcl.CollisionObject(be.geoms[be.scene.bodies[a].mesh_key], fcl.Transform())
+        self.creq = fcl.CollisionRequest(num_max_contacts=32, enable_contact=True)
+        self.dreq = fcl.DistanceRequest(enable_nearest_points=True)
+
+    def query(self, poses):
+        self.obj.setTransform(fcl_transform(pose_matrix(poses[0])))
+        cd = fcl.CollisionData(self.creq)
+        self.manager.collide(self.obj, cd, fcl.defaultCollisionCallback)
+        if not cd.result.is_collision:
+            dd = fcl.DistanceData(self.dreq)
+            self.manager.distance(self.obj, dd, fcl.defaultDistanceCallback)
+
+
+def md_table(header, rows):
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for r in rows:
+        out.append("| " + " | ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in r) + " |")
+    return "\n".join(out) + "\n"
+
+
+def write_csv(name, header, rows):
+    with open(OUT / name, "w") as f:
+        f.write(",".join(header) + "\n")
+        for r in rows:
+            f.write(",".join(f"{x:.6g}" if isinstance(x, float) else str(x) for x in r) + "\n")
+
+
+# -- workloads --------------------------------------------------------------------------------
+def bench_triangles(quick, rng):
+    """Tables 4-1, 5-1, 5-2: time per query vs tank triangles, hit and miss."""
+    tris_list = [5442, 6646, 8676, 10114, 10772, 20174, 26432]
+    if quick:
+        tris_list = [5442, 10114, 26432]
+    n_poses = 8 if quick else 25
+    rows = []
+    for tris in tris_list:
+        scene = parse_scene(f"tank:tris={tris};missile:z=8")
+        lo, hi = scene.mesh(0).bounds
+        cand = random_poses(400, lo, hi, rng, margin=0.8)
+        flags, dist = classify(scene, cand)
+        hit = cand[flags][:n_poses]
+        miss = cand[(~flags) & (dist > 0.02) & (dist < 0.8)][:n_poses]
+        fb = make_backend("fcl", scene, "missile vs tank", BackendConfig(ccd=False))
+        raw = RawPair(fb, 1, 0)
+        for case, poses in (("hit", hit), ("miss", miss)):
+            row = [tris, case]
+            t_raw = time_queries(raw, poses, reps=3)[0]
+            row.append(t_raw * 1e3)
+            for name in ("fcl", "honeycomb", "basis_point"):
+                be = make_backend(name, scene, "missile vs tank", BackendConfig(ccd=False))
+                reps = 3 if name == "fcl" else 1
+                row.append(time_queries(be, poses, reps)[0] * 1e3)
+            rows.append(row)
+            print(f"  tris {tris} {case}: " + ", ".join(f"{x:.3f}" for x in row[2:]) + " ms", flush=True)
+    header = ["triangles", "case", "raw python-fcl ms", "fcl ms", "honeycomb ms", "basis_point ms"]
+    return header, rows
+
+
+def field_trajectory(scene, n_steps=40):
+    """Missile diving (1.2 rad nose down, 15 m/s) onto the tank nearest the field's centre."""
+    poses = scene.poses()[:-1]
+    centre = poses[:, :2].mean(0)
+    k = int(np.argmin(np.linalg.norm(poses[:, :2] - centre, axis=1)))
+    x, y = poses[k, :2]
+    return [[x + 0.3, y + 0.2, 8.0 - 0.2 * s, 0.0, 1.2, 0.0] for s in range(n_steps)]
+
+
+def bench_field(quick, rng):
+    """Table 5-3: time per step vs number of tanks; rest cost."""
+    ns = [1, 20, 40, 60, 150, 540, 1040, 2540, 5040]
+    if quick:
+        ns = [1, 150, 1040, 5040]
+    rows, ratio_rows = [], []
+    for n in ns:
+        scene = parse_scene(f"tanks:n={n},tris=26.4k;missile:z=8")
+        traj = field_trajectory(scene, 30 if quick else 40)
+        t0 = time.perf_counter()
+        fb = make_backend("fcl", scene, "missile vs any tank", BackendConfig(ccd=False))
+        setup = time.perf_counter() - t0
+        fb_ccd = make_backend("fcl", scene, "missile vs any tank")
+        raw = RawField(fb, len(scene.bodies) - 1)
+        # interleave raw and backend step by step (same poses, same machine load)
+        reps = 5 if quick else 10
+        t_raw, t_fcl, t_ccd = [], [], []
+        for _ in range(reps):
+            for p in traj:
+                t = time.perf_counter(); raw.query([p]); t_raw.append(time.perf_counter() - t)
+                t = time.perf_counter(); fb.query([p]); t_fcl.append(time.perf_counter() - t)
+                t = time.perf_counter(); fb_ccd.query([p]); t_ccd.append(time.perf_counter() - t)
+        # nothing moves: cached result
+        fb.query([traj[-1]])
+        t_rest = []
+        for _ in range(200):
+            t = time.perf_counter(); fb.query([traj[-1]]); t_rest.append(time.perf_counter() - t)
+        hc = make_backend("honeycomb", scene, "missile vs any tank", BackendConfig())
+        bp = make_backend("basis_point", scene, "missile vs any tank", BackendConfig())
+        t_hc = time_queries(hc, traj[::3])[0]
+        t_bp = time_queries(bp, traj[::3])[0]
+        t_raw, t_fcl, t_ccd = (np.array(x) for x in (t_raw, t_fcl, t_ccd))
+        rows.append([n, np.median(t_raw) * 1e3, np.median(t_fcl) * 1e3, np.median(t_ccd) * 1e3,
+                     np.median(t_rest) * 1e3, t_hc * 1e3, t_bp * 1e3, setup])
+        ratio_rows.append([n, float(np.median(t_fcl) / np.median(t_raw)), float(t_fcl.sum() / t_raw.sum()),
+                           float(np.median(t_ccd) / np.median(t_raw))])
+        print(f"  tanks {n}: " + ", ".join(f"{x:.3f}" for x in rows[-1][1:]), flush=True)
+    header = ["tanks", "raw python-fcl ms", "fcl ms", "fcl+ccd ms", "fcl at rest ms", "honeycomb ms",
+              "basis_point ms", "fcl setup s"]
+    return header, rows, ["tanks", "fcl/raw (medians)", "fcl/raw (totals)", "fcl+ccd/raw (medians)"], ratio_rows
+
+
+def accuracy(be, poses, flags, dist):
+    fp = fn = 0
+    errs, ts = [], []
+    for p, f, d in zip(poses, flags, dist):
+        t = time.perf_counter()
+        r = be.query([p]).pairs[0]
+        ts.append(time.perf_counter() - t)
+        fp += bool(r.in_contact and not f)
+        fn += bool(f and not r.in_contact)
+        if not f and not r.in_contact:
+            errs.append(abs(r.distance - d))
+    errs = np.array(errs) if errs else np.array([np.nan])
+    return fp, fn, float(np.median(errs)), float(np.percentile(errs, 95)), float(np.median(ts))
+
+
+def bench_accuracy(quick, rng):
+    """Contact flags and distances of every backend vs FCL on random poses."""
+    n = 150 if quick else 1000
+    scene = parse_scene("tank:tris=5.4k;missile:z=8")
+    lo, hi = scene.mesh(0).bounds
+    poses = random_poses(n, lo, hi, rng, margin=1.0)
+    flags, dist = classify(scene, poses)
+    rows = []
+    for name, cfg, label in (("fcl", BackendConfig(ccd=False), "fcl"),
+                             ("honeycomb", BackendConfig(), "honeycomb 8x8 (d = 0, at rest)"),
+                             ("basis_point", BackendConfig(st=0.05), "basis_point ST=0.05")):
+        be = make_backend(name, scene, "missile vs tank", cfg)
+        if name == "honeycomb":
+            be.fixed_threshold = 0.0
+        fp, fn, e50, e95, t = accuracy(be, poses, flags, dist)
+        rows.append([label, n, int(flags.sum()), fp, fn, e50, e95, t * 1e3])
+        print(f"  accuracy {label}: FP {fp} FN {fn} err50 {e50:.4f} err95 {e95:.4f} t {t*1e3:.2f} ms", flush=True)
+    header = ["backend", "poses", "exact contacts", "false positives", "false negatives",
+              "median |distance error| m", "p95 |distance error| m", "median ms/query"]
+    return header, rows, (scene, poses, flags, dist)
+
+
+def bench_st(quick, rng, acc_data):
+    """Table 5-5: the ST sweep of basis_point (missile in contact with a 26.4k tank) and
+    accuracy of each ST on random poses around the 5.4k tank."""
+    sts = [0.004, 0.005, 0.01, 0.04, 0.05, 0.07, 0.1]
+    if quick:
+        sts = [0.01, 0.05, 0.1]
+    big = parse_scene("tank:tris=26.4k;missile:z=8")
+    lo, hi = big.mesh(0).bounds
+    cand = random_poses(200, lo, hi, rng, margin=0.5)
+    flags, _ = classify(big, cand)
+    hit = cand[flags][: (3 if quick else 6)]
+    scene, poses, aflags, adist = acc_data
+    rows = []
+    for st in sts:
+        be = make_backend("basis_point", big, "missile vs tank", BackendConfig(st=st))
+        n_hit = 2 if st < 0.01 else len(hit)
+        t = time_queries(be, hit[:n_hit])[0]
+        stats = dict(be.last_stats)
+        n_acc = 0 if st < 0.01 else (40 if quick else 200)
+        if n_acc:
+            bea = make_backend("basis_point", scene, "missile vs tank", BackendConfig(st=st))
+            fp, fn, e50, _, _ = accuracy(bea, poses[:n_acc], aflags[:n_acc], adist[:n_acc])
+            err_rate = (fp + fn) / n_acc
+        else:
+            fp = fn = -1
+            e50 = err_rate = float("nan")
+        rows.append([st, stats.get("dn", 0), stats.get("bp_sp", 0), stats.get("bp_scn", 0), t * 1e3, n_acc, fp, fn,
+                     err_rate, e50])
+        print(f"  ST {st}: {rows[-1][1:]}", flush=True)
+    header = ["ST", "DN", "BP SP_a", "BP SCN", "ms/query (hit, 26.4k)", "accuracy poses", "FP", "FN",
+              "flag error rate", "median |dist err| m"]
+    return header, rows
+
+
+def bench_cells(quick, rng, acc_data):
+    """Honeycomb n x m sweep: time and accuracy (at rest, d = 0)."""
+    cells = [2, 4, 8, 16, 32] if not quick else [2, 8, 32]
+    scene, poses, flags, dist = acc_data
+    n_acc = 60 if quick else 300
+    rows = []
+    for c in cells:
+        be = make_backend("honeycomb", scene, "missile vs tank", BackendConfig(cells_n=c, cells_m=c))
+        be.fixed_threshold = 0.0
+        fp, fn, e50, e95, t = accuracy(be, poses[:n_acc], flags[:n_acc], dist[:n_acc])
+        rows.append([f"{c}x{c}", n_acc, fp, fn, (fp + fn) / n_acc, e50, t * 1e3])
+        print(f"  cells {c}x{c}: {rows[-1][1:]}", flush=True)
+    header = ["cells n x m", "poses", "FP", "FN", "flag error rate", "median |dist err| m", "median ms/query"]
+    return header, rows
+
+
+def plots(tri, field, st, cells):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, case in zip(axes, ("hit", "miss")):
+        rows = [r for r in tri[1] if r[1] == case]
+        x = [r[0] / 1000 for r in rows]
+        for j, label in enumerate(tri[0][2:], start=2):
+            ax.plot(x, [r[j] for r in rows], "o-", label=label.replace(" ms", ""))
+        ax.set_yscale("log")
+        ax.set_xlabel("tank triangles (thousands)")
+        ax.set_ylabel("ms per query")
+        ax.set_title(f"missile vs tank, {case} (tables 4-1, 5-1, 5-2)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(OUT / "time_vs_triangles.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    x = [r[0] for r in field[1]]
+    for j, label in enumerate(field[0][1:7], start=1):
+        ax.plot(x, [r[j] for r in field[1]], "o-", label=label.replace(" ms", ""))
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.axhline(1.0, color="k", ls=":", lw=1)
+    ax.set_xlabel("tanks (26.4k triangles each)")
+    ax.set_ylabel("ms per step")
+    ax.set_title("missile in a tank field (table 5-3)")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(OUT / "time_vs_tanks.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    pts = [(r[4], r[8], r[0]) for r in st[1] if np.isfinite(r[8])]
+    ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label="basis_point (ST sweep)")
+    for p in pts:
+        ax.annotate(f"ST={p[2]}", (p[0], p[1]), fontsize=7)
+    ax.plot([r[6] for r in cells[1]], [r[4] for r in cells[1]], "s-", label="honeycomb (n x m sweep)")
+    for r in cells[1]:
+        ax.annotate(r[0], (r[6], r[4]), fontsize=7)
+    ax.set_xscale("log")
+    ax.set_xlabel("ms per query")
+    ax.set_ylabel("contact-flag error rate vs FCL")
+    ax.set_title("time vs error")
+    ax.legend()
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(OUT / "time_vs_error.png", dpi=120)
+    plt.close(fig)
+
+
+def machine():
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                text=True).stdout.strip()
+    except OSError:
+        commit = "?"
+    cpu = "?"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        import trimesh.ray
+        ray = "embree (embreex)" if trimesh.ray.has_embree else "trimesh ray_triangle (pure numpy)"
+    except Exception:
+        ray = "?"
+    return commit, os.cpu_count(), cpu, platform.python_version(), ray
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer sizes and poses (about 2 minutes)")
+    args = ap.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    warnings.simplefilter("ignore")
+    OUT.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(RNG_SEED)
+    t_start = time.perf_counter()
+    print("accuracy ...", flush=True)
+    acc_h, acc_rows, acc_data = bench_accuracy(args.quick, rng)
+    print("triangles ...", flush=True)
+    tri = bench_triangles(args.quick, rng)
+    print("tank field ...", flush=True)
+    fh, frows, rh, rrows = bench_field(args.quick, rng)
+    print("ST sweep ...", flush=True)
+    st = bench_st(args.quick, rng, acc_data)
+    print("cells sweep ...", flush=True)
+    cells = bench_cells(args.quick, rng, acc_data)
+    plots(tri, (fh, frows), st, cells)
+    write_csv("triangles.csv", *tri)
+    write_csv("field.csv", fh, frows)
+    write_csv("field_ratio.csv", rh, rrows)
+    write_csv("accuracy.csv", acc_h, acc_rows)
+    write_csv("st_sweep.csv", *st)
+    write_csv("cells_sweep.csv", *cells)
+    elapsed = time.perf_counter() - t_start
+    commit, ncpu, cpu, py, ray = machine()
+    by_n = {r[0]: r for r in frows}
+    ratio_5040 = {r[0]: r for r in rrows}.get(5040)
+    big = by_n.get(5040)
+    lines = [
+        "# collision benchmark",
+        "",
+        f"Command: `python benchmarks/bench_collision.py{' --quick' if args.quick else ''}` "
+        f"({elapsed:.0f} s). Commit `{commit}`, {ncpu} CPUs ({cpu}), Python {py}, ray casting: {ray}. "
+        "The machine is shared with other jobs: single figures move by tens of per cent between runs; "
+        "backend and raw python-fcl are interleaved step by step so their ratio is robust.",
+        "",
+        "## Targets",
+        "",
+    ]
+    if big is not None and ratio_5040 is not None:
+        r_med, r_tot = ratio_5040[1], ratio_5040[2]
+        lines += [
+            f"* FMU default backend (`fcl`) within 1.2x of raw python-fcl on the same queries (5040-tank field, "
+            f"collide + distance per step): **{r_med:.2f}x** (ratio of medians), {r_tot:.2f}x (ratio of totals): "
+            f"**{'met' if r_med <= 1.2 else 'NOT met'}**. With continuous collision (time of impact, which raw "
+            f"python-fcl does not compute) {ratio_5040[3]:.2f}x. All field sizes: `field_ratio.csv`.",
+            f"* 5040-tank scene <= 1 ms per step: fcl backend median **{big[2]:.3f} ms** "
+            f"(with time of impact {big[3]:.3f} ms; raw python-fcl {big[1]:.3f} ms): "
+            f"**{'met' if big[2] <= 1.0 else 'NOT met'}**"
+            f"{'' if big[3] <= 1.0 else ' without time of impact only'}.",
+            f"* Nothing moves: a cached step of the 5040-tank scene costs {big[4] * 1e3:.1f} us (median).",
+        ]
+    lines += [
+        "",
+        "## Accuracy against FCL (random missile poses around a 5.4k tank)",
+        "",
+        "Exact answer: FCL (its distances match an independent brute-force vertex-triangle / edge-edge "
+        "computation to 1e-7 m in `tests/collision/test_fcl_backend.py`). Honeycomb runs at rest (threshold "
+        "d = 0): with motion it flags contacts one step ahead by design. Distance errors over poses both call "
+        "apart; the thesis backends' distances are estimates (basis_point: nearest feature at the scan "
+        "resolution; honeycomb: section gap along the depth axis).",
+        "",
+        md_table(acc_h, acc_rows),
+        "## Time vs triangles (tables 4-1, 5-1, 5-2)",
+        "",
+        "Median ms per query over changing poses; `hit`: the missile intersects the tank, `miss`: 2 cm .. 0.8 m "
+        "apart. Continuous collision off for all (raw python-fcl has none).",
+        "",
+        md_table(*tri),
+        "![time vs triangles](time_vs_triangles.png)",
+        "",
+        "## Time vs number of tanks (table 5-3)",
+        "",
+        "Missile diving onto the central tank (26.4k triangles each, one shared BVH); median ms per step. "
+        "`fcl at rest`: a step in which no pose changed.",
+        "",
+        md_table(fh, frows),
+        md_table(rh, rrows),
+        "![time vs tanks](time_vs_tanks.png)",
+        "",
+        "## basis_point ST sweep (table 5-5)",
+        "",
+        "Time per query with the missile in contact with the 26.4k tank; BP counts and DN of the last query; "
+        "flag errors on the first random poses of the accuracy set (small ST: timing only).",
+        "",
+        md_table(*st),
+        "## honeycomb n x m sweep",
+        "",
+        md_table(*cells),
+        "![time vs error](time_vs_error.png)",
+        "",
+        "## Reading the thesis's claims",
+        "",
+        "The thesis reports 3.5-13.5 ms per detection for basis_point (table 5-1) and 4-12 ms for honeycomb "
+        "(table 4-1) on 2010 hardware in C++. Here they are numpy/trimesh re-implementations, compared with FCL's "
+        "compiled BVH traversal; the tables above are what they measure on this machine, whatever they show.",
+    ]
+    (OUT / "README.md").write_text("\n".join(lines) + "\n")
+    print(f"wrote {OUT} in {elapsed:.0f} s")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
