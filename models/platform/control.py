@@ -94,7 +94,8 @@ def closed_loop(control: str = "computed_torque", model: str = "full") -> ca.Fun
         ddq = ca.solve(t["M"], t["J"].T @ Fs - t["h"])
     else:
         ddq = planar_accel_sx(q, Fs, pv)
-    return ca.Function(f"cl_{control}_{model}", [x, ref, Fcmd, pv, cv], [ca.cse(ca.vertcat(dq, ddq)), F],
+    xdot, F = ca.cse([ca.vertcat(dq, ddq), F])  # jointly: both outputs share one graph
+    return ca.Function(f"cl_{control}_{model}", [x, ref, Fcmd, pv, cv], [xdot, F],
                        ["x", "ref", "Fcmd", "p", "c"], ["xdot", "F"])
 
 
