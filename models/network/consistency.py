@@ -115,7 +115,7 @@ def covariance(u: np.ndarray, a: float, b: float) -> np.ndarray:
 
 def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, entity_pos: np.ndarray,
                   current: np.ndarray, frame_s: float, scale: float, min_axis: float,
-                  foci: str = "frame") -> np.ndarray:
+                  foci: str = "frame", etree=None) -> np.ndarray:
     """Owning avatar (group index) of every entity, or the current one where nobody claims it.
 
     ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
@@ -129,7 +129,8 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
 
     a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis, foci)
     centre = avatar_pos + shift if rule == "mahalanobis" else avatar_pos
-    sd = cKDTree(centre).sparse_distance_matrix(cKDTree(entity_pos), float(a.max()), output_type="ndarray")
+    etree = etree if etree is not None else cKDTree(entity_pos)
+    sd = cKDTree(centre).sparse_distance_matrix(etree, float(a.max()), output_type="ndarray")
     gi, ei = sd["i"].astype(np.int64), sd["j"].astype(np.int64)
     if rule == "mahalanobis":
         d = mahalanobis_ellipsoid(entity_pos[ei], centre[gi], u[gi], a[gi], b[gi])

@@ -359,7 +359,8 @@ class NetworkModel:
         self.metrics.frames += 1
         online_g = self.master >= 0
         # 1. collision responses between avatars and entities (the owner responds)
-        ai, ei, dv = w.contacts()
+        etree = w.entity_tree() if cfg.entities else None
+        ai, ei, dv = w.contacts(etree)
         if len(ai):
             ai, ei, dv = ai[online_g[ai]], ei[online_g[ai]], dv[online_g[ai]]
             self.metrics.contacts += len(ai)
@@ -381,7 +382,8 @@ class NetworkModel:
             cur = self.owner[G:]
             new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos,
                                       np.searchsorted(cand, cur).clip(0, max(len(cand) - 1, 0)),
-                                      cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci)
+                                      cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci,
+                                      etree)  # contacts change velocities, not positions: the tree holds
             claimed = new_local != np.searchsorted(cand, cur).clip(0, max(len(cand) - 1, 0))
             new = cur.copy()
             new[claimed] = cand[new_local[claimed]]

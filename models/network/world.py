@@ -194,7 +194,13 @@ class World:
         """Apply a velocity change ``dv`` (2,) m/s to entity ``e`` (collision response)."""
         self.evel[e] += dv
 
-    def contacts(self):
+    def entity_tree(self):
+        """k-d tree of the entity positions (built once per frame, shared by contacts and ownership)."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.epos)
+
+    def contacts(self, etree=None):
         """Approaching avatar-entity pairs in contact: (avatar, entity, dv of entity (k, 2))."""
         from scipy.spatial import cKDTree
 
@@ -202,12 +208,13 @@ class World:
         if G == 0 or E == 0:
             return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
         r = self.cfg.avatar_radius + self.cfg.entity_radius
-        pairs = cKDTree(self.apos).query_ball_tree(cKDTree(self.epos), r) if G < 8 else None
+        etree = etree if etree is not None else cKDTree(self.epos)
+        pairs = cKDTree(self.apos).query_ball_tree(etree, r) if G < 8 else None
         if pairs is not None:
             ai = np.array([g for g, lst in enumerate(pairs) for _ in lst], int)
             ei = np.array([e for lst in pairs for e in lst], int)
         else:
-            sd = cKDTree(self.apos).sparse_distance_matrix(cKDTree(self.epos), r, output_type="ndarray")
+            sd = cKDTree(self.apos).sparse_distance_matrix(etree, r, output_type="ndarray")
             ai, ei = sd["i"].astype(int), sd["j"].astype(int)
         if len(ai) == 0:
             return ai, ei, np.zeros((0, 2))
