@@ -482,22 +482,52 @@ def _take(row: RunRow, res: Any) -> None:
     row.loop_time_s = row.timing.get("loop", math.nan)
 
 
+_INTERRUPTED = False  # set in a worker process by SIGINT: runs not yet started are skipped
+
+
+def _on_sigint(signum, frame) -> None:
+    global _INTERRUPTED
+    _INTERRUPTED = True
+
+
+def _stop_if_interrupted(k: int, t_ns: int) -> None:
+    """Step observer: end the run (log closed, status interrupted) once SIGINT was noted."""
+    if _INTERRUPTED:
+        raise KeyboardInterrupt
+
+
+def _worker_init() -> None:
+    """Worker processes note SIGINT instead of raising KeyboardInterrupt: an exception inside
+    an FMU being loaded would leave it fatal, and the run in progress stops by itself at the
+    next step boundary (see :class:`immersim.orchestrator.execution.Execution`)."""
+    import signal
+
+    signal.signal(signal.SIGINT, _on_sigint)
+
+
 def run_one(task: RunTask) -> RunRow:
     """Run one variant and compute its metrics; never raises for a failed run.
 
     The returned row has status ``completed``, ``failed`` or ``interrupted`` and the reason.
     Metrics are computed only for completed runs (a partial log would bias the comparison).
     """
-    from .execution import RunFailed, run_scenario
+    from .execution import Execution, RunFailed
 
+    global _INTERRUPTED
     row = RunRow(task.index, task.id, "failed", mcap=Path(task.mcap).name)
     Path(task.mcap).unlink(missing_ok=True)  # never report the log of an earlier sweep
+    if _INTERRUPTED:
+        row.status, row.reason, row.mcap = "interrupted", "sweep interrupted before this run started", ""
+        return row
     with _RUN_LOCK:
         t0 = time.perf_counter()
         try:
-            _take(row, run_scenario(task.scenario, task.mcap, progress=False, overrides=task.overrides))
+            ex = Execution(task.scenario, task.mcap, progress=False, overrides=task.overrides)
+            ex.observers.append(_stop_if_interrupted)
+            _take(row, ex.run())
         except RunFailed as exc:
             _take(row, exc.result)
+            _INTERRUPTED = _INTERRUPTED or exc.result.status == "interrupted"
         except Exception as exc:  # a bad FMU swap, a parameter the FMU refuses, ... : the row says why
             row.reason = f"{type(exc).__name__}: {exc}"
         row.wall_time_s = time.perf_counter() - t0
@@ -521,7 +551,19 @@ def _pool(workers: int):
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_worker_init)
+
+
+def _interrupt_workers(pool) -> None:
+    """Forward SIGINT to the pool's processes (when only this process received it)."""
+    import signal
+
+    for proc in list(getattr(pool, "_processes", {}).values()):  # CPython keeps them here
+        try:
+            os.kill(proc.pid, signal.SIGINT)
+        except OSError:
+            pass
 
 
 def _run_pool(tasks: Sequence[RunTask], workers: int, on_row: Callable[[RunRow], None]) -> List[RunTask]:
@@ -532,17 +574,32 @@ def _run_pool(tasks: Sequence[RunTask], workers: int, on_row: Callable[[RunRow],
     lost: List[RunTask] = []
     with _pool(workers) as pool:
         futures = {pool.submit(run_one, t): t for t in tasks}
+        done = set()
+
+        def collect(fut) -> None:
+            done.add(fut)
+            try:
+                on_row(fut.result())
+            except BrokenProcessPool:
+                lost.append(futures[fut])
+            except Exception as exc:  # e.g. a row that cannot be pickled back
+                on_row(_failed_row(futures[fut], exc))
+
         try:
             for fut in as_completed(futures):
-                try:
-                    on_row(fut.result())
-                except BrokenProcessPool:
-                    lost.append(futures[fut])
-                except Exception as exc:  # e.g. a row that cannot be pickled back
-                    on_row(_failed_row(futures[fut], exc))
-        except BaseException:
+                collect(fut)
+        except KeyboardInterrupt:
+            # Runs in progress stop at their next step (logs closed), queued ones are skipped;
+            # their rows still reach the summary before the interrupt goes on.
             for fut in futures:
                 fut.cancel()
+            _interrupt_workers(pool)
+            for fut in as_completed(futures):
+                if fut not in done and not fut.cancelled():
+                    collect(fut)
+            for fut, task in futures.items():
+                if fut.cancelled():
+                    on_row(RunRow(task.index, task.id, "interrupted", reason="sweep interrupted before this run started"))
             raise
     return lost
 
