@@ -228,15 +228,21 @@ class FclBackend(CollisionBackend):
             self.manager.collide(probe, fcl.CollisionData(), self._collector(found))
             cands += sorted(set(found))
         toi = math.inf
+        prev = self._previous
         for b in cands:
             counts[0] += 1
-            s = self._advance(a, b, counts, min(toi, 1.0))
+            # the distance at the start of the step is known for the previous nearest member
+            d0 = prev.distance if (prev is not None and prev.partner == b and not prev.in_contact
+                                   and prev.distance >= 0) else None
+            s = self._advance(a, b, counts, min(toi, 1.0), d0)
             if s is not None:
                 toi = min(toi, s)
         return toi * dt if math.isfinite(toi) else -1.0
 
-    def _advance(self, a: int, b: int, counts, s_max: float) -> float | None:
-        """Conservative advancement of pair (a, b) over the step; first contact fraction."""
+    def _advance(self, a: int, b: int, counts, s_max: float, d0: float | None = None) -> float | None:
+        """Conservative advancement of pair (a, b) over the step; first contact fraction.
+
+        ``d0``: the distance at the start of the step when already known (saves a query)."""
         A0, A1, B0, B1 = self.prev_T[a], self.T[a], self.prev_T[b], self.T[b]
         mu = (np.linalg.norm(A1[:3, 3] - A0[:3, 3]) + rotation_angle(A1[:3, :3] @ A0[:3, :3].T) * self._radius[a]
               + np.linalg.norm(B1[:3, 3] - B0[:3, 3]) + rotation_angle(B1[:3, :3] @ B0[:3, :3].T) * self._radius[b])
@@ -244,9 +250,12 @@ class FclBackend(CollisionBackend):
         ob = fcl.CollisionObject(self.geoms[self.scene.bodies[b].mesh_key], fcl_transform(B0))
         req = fcl.DistanceRequest()
         s = 0.0
-        for _ in range(200):
-            counts[1] += 1
-            d = fcl.distance(oa, ob, req, fcl.DistanceResult())
+        for it in range(200):
+            if it == 0 and d0 is not None:
+                d = d0
+            else:
+                counts[1] += 1
+                d = fcl.distance(oa, ob, req, fcl.DistanceResult())
             if d <= self.toi_tol:
                 return s
             if mu <= 0:

@@ -150,6 +150,7 @@ class HoneycombBackend(CollisionBackend):
         return best
 
     def _narrow_axis(self, a: int, b: int, w: int) -> PairResult | None:
+        self.last_stats = {"relation": 0, "axis": w, "cells_full": 0, "threshold": 0.0, "rays": 0}
         u, v = [k for k in range(3) if k != w]
         A, B = self.aabb[a], self.aabb[b]
         # projection overlap (def. 1)
