@@ -165,11 +165,14 @@ class FclBackend(CollisionBackend):
             T0, T1 = self.prev_T[a], self.T[a]
             travel = (np.linalg.norm(T1[:3, 3] - T0[:3, 3])
                       + rotation_angle(T1[:3, :3] @ T0[:3, :3].T) * self._radius[a])
-            if travel > self.config.ccd_fast * self._thin[a]:
+            prev = self._previous
+            held = res.in_contact and prev is not None and prev.in_contact
+            if held:  # the contact held from the start of the step
+                res.toi = 0.0
+            elif travel > self.config.ccd_fast * self._thin[a]:
                 res.toi = self._time_of_impact(a, stat, dyn, counts, dt)
             elif res.in_contact:
-                prev = self._previous
-                if prev is None or prev.in_contact or prev.distance < 0:
+                if prev is None or prev.distance < 0:
                     res.toi = 0.0
                 else:  # signed distance linear over the step: d0 -> -depth
                     res.toi = dt * prev.distance / (prev.distance + max(res.depth, 1e-12))
