@@ -234,6 +234,22 @@ def test_same_outputs_under_fmpy_and_libcosim(fmu):
     assert a["pair[1].depth"][0] > 0  # the missile sits in the tank: a contact
 
 
+@pytest.mark.parametrize("backend", ["fcl", "basis_point", "honeycomb"])
+def test_every_backend_runs_in_the_fmu(fmu, backend):
+    params = {"scene": "tank:tris=5.4k;missile:z=8", "pairs": "missile vs tank", "backend": backend,
+              "st": 0.1, "cells_n": 4, "cells_m": 4, "body[1].z": 8.0}
+    r = Runner(fmu, f"b_{backend}", params)
+    try:
+        r.step({"body[1].x": 0.5, "body[1].z": 7.0, "body[1].pitch": 0.3})
+        apart = r.get(["pair[1].in_contact", "pair[1].distance"])
+        r.step({"body[1].z": 2.5})
+        hit = r.get(["pair[1].in_contact", "n_candidates", "n_narrow"])
+    finally:
+        r.close()
+    assert apart[0] == 0 and apart[1] > 2.0
+    assert hit[0] == 1 and hit[1] >= 1 and hit[2] >= 1
+
+
 if __name__ == "__main__":  # regenerate the golden file: python tests/collision/test_collision_fmu.py
     path = build_unit(UNIT, default_build_dir())
     data = simulate_reference(path)
