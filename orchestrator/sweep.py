@@ -15,7 +15,8 @@ A sweep file (TOML) names a base scenario and the variants to run::
 
     [metrics]                             # one number per run, computed from its MCAP log
     max_err = { signal = "net.inconsistency_max", reduce = "max" }  # max|min|mean|rms|final|absmax
-    late = { signal = "plat.stroke*", reduce = "absmax", after = 2.0 }  # glob; samples t >= 2 s
+    late = { signal = "plat.stroke*", reduce = "absmax", after = 2.0 }  # * ? wildcards; t >= 2 s
+    hit = { signal = "coll.pair[1].in_contact", reduce = "max" }       # brackets are literal
     wall_s = "wall_time"                  # built-ins: wall_time, loop_time, realtime_factor,
     plat_s = "unit_time:plat"             #   steps, status, unit_time:<unit>
 
@@ -101,8 +102,9 @@ class MetricSpec:
         loop time), ``steps``, ``status``, or ``unit_time:<unit>`` (s spent stepping that unit);
         then ``signal`` is unused.
     signal : str
-        Glob pattern over ``unit.variable`` of the logged signals; the samples of every
-        matching signal are pooled before reducing.
+        Pattern over ``unit.variable`` of the logged signals (``*`` and ``?`` are wildcards,
+        brackets are literal: ``coll.pair[1].distance``); the samples of every matching signal
+        are pooled before reducing.
     reduce : str
         One of :data:`REDUCERS`; ``final`` needs exactly one matching signal.
     after : float
@@ -460,17 +462,49 @@ def builtin_metric(row: RunRow, name: str) -> Any:
             "status": row.status}[name]
 
 
-def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow) -> Dict[str, Any]:
-    """Every metric of one run: built-ins from ``row``, signal metrics from the MCAP log."""
-    from .mcapio import read_series
+def signal_glob(pattern: str) -> str:
+    """The fnmatch pattern of a metric's ``signal``: ``*`` and ``?`` are wildcards, brackets
+    are literal (they index vector variables, ``pair[1].distance``)."""
+    return pattern.replace("[", "[[]")
 
+
+def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow) -> Tuple[Dict[str, Any], List[str]]:
+    """Every metric of one run: built-ins from ``row``, signal metrics from the MCAP log (read once).
+
+    Returns
+    -------
+    values : dict
+        Metric name -> value (NaN for a metric that could not be computed).
+    errors : list of str
+        One message per metric that could not be computed (e.g. no signal matches).
+    """
+    import fnmatch
+
+    from .mcapio import LogReadError, read_series
+
+    globs = {m.name: signal_glob(m.signal) for m in metrics if not m.builtin}
+    try:
+        series = read_series(mcap, list(dict.fromkeys(globs.values()))) if globs else {}
+    except LogReadError as exc:
+        if "no signal matches" not in str(exc):
+            raise
+        series = {}
     out: Dict[str, Any] = {}
+    errors: List[str] = []
     for m in metrics:
         if m.builtin:
             out[m.name] = builtin_metric(row, m.builtin)
-        else:
-            out[m.name] = reduce_signals(read_series(mcap, [m.signal]), m)
-    return out
+            continue
+        matched = {k: v for k, v in series.items() if fnmatch.fnmatchcase(k, globs[m.name])}
+        try:
+            if not matched:
+                raise ValueError(f"metric {m.name}: no logged signal matches {m.signal!r} "
+                                 f"(see immersim info --signals {Path(mcap).name})")
+            out[m.name] = reduce_signals(matched, m)
+        except ValueError as exc:
+            out[m.name] = math.nan
+            errors.append(str(exc))
+    return out, errors
 
 
 def _take(row: RunRow, res: Any) -> None:
@@ -534,10 +568,9 @@ def run_one(task: RunTask) -> RunRow:
     if not Path(task.mcap).exists():
         row.mcap = ""
     if row.status == "completed":
-        try:
-            row.metrics = compute_metrics(task.mcap, task.metrics, row)
-        except Exception as exc:
-            row.status, row.reason = "failed", f"metrics: {type(exc).__name__}: {exc}"
+        row.metrics, errors = compute_metrics(task.mcap, task.metrics, row)
+        if errors:  # the run itself completed: keep its other metrics, fail the row loudly
+            row.status, row.reason = "failed", "; ".join(errors)
     return row
 
 

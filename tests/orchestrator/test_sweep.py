@@ -343,3 +343,30 @@ logx = true
     assert data.lines == {"err": {"m1.k=2": ([0.02], [0.0]), "m1.k=1": ([0.01, 0.02, 0.04], [40.0, 30.0, 50.0])}}
     png = plot_comparison(spec, rows, spec.plots[0], tmp_path / "p.png")
     assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_metric_signal_brackets_are_literal():
+    import fnmatch
+
+    from immersim.orchestrator.sweep import signal_glob
+
+    names = ["coll.pair[1].x", "coll.pair1.x", "coll.pair[2].x"]
+    assert [n for n in names if fnmatch.fnmatchcase(n, signal_glob("coll.pair[1].x"))] == ["coll.pair[1].x"]
+    assert [n for n in names if fnmatch.fnmatchcase(n, signal_glob("coll.pair[?].*"))] == ["coll.pair[1].x", "coll.pair[2].x"]
+
+
+def test_a_metric_without_signal_fails_the_row_but_keeps_the_others(sweep_dir, tmp_path):
+    (sweep_dir / "typo.toml").write_text('''
+scenario = "osc.toml"
+[[variants]]
+name = "one"
+[metrics]
+x1_max = { signal = "m1.x", reduce = "max" }
+typo = { signal = "m1.position", reduce = "max" }
+''')
+    res = run_sweep(sweep_dir / "typo.toml", tmp_path, workers=1, check=False)
+    (row,) = res.rows
+    assert (row.status, row.steps) == ("failed", 100)
+    assert row.reason == "metric typo: no logged signal matches 'm1.position' (see immersim info --signals 000_one.mcap)"
+    assert row.metrics["x1_max"] == read_series(tmp_path / "000_one.mcap", ["m1.x"])["m1.x"][1].max()
+    assert math.isnan(row.metrics["typo"])
