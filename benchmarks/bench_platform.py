@@ -48,16 +48,17 @@ def run(cfg: IntegratorConfig, U: np.ndarray, reps: int = 3):
     f = prefiltered_loop("computed_torque", "full")
     integ = StepIntegrator(f, cfg)
     p, c = PlatformParams().vector(), ControlParams().vector()
-    times = []
+    times, cpu = [], []
     for _ in range(reps):
         x = np.zeros(24)
         X = np.empty((len(U), 24))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for k, u in enumerate(U):
             x = integ.step(x, u, p, c, H)
             X[k] = x
         times.append(time.perf_counter() - t0)
-    return X, float(np.median(times)), integ.compiled
+        cpu.append(time.process_time() - c0)
+    return X, float(np.median(times)), float(np.median(cpu)), integ.compiled
 
 
 def fmu_step_time(n_steps: int):
@@ -105,7 +106,7 @@ def main() -> None:
     U = references(n)
 
     print(f"reference: DOP853 rtol 1e-13 over {T:g} s ({n} steps)")
-    Xref, t_ref, _ = run(IntegratorConfig("dop853", rtol=1e-13, atol=1e-15), U, reps=1)
+    Xref, t_ref, _, _ = run(IntegratorConfig("dop853", rtol=1e-13, atol=1e-15), U, reps=1)
 
     configs = [IntegratorConfig("rk4", s) for s in (1, 2, 3, 4, 8, 16)]
     configs += [IntegratorConfig("implicit", s) for s in ((1, 2) if args.quick else (1, 2, 4))]
@@ -116,13 +117,14 @@ def main() -> None:
     rows = []
     for cfg in configs:
         reps = 1 if cfg.method in ("implicit", "dop853") or cfg.method.startswith("cvode") else 5
-        X, wall, compiled = run(cfg, U, reps)
+        X, wall, cpu, compiled = run(cfg, U, reps)
         err = float(np.max(np.linalg.norm(X[:, :3] - Xref[:, :3], axis=1)))
         setting = f"N={cfg.substeps}" if cfg.method in ("rk4", "implicit") else f"rtol={cfg.rtol:g}"
         rows.append(dict(method=cfg.method, setting=setting, max_pos_err_m=err, s_per_sim_s=wall / T,
-                         us_per_step=wall / n * 1e6, realtime_factor=T / wall, compiled=compiled))
-        print(f"{cfg.method:12s} {setting:11s} err {err:9.2e} m  {wall / n * 1e6:10.1f} us/step  "
-              f"{T / wall:9.0f}x real time")
+                         us_per_step=wall / n * 1e6, cpu_us_per_step=cpu / n * 1e6, realtime_factor=T / wall,
+                         compiled=compiled))
+        print(f"{cfg.method:12s} {setting:11s} err {err:9.2e} m  {wall / n * 1e6:10.1f} us/step wall "
+              f"{cpu / n * 1e6:10.1f} us/step CPU  {T / wall:9.0f}x real time")
 
     fmu_dt = fmu_step_time(150 if args.quick else 600)
     print(f"FMU step under FMPy (default configuration): {fmu_dt * 1e6:.0f} us")
@@ -161,11 +163,12 @@ def main() -> None:
                _platform.processor())
     load = os.getloadavg()
     met1 = default["max_pos_err_m"] <= 1e-6 and default["us_per_step"] <= 33.0
+    met1_cpu = default["max_pos_err_m"] <= 1e-6 and default["cpu_us_per_step"] <= 33.0
     met2 = ratio >= 10
-    table = ["| method | setting | max position error (m) | us per 33 ms step | x real time | compiled |",
-             "|---|---|---|---|---|---|"]
+    table = ["| method | setting | max position error (m) | wall us per 33 ms step | CPU us per step | "
+             "x real time (wall) | compiled |", "|---|---|---|---|---|---|---|"]
     table += [f"| {r['method']} | {r['setting']} | {r['max_pos_err_m']:.2e} | {r['us_per_step']:.1f} | "
-              f"{r['realtime_factor']:.0f} | {r['compiled']} |" for r in rows]
+              f"{r['cpu_us_per_step']:.1f} | {r['realtime_factor']:.0f} | {r['compiled']} |" for r in rows]
     readme = f"""# platform unit — benchmark results
 
 Command: `python benchmarks/bench_platform.py{' --quick' if args.quick else ''}` (commit `{commit}`),
@@ -186,8 +189,9 @@ configuration rk4 N=2): **{fmu_dt * 1e6:.0f} us** median ({H / fmu_dt:.0f}x real
 ## Against the issue's targets
 
 - default integrator (rk4, N = 2 substeps, compiled): position error {default['max_pos_err_m']:.2e} m (target <= 1e-6 m),
-  {default['us_per_step']:.1f} us of model time per 33 ms step (target <= 33 us, i.e. >= 1000x real time):
-  **{'met' if met1 else 'NOT met'}** ({default['realtime_factor']:.0f}x real time).
+  {default['us_per_step']:.1f} us wall-clock per 33 ms step (target <= 33 us, i.e. >= 1000x real time):
+  **{'met' if met1 else 'NOT met'}** ({default['realtime_factor']:.0f}x real time); measured as process CPU time
+  {default['cpu_us_per_step']:.1f} us per step: **{'met' if met1_cpu else 'NOT met'}** on CPU time.
 - >= 10x faster than CVODE with a Python right-hand side at equal error: fastest CVODE run with error <= the
   default's ({best_cv['method']}, {best_cv['setting']}, error {best_cv['max_pos_err_m']:.2e} m) takes
   {best_cv['us_per_step']:.0f} us per step: ratio **{ratio:.0f}x** — **{'met' if met2 else 'NOT met'}**.

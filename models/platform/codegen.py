@@ -25,7 +25,7 @@ log = logging.getLogger(__name__)
 
 CFLAGS = ["-O2", "-shared", "-fPIC", "-fno-math-errno"]
 
-_LOOP_C = r"""
+RK4_LOOP_C = r"""
 /* fixed-step driver: n substeps of {sub}(x, u, p, c, hs) -> x */
 CASADI_SYMBOL_EXPORT int {name}(const casadi_real* x0, const casadi_real* u, const casadi_real* p,
                                 const casadi_real* c, casadi_real hs, casadi_int n, casadi_real* x,

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from .codegen import FastFunction, compile_library
+from .codegen import RK4_LOOP_C, FastFunction, compile_library
 
 log = logging.getLogger(__name__)
 
@@ -87,8 +87,7 @@ def _library(rhs: ca.Function):
     """Compiled library holding ``rhs``, its RK4 substep and the C substep loop (or None)."""
     sub = rk4_substep(rhs)
     loop = _loop_name(rhs)
-    from .codegen import _LOOP_C
-    extra = _LOOP_C.format(name=loop, sub=sub.name(), nx=rhs.nnz_in(0), sz_arg=max(sub.sz_arg(), 5),
+    extra = RK4_LOOP_C.format(name=loop, sub=sub.name(), nx=rhs.nnz_in(0), sz_arg=max(sub.sz_arg(), 5),
                            sz_res=max(sub.sz_res(), 1))
     return compile_library(rhs.name(), [rhs, sub], extra), sub
 
