@@ -30,7 +30,7 @@ from .config import NetworkConfig
 from .consistency import SceneGrid, assign_owners, dead_reckon
 from .ids import PastryOverlay
 from .metrics import StepMetrics, Totals, inconsistency_sq
-from .nodes import H, LAN, WAN, NodeRegistry, build_messages, control_bytes
+from .nodes import H, NodeRegistry, build_messages, control_bytes
 from .pdu import PduType, record_bytes
 from .supernode import CONTROLLER, RENDER, Supernode
 from .world import World
