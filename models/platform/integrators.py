@@ -56,7 +56,7 @@ class IntegratorConfig:
     """
 
     method: str = "rk4"
-    substeps: int = 4
+    substeps: int = 2
     rtol: float = 1e-8
     atol: float = 1e-10
     compiled: bool = True

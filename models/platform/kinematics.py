@@ -195,19 +195,24 @@ class WorkspaceReport:
     min_reach: np.ndarray
 
 
-def workspace_check(poses: np.ndarray, p: PlatformParams = PlatformParams(),
-                    ik: IKResult | None = None) -> WorkspaceReport:
-    """Check rod reach (reach ratio >= p.reach_margin) and stroke limits for poses (N, 6).
+def within_limits(strokes: np.ndarray, reach: np.ndarray, p: PlatformParams = PlatformParams()):
+    """Workspace criteria from strokes and reach ratios (..., 6): ``(reach_ok, stroke_ok)`` (...,).
 
-    ``ik`` may pass the :func:`ik_full` result of the same poses to save its evaluation.
+    Reach: every (rod . slider axis) / c >= ``p.reach_margin``; strokes within the limits. NaN
+    (rod out of reach) fails both.
     """
-    q, _ = _batch(poses, 6)
-    res = ik_full(q, p) if ik is None else ik
-    min_reach = np.min(res.reach, axis=1)
-    reach_ok = min_reach >= p.reach_margin
     with np.errstate(invalid="ignore"):
-        stroke_ok = np.all((res.strokes >= p.stroke_min) & (res.strokes <= p.stroke_max), axis=1)
-    return WorkspaceReport(reach_ok & stroke_ok, reach_ok, stroke_ok, res.strokes, min_reach)
+        reach_ok = np.min(reach, axis=-1) >= p.reach_margin
+        stroke_ok = np.all((strokes >= p.stroke_min) & (strokes <= p.stroke_max), axis=-1)
+    return reach_ok, stroke_ok
+
+
+def workspace_check(poses: np.ndarray, p: PlatformParams = PlatformParams()) -> WorkspaceReport:
+    """Check rod reach (reach ratio >= p.reach_margin) and stroke limits for poses (N, 6)."""
+    q, _ = _batch(poses, 6)
+    res = ik_full(q, p)
+    reach_ok, stroke_ok = within_limits(res.strokes, res.reach, p)
+    return WorkspaceReport(reach_ok & stroke_ok, reach_ok, stroke_ok, res.strokes, np.min(res.reach, axis=1))
 
 
 def clamp_to_workspace(pose: np.ndarray, p: PlatformParams = PlatformParams(),
@@ -239,17 +244,25 @@ def clamp_to_workspace(pose: np.ndarray, p: PlatformParams = PlatformParams(),
     return origin + lo * d, True
 
 
-def near_singular(poses: np.ndarray, p: PlatformParams = PlatformParams(), cos_beta_min: float = 0.17,
-                  reach_min: float | None = None, ik: IKResult | None = None) -> np.ndarray:
-    """Boolean (N,): |cos beta| < cos_beta_min (Euler singularity at beta = +-90 deg, default
-    about 80 deg) or some rod within ``reach_min`` (default 2 x reach_margin) of perpendicular
-    to its slider (actuator Jacobian singular)."""
-    q, _ = _batch(poses, 6)
+def singular_flags(beta: np.ndarray, reach: np.ndarray, p: PlatformParams = PlatformParams(),
+                   cos_beta_min: float = 0.17, reach_min: float | None = None) -> np.ndarray:
+    """Near-singular criteria from beta (...,) and reach ratios (..., 6): boolean (...,).
+
+    |cos beta| < cos_beta_min (Euler singularity at beta = +-90 deg, default about 80 deg) or some
+    rod within ``reach_min`` (default 2 x reach_margin) of perpendicular to its slider (actuator
+    Jacobian singular), NaN reach included.
+    """
     reach_min = 2.0 * p.reach_margin if reach_min is None else reach_min
-    res = ik_full(q, p) if ik is None else ik
     with np.errstate(invalid="ignore"):
-        rod_bad = ~(np.min(res.reach, axis=1) >= reach_min)
-    return (np.abs(np.cos(q[:, 4])) < cos_beta_min) | rod_bad
+        rod_bad = ~(np.min(reach, axis=-1) >= reach_min)
+    return (np.abs(np.cos(beta)) < cos_beta_min) | rod_bad
+
+
+def near_singular(poses: np.ndarray, p: PlatformParams = PlatformParams(), cos_beta_min: float = 0.17,
+                  reach_min: float | None = None) -> np.ndarray:
+    """Boolean (N,): :func:`singular_flags` of poses (N, 6)."""
+    q, _ = _batch(poses, 6)
+    return singular_flags(q[:, 4], ik_full(q, p).reach, p, cos_beta_min, reach_min)
 
 
 @dataclass

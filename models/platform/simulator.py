@@ -15,7 +15,7 @@ from .codegen import FastFunction, compile_library
 from .cueing import Washout, WashoutParams
 from .dynamics import functions
 from .integrators import IntegratorConfig, StepIntegrator
-from .kinematics import OutsideWorkspaceError, clamp_to_workspace
+from .kinematics import OutsideWorkspaceError, clamp_to_workspace, singular_flags, within_limits
 from .params import PlatformParams
 
 log = logging.getLogger(__name__)
@@ -36,7 +36,7 @@ class SimConfig:
     params: PlatformParams = field(default_factory=PlatformParams)
     control: ControlParams = field(default_factory=ControlParams)
     washout: WashoutParams = field(default_factory=WashoutParams)
-    integrator: IntegratorConfig = field(default_factory=lambda: IntegratorConfig("rk4", 2))
+    integrator: IntegratorConfig = field(default_factory=IntegratorConfig)
     control_mode: str = "computed_torque"
     model: str = "full"
     cueing: str = "washout"
@@ -140,11 +140,9 @@ class PlatformSim:
 
     def _inside(self, pose) -> tuple:
         """(inside, strokes, reach) of one pose with the compiled IK."""
-        p = self.cfg.params
         dl, reach = self._ik(pose, self.p)
-        # NaN (out of reach) compares False
-        ok = bool(reach.min() >= p.reach_margin and dl.min() >= p.stroke_min and dl.max() <= p.stroke_max)
-        return ok, dl, reach
+        reach_ok, stroke_ok = within_limits(dl, reach, self.cfg.params)
+        return bool(reach_ok and stroke_ok), dl, reach
 
     def _limit(self, ref: np.ndarray, t: float):
         if self._inside(ref)[0]:
@@ -163,10 +161,10 @@ class PlatformSim:
         _, F = self.integ.rhs(self.x, self.u, self.p, self.c)
         Fmax = self.cfg.control.F_max
         sat = bool(np.abs(F).max() > Fmax)
-        # same criteria as kinematics.near_singular, on the pose, the clamped and the raw reference
-        rod_bad = not (min(reach.min(), reach_ref.min()) >= 2.0 * self.cfg.params.reach_margin)
-        cos_b = min(abs(math.cos(q[4])), abs(math.cos(self.u[4])), abs(math.cos(self.raw_ref[4])))
-        sing = rod_bad or cos_b < self.cfg.cos_beta_min
+        # the pose and the clamped reference (beta and rods), the raw reference (beta only)
+        sing = bool(singular_flags(np.array([q[4], self.u[4], self.raw_ref[4]]),
+                                   np.array([reach, reach_ref, np.ones(6)]), self.cfg.params,
+                                   self.cfg.cos_beta_min).any())
         return StepOutputs(pose=q.copy(), vel=dq.copy(), stroke=dl,
                            force=np.minimum(np.maximum(F, -Fmax), Fmax),
                            track_err=math.dist(q[:3], r[:3]), saturated=sat, near_singular=sing,
