@@ -101,7 +101,7 @@ class NetworkModel:
                                                (("arr", float), ("slave", np.int64), ("frame", np.int64))}
         self.hist = np.zeros((HIST, G, G, 2))
         # subscription: which objects were in each viewer's neighbourhood, and since when
-        self.in_view = np.ones((self.n_obj, G), bool)
+        self.view_frame = np.zeros((self.n_obj, G), np.int64)   # last frame the pair was in view
         self.enter_t = np.zeros((self.n_obj, G))
         self.per_object_max = np.zeros(self.n_obj)
         self.per_object_rms = np.zeros(self.n_obj)
@@ -411,11 +411,11 @@ class NetworkModel:
         if cfg.topology == "full_mesh":  # a broadcast subscribes everyone to everything
             newly = np.zeros(len(vg), bool)
         else:
-            iv = self.in_view.ravel()
-            newly = ~iv[fi]
-            iv[:] = False
-            iv[fi] = True
-            self.enter_t.ravel()[fi[newly]] = t
+            vf = self.view_frame.ravel()
+            newly = np.take(vf, fi) != self.k - 1
+            vf[fi] = self.k
+            if newly.any():
+                self.enter_t.ravel()[fi[newly]] = t
         send_pair = pub[vo] | newly
         tr = build_messages(cfg, self.reg, t, self.master, self.slaves, pub_obj, self.owner, vg, vo, frame_size,
                             send_pair, og)

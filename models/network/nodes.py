@@ -180,8 +180,11 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
     else:
         # STATE: owner's master -> viewer's master for published objects in the viewer's neighbourhood
         vown = owner[view_o] if view_owner is None else view_owner
-        sel = send_pair & (vown != view_g) & (np.take(master, vown) >= 0)
-        vg, vo, og = view_g[sel], view_o[sel], vown[sel]
+        cand = np.flatnonzero(send_pair)           # few pairs in DIS mode: filter them first
+        vg, vo, og = view_g[cand], view_o[cand], vown[cand]
+        keep = (og != vg) & (np.take(master, og) >= 0)
+        if not keep.all():
+            vg, vo, og = vg[keep], vo[keep], og[keep]
         if cfg.topology == "hybrid_p2p":
             sg, rg, cnt, inv = _group_pairs(og, vg, G)
             idx = b.add(t, master[sg], master[rg], WAN, H + cnt * rec, PduType.STATE)

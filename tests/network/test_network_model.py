@@ -187,7 +187,7 @@ def test_at_rest_when_nothing_moves_and_shown_positions_match_truth():
     truth = m.world.positions()
     for g in range(2):
         for o in range(m.n_obj):
-            if m.in_view[o, g]:
+            if m.view_frame[o, g] == m.k:
                 assert np.allclose(m.shown_position(g, o), truth[o])
     m.set_input(0, 0.5, 0.0)
     m.step(T)
