@@ -94,6 +94,19 @@ def compile_library(name: str, functions: Sequence[ca.Function], extra_c: str = 
     return ctypes.CDLL(str(lib))
 
 
+def _work_sizes(lib: ctypes.CDLL, f: ca.Function) -> tuple:
+    """(sz_arg, sz_res, sz_iw, sz_w): the larger of the generated code's ``<name>_work`` and the
+    Function's own sizes, so the buffers handed to C can never be too small."""
+    sizes = [f.sz_arg(), f.sz_res(), f.sz_iw(), f.sz_w()]
+    work = getattr(lib, f"{f.name()}_work", None)
+    if work is not None:
+        got = [ctypes.c_longlong() for _ in range(4)]
+        work.argtypes = [ctypes.POINTER(ctypes.c_longlong)] * 4
+        if work(*[ctypes.byref(g) for g in got]) == 0:
+            sizes = [max(s, g.value) for s, g in zip(sizes, got)]
+    return tuple(sizes)
+
+
 class FastFunction:
     """Call a CasADi Function with dense vector inputs/outputs from numpy, compiled when possible.
 
@@ -118,10 +131,11 @@ class FastFunction:
                 self._c = None
             if self._c is not None:
                 self._c.restype = ctypes.c_int
-                self._iw = np.zeros(max(f.sz_iw(), 1), np.int64)
-                self._w = np.zeros(max(f.sz_w(), 1))
-                arg = (ctypes.c_void_p * max(f.sz_arg(), 1))()
-                res = (ctypes.c_void_p * max(f.sz_res(), 1))()
+                sz = _work_sizes(lib, f)
+                self._iw = np.zeros(max(sz[2], 1), np.int64)
+                self._w = np.zeros(max(sz[3], 1))
+                arg = (ctypes.c_void_p * max(sz[0], 1))()
+                res = (ctypes.c_void_p * max(sz[1], 1))()
                 for i, b in enumerate(self.in_bufs):
                     arg[i] = b.ctypes.data
                 for i, b in enumerate(self.out_bufs):

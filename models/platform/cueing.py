@@ -22,6 +22,7 @@ caller's job (:func:`.kinematics.clamp_to_workspace`).
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -114,8 +115,11 @@ class Washout:
     def __init__(self, params: WashoutParams = WashoutParams()) -> None:
         self.params = params
         _, _, self.C_pos, self.C_ang, self.C_lp = continuous_system(params)
+        self._C = np.vstack([self.C_pos, self.C_ang, self.C_lp])
         self.x = np.zeros(self.C_pos.shape[1])
         self.tilt = np.zeros(2)  # (gamma_t, beta_t), rate-limited
+        self._u = np.zeros(7)
+        self._h = None
 
     def state(self):
         return (self.x.copy(), self.tilt.copy())
@@ -126,16 +130,20 @@ class Washout:
     def step(self, f: np.ndarray, omega: np.ndarray, jolt: float, h: float) -> np.ndarray:
         """Advance by h with inputs held; return the pose reference (6,) at the end of the step."""
         w = self.params
-        Phi, Gam = discrete_system(w, float(h))
-        self.x = Phi @ self.x + Gam @ np.concatenate([f, omega, [jolt]])
-        lp = self.C_lp @ self.x
-        smax = np.sin(w.tilt_max)
-        target = np.array([np.arcsin(np.clip(lp[1] / w.g, -smax, smax)),    # gamma_t from f_y
-                           -np.arcsin(np.clip(lp[0] / w.g, -smax, smax))])  # beta_t from f_x
+        if self._h != h:
+            self._h, (self._Phi, self._Gam) = h, discrete_system(w, float(h))
+        self._u[:3], self._u[3:6], self._u[6] = f, omega, jolt
+        self.x = self._Phi @ self.x + self._Gam @ self._u
+        y = self._C @ self.x  # (x, y, z, gamma_hp, beta_hp, alpha_hp, lp_x, lp_y)
+        smax = math.sin(w.tilt_max)
         step = w.tilt_rate * h
-        self.tilt = self.tilt + np.clip(target - self.tilt, -step, step)
-        ang = self.C_ang @ self.x
-        return np.array([*(self.C_pos @ self.x), ang[0] + self.tilt[0], ang[1] + self.tilt[1], ang[2]])
+        tilt = self.tilt
+        for i, target in enumerate((math.asin(min(max(y[7] / w.g, -smax), smax)),      # gamma_t from f_y
+                                    -math.asin(min(max(y[6] / w.g, -smax), smax)))):    # beta_t from f_x
+            tilt[i] += min(max(target - tilt[i], -step), step)
+        y[3] += tilt[0]
+        y[4] += tilt[1]
+        return y[:6]
 
     def at_rest(self, tol: float = 1e-12) -> bool:
         return bool(np.all(np.abs(self.x) < tol) and np.all(np.abs(self.tilt) < tol))

@@ -201,9 +201,8 @@ def within_limits(strokes: np.ndarray, reach: np.ndarray, p: PlatformParams = Pl
     Reach: every (rod . slider axis) / c >= ``p.reach_margin``; strokes within the limits. NaN
     (rod out of reach) fails both.
     """
-    with np.errstate(invalid="ignore"):
-        reach_ok = np.min(reach, axis=-1) >= p.reach_margin
-        stroke_ok = np.all((strokes >= p.stroke_min) & (strokes <= p.stroke_max), axis=-1)
+    reach_ok = reach.min(axis=-1) >= p.reach_margin  # NaN compares False (no warning)
+    stroke_ok = ((strokes >= p.stroke_min) & (strokes <= p.stroke_max)).all(axis=-1)
     return reach_ok, stroke_ok
 
 
@@ -253,8 +252,7 @@ def singular_flags(beta: np.ndarray, reach: np.ndarray, p: PlatformParams = Plat
     Jacobian singular), NaN reach included.
     """
     reach_min = 2.0 * p.reach_margin if reach_min is None else reach_min
-    with np.errstate(invalid="ignore"):
-        rod_bad = ~(np.min(reach, axis=-1) >= reach_min)
+    rod_bad = ~(reach.min(axis=-1) >= reach_min)
     return (np.abs(np.cos(beta)) < cos_beta_min) | rod_bad
 
 

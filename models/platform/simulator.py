@@ -90,6 +90,7 @@ class PlatformSim:
         self.washout = Washout(cfg.washout)
         self._ik = FastFunction(functions()["ik"], _ik_library())
         self.raw_ref = np.zeros(6)
+        self._ref_reach = np.ones(6)
         self.x = np.zeros(24)
         self.u = np.zeros(12)
         self.clamped = False
@@ -99,13 +100,14 @@ class PlatformSim:
     # -- state --------------------------------------------------------------------------
     def get_state(self):
         return {"x": self.x.copy(), "u": self.u.copy(), "washout": self.washout.state(), "clamped": self.clamped,
-                "raw_ref": self.raw_ref.copy(), "out": self.out}
+                "raw_ref": self.raw_ref.copy(), "ref_reach": self._ref_reach.copy(), "out": self.out}
 
     def set_state(self, s) -> None:
         self.x, self.u = s["x"].copy(), s["u"].copy()
         self.washout.set_state(s["washout"])
         self.clamped = s["clamped"]
         self.raw_ref = s["raw_ref"].copy()
+        self._ref_reach = s["ref_reach"].copy()
         self.out = s["out"]
 
     def at_rest(self) -> bool:
@@ -124,7 +126,7 @@ class PlatformSim:
         else:
             ref = np.asarray(inp.ref, float)
         self.raw_ref = ref
-        ref, self.clamped = self._limit(ref, t)
+        ref, self.clamped, self._ref_reach = self._limit(ref, t)
         self.u = np.concatenate([ref, inp.force_cmd])
         x = self.integ.step(self.x, self.u, self.p, self.c, h)
         if not np.isfinite(x).all():
@@ -145,19 +147,21 @@ class PlatformSim:
         return bool(reach_ok and stroke_ok), dl, reach
 
     def _limit(self, ref: np.ndarray, t: float):
-        if self._inside(ref)[0]:
-            return ref, False
+        """(reference inside the workspace, clamped?, its reach ratios)."""
+        inside, _, reach = self._inside(ref)
+        if inside:
+            return ref, False, reach
         if self.cfg.on_workspace == "error":
             raise OutsideWorkspaceError(
                 f"pose reference {np.array2string(ref, precision=4)} at t = {t:g} s is outside the workspace "
                 f"(strokes {self.cfg.params.stroke_min:g}..{self.cfg.params.stroke_max:g} m, rod reach)")
-        inside = lambda pose: self._inside(pose)[0]  # noqa: E731
-        return clamp_to_workspace(ref, self.cfg.params, inside=inside)[0], True
+        ref = clamp_to_workspace(ref, self.cfg.params, inside=lambda pose: self._inside(pose)[0])[0]
+        return ref, True, self._inside(ref)[2]
 
     def _outputs(self) -> StepOutputs:
         q, dq, r = self.x[:6], self.x[6:12], self.x[12:18]
         _, dl, reach = self._inside(q)
-        _, _, reach_ref = self._inside(self.u[:6])
+        reach_ref = self._ref_reach
         _, F = self.integ.rhs(self.x, self.u, self.p, self.c)
         Fmax = self.cfg.control.F_max
         sat = bool(np.abs(F).max() > Fmax)
