@@ -101,9 +101,9 @@ def bench_traffic(quick: bool):
 def bench_scale(quick: bool):
     steps = 30 if quick else 100
     res = []
-    for dis in (0.0, 0.1):
+    for dis, measure in ((0.0, True), (0.1, True), (0.0, False), (0.1, False)):
         cfg = NetworkConfig(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform",
-                            dis_threshold=dis, seed=4)
+                            dis_threshold=dis, seed=4, measure=measure)
         t0 = time.perf_counter()
         m = NetworkModel(cfg)
         t_init = time.perf_counter() - t0
@@ -117,7 +117,7 @@ def bench_scale(quick: bool):
             times.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
         times, cpu = np.array(times) * 1e3, np.array(cpu) * 1e3
-        res.append(dict(dis_threshold=dis, nodes=cfg.n_render, entities=cfg.entities, init_s=t_init,
+        res.append(dict(dis_threshold=dis, measure=measure, nodes=cfg.n_render, entities=cfg.entities, init_s=t_init,
                         median_ms=float(np.median(times)), p90_ms=float(np.percentile(times, 90)),
                         cpu_median_ms=float(np.median(cpu)), load=0.5 * (load0 + os.getloadavg()[0]),
                         mean_ms=float(times.mean()), rt_factor=33.0 / float(np.median(times)),
@@ -182,7 +182,7 @@ def main() -> None:
                     {"rms": "{:.4f}", "max": "{:.3f}", "bytes_per_step": "{:.0f}"})
     tr_tab = table(traffic_rows, ["topology", "nodes", "messages", "bytes", "dropped", "rms"],
                    {"messages": "{:.0f}", "bytes": "{:.0f}", "rms": "{:.4f}"})
-    sc_tab = table(scale, ["dis_threshold", "nodes", "entities", "init_s", "median_ms", "p90_ms", "mean_ms",
+    sc_tab = table(scale, ["dis_threshold", "measure", "nodes", "entities", "init_s", "median_ms", "p90_ms", "mean_ms",
                            "cpu_median_ms", "load", "rt_factor", "messages", "mbytes", "rms"],
                    {"init_s": "{:.2f}", "median_ms": "{:.1f}", "p90_ms": "{:.1f}", "mean_ms": "{:.1f}",
                     "cpu_median_ms": "{:.1f}", "load": "{:.1f}",
@@ -191,7 +191,8 @@ def main() -> None:
     (OUT / "traffic_vs_nodes.md").write_text(tr_tab)
     (OUT / "scale.md").write_text(sc_tab)
     fit_lines = "\n".join(f"- `{t}`: messages ~ n^{k[0]:.2f}, bytes ~ n^{k[1]:.2f}" for t, k in fits.items())
-    best = min(s["median_ms"] for s in scale)
+    best = min(s["median_ms"] for s in scale if s["measure"])
+    best_any = min(s["median_ms"] for s in scale)
     verdict = "met" if best <= 33.0 else "NOT met"
     order_means = {o: np.mean([x["rms"] for x in lat_rows if x["order"] == o and x["latency_ms"] > 0]) for o in (0, 1, 2)}
     rule_remote = {r: sum(x["remote_contacts"] for x in lat_rows if x["ownership"] == r) for r in RULES}
@@ -206,11 +207,13 @@ Machine: {machine()}; shared with other jobs while it ran, so times are noisy.
 
 250 groups x 4 render nodes (+250 control platforms, 1 supernode), 10,000 free entities,
 2 km scene (10x10 grid of 200 m cells), hybrid P2P, dead reckoning order 1, every frame
-(`dis_threshold` 0) and DIS updates at 0.1 m.
+(`dis_threshold` 0) and DIS updates at 0.1 m; `measure` False skips the per-copy display
+error of eq. 3-1/3-2 (the network behaves identically, only the metric is not computed), to
+show what the protocol simulation costs by itself.
 
 {sc_tab}
-Best median wall time per 33 ms step {best:.1f} ms: target **{verdict}** (real-time factor
-{33.0 / best:.2f}). `cpu_median_ms` is the process CPU time per step and `load` the 1-minute
+Best median wall time per 33 ms step with the metrics {best:.1f} ms: target **{verdict}**
+(real-time factor {33.0 / best:.2f}); without the display metric {best_any:.1f} ms. `cpu_median_ms` is the process CPU time per step and `load` the 1-minute
 load average of the machine during the run (2 cores shared with other jobs): the wall times
 include waiting for a core. The per-frame work is dominated by numpy passes over the
 ~235,000 (viewer, object) pairs of the 9-cell neighbourhoods (display error of eq. 3-1/3-2,

@@ -110,6 +110,9 @@ class NetworkConfig:
     autopilot_change_s: float = 2.0
     avatar_start: str = "cluster"    # 'cluster' (disc of radius 5 sqrt(G) m at the centre) or 'uniform'
     substeps: int = 4
+    # measurement: evaluate the display error of every copy each frame (eq. 3-1/3-2); the network
+    # itself does not depend on it, so large runs can switch it off to time the protocol alone
+    measure: bool = True
     # membership
     heartbeat_s: float = 1.0
     heartbeat_timeout_s: float = 3.0

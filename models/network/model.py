@@ -566,6 +566,21 @@ class NetworkModel:
             cells = self.grid.cell(P)
             vo, vl = self.grid.view_pairs(cells, cells[online])
             vg = online[vl]
+        if cfg.measure:
+            self._measure(t, P, vg, vo, fi, og)
+        # displayed avatars at every master (for slaves showing an older frame)
+        fa = np.arange(G * G)                     # avatars are objects 0..G-1: object-major block
+        at, ap, avv, aa = self._gather(fa)
+        av = dead_reckon(ap, avv, aa, t - at, cfg.prediction_order).reshape(G, G, 2).transpose(1, 0, 2)
+        av[np.arange(G), np.arange(G)] = P[:G]
+        self.hist[self.k % HIST] = av
+        sl = np.concatenate([s for s in self.slaves if len(s)]) if any(len(s) for s in self.slaves) else np.zeros(0, int)
+        if len(sl):
+            self.metrics.desync_frames = max(self.metrics.desync_frames, int((self.k - self.shown_frame[sl]).max()))
+
+    def _measure(self, t, P, vg, vo, fi, og) -> None:
+        """Display error of every remote copy at frame time ``t`` (eq. 3-1/3-2)."""
+        cfg = self.cfg
         # copies shown by non-owners that have a record of the object; dead reckoning (§3.6.3)
         # evaluated column by column: e = p + v dt (+ a dt^2 / 2) - truth
         if fi is None:
@@ -592,15 +607,6 @@ class NetworkModel:
         self.per_object_max, self.per_object_rms = pm, pr
         self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
         self.metrics.inconsistency_rms = rms
-        # displayed avatars at every master (for slaves showing an older frame)
-        fa = np.arange(G * G)                     # avatars are objects 0..G-1: object-major block
-        at, ap, avv, aa = self._gather(fa)
-        av = dead_reckon(ap, avv, aa, t - at, cfg.prediction_order).reshape(G, G, 2).transpose(1, 0, 2)
-        av[np.arange(G), np.arange(G)] = P[:G]
-        self.hist[self.k % HIST] = av
-        sl = np.concatenate([s for s in self.slaves if len(s)]) if any(len(s) for s in self.slaves) else np.zeros(0, int)
-        if len(sl):
-            self.metrics.desync_frames = max(self.metrics.desync_frames, int((self.k - self.shown_frame[sl]).max()))
 
     # -- queries ------------------------------------------------------------------------------------
     def perceived_avatar(self, node: int, g: int) -> np.ndarray:

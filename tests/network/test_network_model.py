@@ -192,3 +192,14 @@ def test_at_rest_when_nothing_moves_and_shown_positions_match_truth():
     m.set_input(0, 0.5, 0.0)
     m.step(T)
     assert not m.at_rest()
+
+
+def test_switching_the_metric_off_leaves_the_network_unchanged():
+    base = NetworkConfig(groups=3, render_nodes=2, entities=40, seed=9)
+    from dataclasses import replace
+    a, out_a = run(base, 40)
+    b, out_b = run(replace(base, measure=False), 40)
+    assert [(s.messages, s.bytes, s.dropped_frames) for s in out_a] == [(s.messages, s.bytes, s.dropped_frames)
+                                                                         for s in out_b]
+    assert np.array_equal(a.world.positions(), b.world.positions()) and np.array_equal(a.cache, b.cache)
+    assert max(s.inconsistency_max for s in out_b) == 0.0 < max(s.inconsistency_max for s in out_a)
