@@ -47,9 +47,10 @@ class FmuCallError(ImmersimError, RuntimeError):
         super().__init__(msg)
 
 
+class LogWriteError(ImmersimError, OSError):
+    """The MCAP log could not be written (disk full, file size limit, I/O error)."""
+
+
 class NonFiniteOutputError(ImmersimError, ArithmeticError):
     """An FMU output is NaN or infinite: names unit, variable and time."""
 
-
-class SimulationInterrupted(ImmersimError, KeyboardInterrupt.__base__):
-    """The run was interrupted (SIGINT); the log holds every completed step."""

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional
 
-from .errors import ImmersimError
+from .errors import ImmersimError, LogWriteError
 from .fmu import RealSetter
 from .master import Master, Slot
 from .observers import McapObserver, write_parameters
@@ -198,7 +198,7 @@ class Execution:
             for name, idx in self._log_index.items():
                 cur = master.slots[name].cur
                 obs.write(name, t_ns, cur if idx is None else [cur[i] for i in idx], k)
-            obs.step_done()
+            obs.step_done(t_ns)
         for fn in self.observers:
             fn(k, t_ns)
 
@@ -234,6 +234,8 @@ class Execution:
                     if sigint.requested:
                         raise KeyboardInterrupt
             master.finish()
+            if self.observer is not None:
+                self._close_log(result)
         except KeyboardInterrupt:
             result.status, result.reason = "interrupted", "interrupted by SIGINT"
             raise RunInterrupted(self._stop_message(result), result) from None
@@ -255,18 +257,31 @@ class Execution:
 
     def _stop_message(self, r: RunResult) -> str:
         where = f"; the log {r.output} holds steps 0..{r.steps_done}" if r.output else ""
+        if r.output and r.reason.startswith("cannot "):  # LogWriteError: the disk decides what is kept
+            where = f"; the log {r.output} keeps what the disk accepted"
         return (f"run of {r.scenario} {r.status} at t = {r.t_ns / 1e9:.9g} s after {r.steps_done} of "
                 f"{r.steps_total} steps: {r.reason}{where}")
 
+    def _close_log(self, result: RunResult) -> None:
+        """Write the run metadata and finish the MCAP file (raises LogWriteError)."""
+        obs = self.observer
+        if obs is None or obs._closed:
+            return
+        try:
+            obs.add_metadata("run", {"status": result.status, "steps_done": result.steps_done,
+                                     "steps_total": result.steps_total, "t_ns": result.t_ns,
+                                     "reason": result.reason})
+        except OSError as exc:
+            obs._closed = True
+            raise LogWriteError(f"cannot finish the log {obs.path}: {exc.strerror or exc}") from None
+        obs.close()
+
     def _finish(self, result: RunResult) -> None:
         try:
-            if self.observer is not None:
-                try:
-                    self.observer.add_metadata("run", {"status": result.status, "steps_done": result.steps_done,
-                                                       "steps_total": result.steps_total, "t_ns": result.t_ns,
-                                                       "reason": result.reason})
-                finally:
-                    self.observer.close()
+            try:
+                self._close_log(result)
+            except LogWriteError as exc:  # a failure is already being reported; keep it, note this one
+                log.error("%s", exc)
         finally:
             self.system.terminate()
             self._tmp.cleanup()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import ctypes
 import logging
 import math
+import os
 import weakref
 import zipfile
 from collections import deque
@@ -165,20 +166,28 @@ class FmuInstance:
 
         kwargs = dict(guid=md.guid, unzipDirectory=self.unzip_dir,
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName=self.name)
+        cwd = os.getcwd()  # FMPy changes into the binaries folder and does not return on failure
         try:
+            cls = FMU2Slave if self.fmi_version.startswith("2") else FMU3Slave
+            if not self.fmi_version.startswith(("2", "3")):
+                raise FmuLoadError(f"unit {self.name}: FMI version {self.fmi_version} is not supported (2.0 or 3.0)")
+            try:
+                self.fmu = cls(**kwargs)
+            except Exception as exc:  # FMPy raises a bare Exception for a missing or unloadable binary
+                raise FmuLoadError(f"unit {self.name}: cannot load the binary of {self.path}: {exc}") from None
+            finally:
+                os.chdir(cwd)
             if self.fmi_version.startswith("2"):
-                self.fmu = FMU2Slave(**kwargs)
                 cb = _fmi2_callbacks()
                 _BY_NAME[self.name] = self
                 self._guard("fmi2Instantiate", lambda: self.fmu.instantiate(callbacks=cb, loggingOn=True))
-            elif self.fmi_version.startswith("3"):
-                self.fmu = FMU3Slave(**kwargs)
+            else:
                 self._guard("fmi3InstantiateCoSimulation",
                             lambda: self.fmu.instantiate(loggingOn=True, logMessage=self._log3))
-            else:
-                raise FmuLoadError(f"unit {self.name}: FMI version {self.fmi_version} is not supported (2.0 or 3.0)")
         except FmuCallError as exc:
             raise FmuLoadError(str(exc)) from exc
+        except FmuLoadError:
+            raise
         except OSError as exc:
             raise FmuLoadError(f"unit {self.name}: cannot load the binary of {self.path}: {exc}") from exc
         self._setup_fast_path()

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 from typing import Any, Dict, List, Sequence
 
+from .errors import LogWriteError
 from .fmu import VarInfo
 
 log = logging.getLogger(__name__)
@@ -127,10 +128,13 @@ class McapObserver:
 
     def __init__(self, path: Path | str, flush_seconds: float = 1.0) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "wb")
-        self.writer = _fast_writer_class()(self._fh)
-        self.writer.start(profile="", library="immersim")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.path, "wb")
+            self.writer = _fast_writer_class()(self._fh)
+            self.writer.start(profile="", library="immersim")
+        except OSError as exc:
+            raise LogWriteError(f"cannot write the log {self.path}: {exc.strerror or exc}") from None
         self.channels: Dict[str, int] = {}
         self.encoders: Dict[str, ChannelEncoder] = {}
         self.flush_seconds = flush_seconds
@@ -149,25 +153,40 @@ class McapObserver:
 
     def write(self, topic: str, t_ns: int, values: Sequence[Any], sequence: int = 0) -> None:
         data = self.encoders[topic].encode(values)
-        self.writer.add_message(self.channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
-                                sequence=sequence)
+        try:
+            self.writer.add_message(self.channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
+                                    sequence=sequence)
+        except OSError as exc:
+            raise self._error(exc, t_ns) from None
         self.messages += 1
 
-    def step_done(self) -> None:
+    def step_done(self, t_ns: int = 0) -> None:
         """Called after each macro step: flush to disk now and then."""
         now = time.monotonic()
         if now - self._last_flush > self.flush_seconds:
-            self.writer.flush()
+            try:
+                self.writer.flush()
+            except OSError as exc:
+                raise self._error(exc, t_ns) from None
             self._last_flush = now
 
+    def _error(self, exc: OSError, t_ns: int) -> LogWriteError:
+        return LogWriteError(f"cannot write the log {self.path} at t = {t_ns / 1e9:.9g} s: {exc.strerror or exc}")
+
     def close(self) -> None:
+        """Finish the file (summary, index). Raises LogWriteError when the disk refuses."""
         if self._closed:
             return
         self._closed = True
         try:
             self.writer.finish()
+        except OSError as exc:
+            raise LogWriteError(f"cannot finish the log {self.path}: {exc.strerror or exc}") from None
         finally:
-            self._fh.close()
+            try:
+                self._fh.close()
+            except OSError:
+                pass
 
 
 def write_parameters(obs: McapObserver, unit: str, infos: List[VarInfo], values: List[Any], t_ns: int) -> None:

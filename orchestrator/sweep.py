@@ -819,16 +819,23 @@ def plot_comparison(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec, out
     data = comparison_data(spec, rows, plot)
     fig, axes = plt.subplots(len(plot.y), 1, figsize=(7, 2.6 * len(plot.y) + 0.8), squeeze=False)
     for ax, ycol in zip(axes[:, 0], plot.y):
-        for label, (x, y) in data.lines[ycol].items():
-            ax.plot(x, y, marker="o", lw=1.2, label=label or None)
+        width = 0.8 / max(1, len(data.lines[ycol]))
+        for i, (label, (x, y)) in enumerate(data.lines[ycol].items()):
+            if data.numeric:
+                ax.plot(x, y, marker="o", lw=1.2, label=label or None)
+            else:  # categories: grouped bars, one colour per hue group
+                offset = (i - (len(data.lines[ycol]) - 1) / 2) * width
+                ax.bar([xi + offset for xi in x], y, width=width, label=label or None)
         ax.set_xscale("log" if plot.logx and data.numeric else "linear")  # (resets the tick locator)
         if not data.numeric:
             ax.set_xticks(range(len(data.categories)), [_short(c) for c in data.categories])
         if plot.logy:
             ax.set_yscale("log")
+        else:
+            ax.ticklabel_format(axis="y", useOffset=False)
         ax.set_ylabel(ycol)
         ax.grid(True, alpha=0.3)
-        if any(data.lines[ycol]) and ax is axes[0, 0]:
+        if any(data.lines[ycol]) and ax is axes[0, 0] and len(data.lines[ycol]) > 1:
             ax.legend(fontsize=7)
     axes[-1, 0].set_xlabel(plot.x)
     fig.suptitle(f"{spec.file.name}: {data.plotted} of {len(rows)} runs plotted (completed, with {plot.x})",
