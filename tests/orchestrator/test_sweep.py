@@ -305,6 +305,8 @@ EXAMPLES = {
     "platform_ablation.toml": ["000_computed_torque_rk4", "001_computed_torque_cvode_bdf", "002_pd_rk4",
                                "003_pd_cvode_bdf", "004_planar"],
     "prediction_orders.toml": ["000_0_20", "001_0_80", "002_1_20", "003_1_80", "004_2_20", "005_2_80"],
+    "campus_backends.toml": ["000_fcl", "001_basis_point", "002_honeycomb"],
+    "campus_prediction.toml": ["000_0_20", "001_0_80", "002_1_20", "003_1_80", "004_2_20", "005_2_80"],
 }
 
 
