@@ -289,10 +289,31 @@ def _short(value: Any) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
-def safe_id(index: int, parts: Iterable[Any], max_len: int = 60) -> str:
-    """``<index>_<part>_<part>...``, characters outside ``[A-Za-z0-9_.+-]`` replaced by ``-``."""
-    body = "_".join(_UNSAFE.sub("-", _EDGE.sub("", _short(p))) for p in parts)
+def safe_id(index: int, parts: Iterable[Any], part_len: int = 24, max_len: int = 60) -> str:
+    """``<index>_<part>_<part>...``, characters outside ``[A-Za-z0-9_.+-]`` replaced by ``-``,
+    each part cut to ``part_len`` characters and the whole to ``max_len`` after the index."""
+    body = "_".join(_UNSAFE.sub("-", _EDGE.sub("", _short(p)))[:part_len] for p in parts)
     return f"{index:03d}" + (f"_{body[:max_len]}" if body else "")
+
+
+_SEPARATORS = ",;: /&"
+
+
+def distinct_labels(values: Sequence[Any], min_len: int = 16) -> List[str]:
+    """Short labels that still tell long string values apart: the common prefix and suffix
+    of the values are dropped, cut back to a separator (``,;: /&``) so that the differing
+    field keeps its name (``"tanks:n=10,tris=5.4k"``, ``"tanks:n=100,tris=5.4k"`` ->
+    ``"n=10"``, ``"n=100"``). Other values get :func:`_short`."""
+    texts = [_short(v) for v in values]
+    if len(set(texts)) < 2 or max(map(len, texts)) < min_len or not all(isinstance(v, str) for v in values):
+        return texts
+    pre = os.path.commonprefix(texts)
+    suf = os.path.commonprefix([t[::-1] for t in texts])[::-1]
+    cut_pre = max((pre.rfind(c) + 1 for c in _SEPARATORS), default=0)
+    cut_suf = min((i for i, c in enumerate(suf) if c in _SEPARATORS), default=len(suf))
+    n_suf = len(suf) - cut_suf
+    out = [t[cut_pre:len(t) - n_suf] for t in texts]
+    return out if all(out) and len(set(out)) == len(set(texts)) else texts
 
 
 def _resolve(overrides: Dict[str, Any], path: Path) -> Dict[str, Any]:
@@ -311,12 +332,14 @@ def _resolve(overrides: Dict[str, Any], path: Path) -> Dict[str, Any]:
 def _make_variants(grid: Dict[str, List[Any]], explicit: List[Tuple[str, Dict[str, Any]]],
                    path: Path) -> List[Variant]:
     varying = [k for k, vs in grid.items() if len(vs) > 1]
+    labels = {k: distinct_labels(grid[k]) for k in varying}
     variants: List[Variant] = []
     if grid:
-        for combo in itertools.product(*grid.values()):
-            ov = dict(zip(grid, combo))
+        for pos in itertools.product(*(range(len(vs)) for vs in grid.values())):
+            ov = {k: grid[k][j] for k, j in zip(grid, pos)}
+            parts = [labels[k][j] for k, j in zip(grid, pos) if k in labels]
             i = len(variants)
-            variants.append(Variant(i, safe_id(i, [ov[k] for k in varying]), ov, _resolve(ov, path)))
+            variants.append(Variant(i, safe_id(i, parts), ov, _resolve(ov, path)))
     for name, ov in explicit:
         i = len(variants)
         variants.append(Variant(i, safe_id(i, [name]), ov, _resolve(ov, path)))
@@ -464,8 +487,9 @@ def builtin_metric(row: RunRow, name: str) -> Any:
 
 def signal_glob(pattern: str) -> str:
     """The fnmatch pattern of a metric's ``signal``: ``*`` and ``?`` are wildcards, brackets
-    are literal (they index vector variables, ``pair[1].distance``)."""
-    return pattern.replace("[", "[[]")
+    are literal (they index vector variables, ``pair[1].distance``); an already escaped
+    ``[[]`` is kept."""
+    return re.sub(r"\[\[\]|\[", lambda m: "[[]" if m.group(0) == "[" else m.group(0), pattern)
 
 
 def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow) -> Tuple[Dict[str, Any], List[str]]:
@@ -783,6 +807,12 @@ class ComparisonData:
     plotted: int
 
 
+def _value_labels(values: Sequence[Any]) -> Dict[str, str]:
+    """``str(value) -> short label`` for the distinct values (see :func:`distinct_labels`)."""
+    uniq = list(dict.fromkeys(values))
+    return dict(zip(map(str, uniq), distinct_labels(uniq)))
+
+
 def comparison_data(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec) -> ComparisonData:
     """The lines of one comparison plot: completed runs that set ``plot.x``, grouped by hue
     (default: every other override key that varies), one line per group and ``y`` column."""
@@ -793,9 +823,10 @@ def comparison_data(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec) -> 
     cats = list(dict.fromkeys(map(str, xs)))
     hue = plot.hue if plot.hue is not None else tuple(
         k for k in spec.keys if k != plot.x and len({str(v.overrides.get(k, "")) for v in spec.variants}) > 1)
+    short = {h: _value_labels([_cell(r, h, spec) for r in done]) for h in hue}
     groups: Dict[str, List[Tuple[float, RunRow]]] = {}
     for r, x in zip(done, xs):
-        label = ", ".join(f"{h}={_short(_cell(r, h, spec))}" for h in hue)
+        label = ", ".join(f"{h}={short[h][str(_cell(r, h, spec))]}" for h in hue)
         groups.setdefault(label, []).append((_as_number(x) if numeric else float(cats.index(str(x))), r))
     lines: Dict[str, Dict[str, Tuple[List[float], List[float]]]] = {}
     for ycol in plot.y:
@@ -828,7 +859,7 @@ def plot_comparison(spec: SweepSpec, rows: Sequence[RunRow], plot: PlotSpec, out
                 ax.bar([xi + offset for xi in x], y, width=width, label=label or None)
         ax.set_xscale("log" if plot.logx and data.numeric else "linear")  # (resets the tick locator)
         if not data.numeric:
-            ax.set_xticks(range(len(data.categories)), [_short(c) for c in data.categories])
+            ax.set_xticks(range(len(data.categories)), distinct_labels(data.categories))
         if plot.logy:
             ax.set_yscale("log")
         else:

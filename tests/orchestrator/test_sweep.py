@@ -182,7 +182,8 @@ def test_reduce_signals_pools_matches_and_windows_in_time():
 
 def test_run_ids_are_short_and_file_system_safe():
     assert safe_id(7, ["gauss-seidel", 0.01, "../fmus/my net.fmu", "a/b c"]) == "007_gauss-seidel_0.01_my-net_b-c"
-    assert len(safe_id(1, ["x" * 200])) == 4 + 60
+    assert safe_id(1, ["x" * 200]) == "001_" + "x" * 24  # each part cut to 24 characters
+    assert len(safe_id(1, ["x" * 30] * 4)) == 4 + 60      # the whole to 60 after the index
 
 
 BAD = [
@@ -372,3 +373,13 @@ typo = { signal = "m1.position", reduce = "max" }
     assert row.reason == "metric typo: no logged signal matches 'm1.position' (see immersim info --signals 000_one.mcap)"
     assert row.metrics["x1_max"] == read_series(tmp_path / "000_one.mcap", ["m1.x"])["m1.x"][1].max()
     assert math.isnan(row.metrics["typo"])
+
+
+def test_long_grid_values_get_distinct_short_ids():
+    from immersim.orchestrator.sweep import distinct_labels
+
+    scenes = [f"tanks:n={n},tris=5.4k,spacing=10;missile:x=-30,y=0,z=15,pitch=0.41" for n in (1, 10, 5040)]
+    assert distinct_labels(scenes) == ["n=1", "n=10", "n=5040"]
+    assert distinct_labels(["fcl", "basis_point"]) == ["fcl", "basis_point"]
+    assert distinct_labels(["../a/other_network.fmu", "network"]) == ["other_network", "network"]
+    assert distinct_labels([0.01, 0.02]) == ["0.01", "0.02"]
