@@ -78,7 +78,11 @@ class FclBackend(CollisionBackend):
             mask[pair.members] = True
             mask[pair.a] = False
             members = pair.members[mask[pair.members]]
-            self._pair_parts[id(pair)] = (mask, members[~self.is_dynamic[members]], members[self.is_dynamic[members]])
+            stat = members[~self.is_dynamic[members]]
+            # the tree serves groups that are all static bodies or larger than 8; small subsets
+            # of a larger scene are checked directly
+            use_tree = len(stat) > 8 or (len(stat) > 0 and len(stat) == len(self.static_idx))
+            self._pair_parts[id(pair)] = (mask, stat, members[self.is_dynamic[members]], use_tree)
         self._creq = fcl.CollisionRequest(num_max_contacts=self.config.max_contacts, enable_contact=True)
         self._dreq = fcl.DistanceRequest(enable_nearest_points=True)
         self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
@@ -107,12 +111,14 @@ class FclBackend(CollisionBackend):
 
     # -- narrow phase -------------------------------------------------------------------
     def _collide(self, a: int, b: int, obj_b=None) -> PairResult | None:
+        # member first, as python-fcl's manager callbacks call it: fcl's BVH-BVH traversal
+        # is far cheaper with the large tree first (measured 0.1 ms vs 5-8 ms, tank vs missile)
         res = fcl.CollisionResult()
-        fcl.collide(self.objs[a], obj_b if obj_b is not None else self.objs[b], self._creq, res)
+        fcl.collide(obj_b if obj_b is not None else self.objs[b], self.objs[a], self._creq, res)
         if not res.is_collision:
             return None
         c = max(res.contacts, key=lambda c: c.penetration_depth)
-        n = np.asarray(c.normal, float)
+        n = -np.asarray(c.normal, float)  # fcl's normal points from its first object (b) to a
         return PairResult(True, 0.0, float(max(c.penetration_depth, 0.0)), np.asarray(c.pos, float).copy(),
                           n / (np.linalg.norm(n) or 1.0))
 
@@ -120,12 +126,12 @@ class FclBackend(CollisionBackend):
         """Narrow-phase distance into a shared result (fcl prunes with the best distance so
         far, as python-fcl's default callback does). True when ``b`` became the nearest."""
         before = res.min_distance
-        fcl.distance(self.objs[a], self.objs[b], self._dreq, res)
+        fcl.distance(self.objs[b], self.objs[a], self._dreq, res)  # member first (see _collide)
         return res.min_distance < before
 
     @staticmethod
     def _distance_result(res: "fcl.DistanceResult") -> PairResult:
-        pa, pb = (np.array(p, float) for p in res.nearest_points)
+        pb, pa = (np.array(p, float) for p in res.nearest_points)  # computed as (member, a)
         n = pb - pa
         norm = np.linalg.norm(n)
         return PairResult(False, float(max(res.min_distance, 0.0)), 0.0, pa, n / norm if norm > 0 else n)
@@ -133,14 +139,15 @@ class FclBackend(CollisionBackend):
     # -- one pair ------------------------------------------------------------------------
     def _evaluate(self, pair: PairSpec, dt: float) -> Tuple[PairResult, int, int]:
         a = pair.a
-        mask, stat, dyn = self._pair_parts[id(pair)]
+        mask, stat, dyn, use_tree = self._pair_parts[id(pair)]
         self._member_mask = mask
+        self._use_tree = use_tree
         counts = [0, 0]  # candidates, narrow-phase tests
         results: List[Tuple[int, PairResult]] = []
         obj_a = self.objs[a]
         # broad phase (AABB overlap): static members through the tree, dynamic ones directly
         cands: List[int] = []
-        if len(stat) > 8:
+        if use_tree:
             self.manager.collide(obj_a, fcl.CollisionData(), self._collector(cands))
         elif len(stat):
             cands += [int(b) for b in stat[self.aabb_gap(a, stat) <= 0]]
@@ -184,7 +191,7 @@ class FclBackend(CollisionBackend):
         res = fcl.DistanceResult(self.config.max_distance
                                  if math.isfinite(self.config.max_distance) else 1.7976931348623157e308)
         best = [-1]
-        small = list(dyn) + (list(stat) if len(stat) <= 8 else [])
+        small = list(dyn) + ([] if self._use_tree else list(stat))
         if small:
             small = np.asarray(small, int)
             gaps = self.aabb_gap(a, small)
@@ -195,7 +202,7 @@ class FclBackend(CollisionBackend):
                 counts[1] += 1
                 if self._distance(a, b, res):
                     best[0] = b
-        if len(stat) > 8:
+        if self._use_tree:
             by_pose, key = self._by_pose, self._key
 
             def on_near(o1, o2, _data):
