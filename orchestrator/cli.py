@@ -99,9 +99,15 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from .sweep import run_sweep
+    from .sweep import SweepFailed, run_sweep
 
-    table = run_sweep(args.sweepfile, args.output_dir, workers=args.workers, scheduler=args.scheduler)
+    try:
+        table = run_sweep(args.sweepfile, args.output_dir, workers=args.workers, scheduler=args.scheduler,
+                          progress=not args.quiet)
+    except SweepFailed as exc:  # every run done and written; some failed: show the table, exit 1
+        sys.stdout.write(f"{exc.result}\n")
+        sys.stderr.write(f"immersim: error: {exc}\n")
+        return EXIT_FAILED
     sys.stdout.write(f"{table}\n")
     return 0
 
@@ -142,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-o", "--output-dir", default=None, help="folder for the MCAPs and summary.csv")
     s.add_argument("-j", "--workers", type=int, default=None, help="local worker processes (default: cores)")
     s.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
+    s.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     s.set_defaults(fn=_cmd_sweep)
     return p
 

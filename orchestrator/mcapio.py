@@ -1,7 +1,6 @@
 """Read immersim MCAP logs back: channels, signals with units, time series."""
 from __future__ import annotations
 
-import fnmatch
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,6 +9,7 @@ from typing import Dict, List, Tuple
 import numpy as np
 
 from .errors import ImmersimError
+from .patterns import matches
 
 
 class LogReadError(ImmersimError, OSError):
@@ -75,7 +75,7 @@ def read_info(path: Path | str) -> LogInfo:
 
 
 def read_series(path: Path | str, patterns: List[str]) -> Dict[str, Tuple[np.ndarray, np.ndarray, str]]:
-    """Time series of every ``unit.variable`` matching a glob pattern.
+    """Time series of every ``unit.variable`` matching a glob pattern (brackets are literal).
 
     Returns
     -------
@@ -89,7 +89,7 @@ def read_series(path: Path | str, patterns: List[str]) -> Dict[str, Tuple[np.nda
             continue
         for var in ch.signals:
             full = f"{topic}.{var}"
-            if any(fnmatch.fnmatchcase(full, p) for p in patterns):
+            if matches(full, patterns):
                 wanted.setdefault(topic, []).append(var)
     if not wanted:
         avail = [f"{t}.{v}" for t, c in info.channels.items() if not t.endswith("/parameters") for v in c.signals]

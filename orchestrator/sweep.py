@@ -485,13 +485,6 @@ def builtin_metric(row: RunRow, name: str) -> Any:
             "status": row.status}[name]
 
 
-def signal_glob(pattern: str) -> str:
-    """The fnmatch pattern of a metric's ``signal``: ``*`` and ``?`` are wildcards, brackets
-    are literal (they index vector variables, ``pair[1].distance``); an already escaped
-    ``[[]`` is kept."""
-    return re.sub(r"\[\[\]|\[", lambda m: "[[]" if m.group(0) == "[" else m.group(0), pattern)
-
-
 def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow) -> Tuple[Dict[str, Any], List[str]]:
     """Every metric of one run: built-ins from ``row``, signal metrics from the MCAP log (read once).
 
@@ -502,11 +495,10 @@ def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow
     errors : list of str
         One message per metric that could not be computed (e.g. no signal matches).
     """
-    import fnmatch
-
     from .mcapio import LogReadError, read_series
+    from .patterns import matches
 
-    globs = {m.name: signal_glob(m.signal) for m in metrics if not m.builtin}
+    globs = {m.name: m.signal for m in metrics if not m.builtin}
     try:
         series = read_series(mcap, list(dict.fromkeys(globs.values()))) if globs else {}
     except LogReadError as exc:
@@ -519,7 +511,7 @@ def compute_metrics(mcap: Path | str, metrics: Sequence[MetricSpec], row: RunRow
         if m.builtin:
             out[m.name] = builtin_metric(row, m.builtin)
             continue
-        matched = {k: v for k, v in series.items() if fnmatch.fnmatchcase(k, globs[m.name])}
+        matched = {k: v for k, v in series.items() if matches(k, [globs[m.name]])}
         try:
             if not matched:
                 raise ValueError(f"metric {m.name}: no logged signal matches {m.signal!r} "

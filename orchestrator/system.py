@@ -6,7 +6,6 @@ whose variables nothing logs and nothing downstream consumes are not loaded at a
 """
 from __future__ import annotations
 
-import fnmatch
 import hashlib
 import logging
 from dataclasses import dataclass, field
@@ -15,6 +14,7 @@ from typing import Dict, List, Optional, Set
 
 from .errors import FmuLoadError, ScenarioError
 from .fmu import FmuInstance, VarInfo, read_model
+from .patterns import matches
 from .scenario import Connection, Scenario
 
 log = logging.getLogger(__name__)
@@ -148,8 +148,7 @@ def check_system(scenario: Scenario) -> System:
             if v.causality not in ("input", "output", "local"):
                 continue
             full = f"{u.name}.{name}"
-            if any(fnmatch.fnmatchcase(full, p) for p in scenario.log.include) and \
-                    not any(fnmatch.fnmatchcase(full, p) for p in scenario.log.exclude):
+            if matches(full, scenario.log.include) and not matches(full, scenario.log.exclude):
                 names.append(name)
         logged[u.name] = names
     # needed: logs something, or feeds (transitively) a needed unit

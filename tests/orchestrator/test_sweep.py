@@ -348,14 +348,13 @@ logx = true
     assert png.read_bytes()[:4] == b"\x89PNG"
 
 
-def test_metric_signal_brackets_are_literal():
-    import fnmatch
-
-    from immersim.orchestrator.sweep import signal_glob
+def test_signal_pattern_brackets_are_literal():
+    from immersim.orchestrator.patterns import matches
 
     names = ["coll.pair[1].x", "coll.pair1.x", "coll.pair[2].x"]
-    assert [n for n in names if fnmatch.fnmatchcase(n, signal_glob("coll.pair[1].x"))] == ["coll.pair[1].x"]
-    assert [n for n in names if fnmatch.fnmatchcase(n, signal_glob("coll.pair[?].*"))] == ["coll.pair[1].x", "coll.pair[2].x"]
+    assert [n for n in names if matches(n, ["coll.pair[1].x"])] == ["coll.pair[1].x"]
+    assert [n for n in names if matches(n, ["coll.pair[?].*"])] == ["coll.pair[1].x", "coll.pair[2].x"]
+    assert [n for n in names if matches(n, ["coll.pair[[]2].x"])] == ["coll.pair[2].x"]
 
 
 def test_a_metric_without_signal_fails_the_row_but_keeps_the_others(sweep_dir, tmp_path):
