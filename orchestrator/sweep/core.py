@@ -1,0 +1,132 @@
+"""Run a sweep: build once, execute the runs, write the summary and plots."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import List, Optional
+
+from ..errors import ScenarioError
+
+from .common import log, SweepFailed
+from .executors import _run_dask, _run_local
+from .runs import RunRow, RunTask
+from .spec import SweepOptions, SweepSpec, load_sweep
+from .summary import SweepResult, plot_comparison, plot_file_name, write_summary
+
+
+# -- the sweep ---------------------------------------------------------------------------
+def _prebuild(spec: SweepSpec) -> None:
+    """Build the built-in units the variants use once, before workers start (no build races)."""
+    from ..build import build_all, unit_names
+    from ..scenario import load_scenario
+
+    builtin = set(unit_names())
+    used = {u.fmu for v in spec.variants for u in load_scenario(spec.scenario, v.resolved).units}
+    names = sorted(used & builtin)
+    if names:
+        log.info("building built-in units %s", ", ".join(names))
+        build_all(names)
+
+
+def make_tasks(spec: SweepSpec, output_dir: Path) -> List[RunTask]:
+    """One :class:`RunTask` per variant, its MCAP at ``output_dir/<id>.mcap``."""
+    return [RunTask(str(spec.scenario), v.resolved, str((output_dir / f"{v.id}.mcap").resolve()), spec.metrics,
+                    v.index, v.id) for v in spec.variants]
+
+
+def execute(spec: SweepSpec, options: SweepOptions) -> SweepResult:
+    """Run every variant of ``spec`` as ``options`` say; write ``summary.csv`` and the plots.
+
+    The summary is rewritten after every finished run, so an interrupted sweep leaves a
+    readable table of the runs done.
+    """
+    out = Path(options.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = out / "summary.csv"
+    tasks = make_tasks(spec, out)
+    rows: List[RunRow] = []
+
+    bar = _progress_bar(len(tasks), spec.file.stem, options.progress)
+
+    def on_row(row: RunRow) -> None:
+        rows.append(row)
+        log.info("run %s %s (%d/%d)%s", row.id, row.status, len(rows), len(tasks),
+                 f": {row.reason}" if row.reason else "")
+        write_summary(spec, rows, summary)
+        if bar is not None:
+            bar.update(1)
+
+    _prebuild(spec)  # also for Dask: workers on this machine share the build folder
+    try:
+        if options.scheduler:
+            log.info("sweep %s: %d runs on the Dask cluster at %s", spec.file, len(tasks), options.scheduler)
+            _run_dask(tasks, options.scheduler, on_row)
+        else:
+            workers = max(1, min(options.workers or os.cpu_count() or 1, len(tasks)))
+            log.info("sweep %s: %d runs on %d local processes", spec.file, len(tasks), workers)
+            _run_local(tasks, workers, on_row)
+    finally:
+        if bar is not None:
+            bar.close()
+    rows.sort(key=lambda r: r.index)
+    write_summary(spec, rows, summary)
+    plots = [plot_comparison(spec, rows, p, out / plot_file_name(p)) for p in spec.plots]
+    return SweepResult(spec, rows, summary, plots)
+
+
+def _progress_bar(total: int, desc: str, enabled: bool):
+    """A tqdm bar on stderr counting finished runs (off when stderr is not a terminal)."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="run", desc=desc, leave=False, disable=None)
+
+
+def default_output_dir(sweepfile: Path | str) -> Path:
+    """``results/sweeps/<sweep file stem>`` (relative to the working directory)."""
+    return Path("results") / "sweeps" / Path(sweepfile).stem
+
+
+def run_sweep(sweepfile: Path | str, output_dir: Path | str | None = None, workers: Optional[int] = None,
+              scheduler: Optional[str] = None, check: bool = True, progress: bool = True) -> SweepResult:
+    """Run the sweep file; the entry point of ``immersim sweep``.
+
+    Parameters
+    ----------
+    sweepfile : path-like
+        The sweep TOML file.
+    output_dir : path-like, optional
+        Default :func:`default_output_dir`.
+    workers : int, optional
+        Local worker processes (default: the number of cores).
+    scheduler : str, optional
+        Dask scheduler address; when given the runs go to that cluster.
+    check : bool
+        Raise :class:`SweepFailed` (after writing everything) if any run failed.
+    progress : bool
+        Progress bar of finished runs on stderr (only when it is a terminal).
+
+    Returns
+    -------
+    SweepResult
+        ``str()`` of it is the summary table printed by the CLI.
+    """
+    spec = load_sweep(sweepfile)
+    if workers is not None and workers < 1:
+        raise ScenarioError(f"--workers must be >= 1, got {workers}")
+    opts = SweepOptions(Path(output_dir) if output_dir else default_output_dir(sweepfile), workers, scheduler,
+                        check, progress)
+    result = execute(spec, opts)
+    if opts.check and result.failed:
+        raise SweepFailed(failure_message(result), result)
+    return result
+
+
+def failure_message(result: SweepResult, shown: int = 5) -> str:
+    """One line naming the failed runs (the first ``shown`` with their reasons)."""
+    bad = [f"{r.id}: {r.status}: {r.reason}" for r in result.failed]
+    more = f"; and {len(bad) - shown} more" if len(bad) > shown else ""
+    return (f"sweep {result.spec.file}: {len(bad)} of {len(result.rows)} runs did not complete "
+            f"({'; '.join(bad[:shown])}{more}); summary: {result.summary}")
+
