@@ -202,3 +202,27 @@ def test_disk_filling_up_mid_run_fails_cleanly(tmp_path, built_fmus):
     finally:
         if d is not None:
             subprocess.run(["umount", str(d)], capture_output=True)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "orchestrator: after the disk fills, the truncated MCAP is unreadable -- mcapio.read_info needs the "
+    "summary section ('record has length ... exceeds limit') and the steps written before the failure sit "
+    "in an unfinished chunk; wanted: the log keeps every completed step that fitted (chunks finished at "
+    "each flush) and read_info/`immersim info` fall back to a streaming read of the complete records"))
+def test_disk_filling_up_keeps_the_completed_steps_that_fitted(tmp_path, built_fmus):
+    """Same as above; the log must still be readable and hold the steps that fitted (at least one)."""
+    from immersim.orchestrator.mcapio import read_info
+
+    sc = write_scenario(_platform_run(stop=60.0), tmp_path / "s.toml")
+    d = _small_fs(tmp_path)
+    try:
+        mcap = (d or tmp_path) / "run.mcap"
+        limit = None if d else (lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (400_000, 400_000)))
+        r = subprocess.run(CLI + ["run", str(sc), "-o", str(mcap), "-q"], capture_output=True, text=True,
+                           timeout=300, preexec_fn=limit)
+        assert r.returncode != 0
+        info = read_info(mcap)
+        assert info.channels["p"].count >= 1
+    finally:
+        if d is not None:
+            subprocess.run(["umount", str(d)], capture_output=True)
