@@ -208,7 +208,7 @@ def bench_field(quick, rng):
 
 def accuracy(be, poses, flags, dist):
     fp = fn = 0
-    errs, ts = [], []
+    errs, near, ts = [], [], []
     for p, f, d in zip(poses, flags, dist):
         t = time.perf_counter()
         r = be.query([p]).pairs[0]
@@ -217,8 +217,12 @@ def accuracy(be, poses, flags, dist):
         fn += bool(f and not r.in_contact)
         if not f and not r.in_contact:
             errs.append(abs(r.distance - d))
+            if d < 0.3:
+                near.append(abs(r.distance - d))
     errs = np.array(errs) if errs else np.array([np.nan])
-    return fp, fn, float(np.median(errs)), float(np.percentile(errs, 95)), float(np.median(ts))
+    near = np.array(near) if near else np.array([np.nan])
+    return fp, fn, float(np.median(errs)), float(np.percentile(errs, 95)), float(np.median(ts)), \
+        float(np.median(near))
 
 
 def bench_accuracy(quick, rng):
@@ -235,11 +239,12 @@ def bench_accuracy(quick, rng):
         be = make_backend(name, scene, "missile vs tank", cfg)
         if name == "honeycomb":
             be.fixed_threshold = 0.0
-        fp, fn, e50, e95, t = accuracy(be, poses, flags, dist)
-        rows.append([label, n, int(flags.sum()), fp, fn, e50, e95, t * 1e3])
+        fp, fn, e50, e95, t, enear = accuracy(be, poses, flags, dist)
+        rows.append([label, n, int(flags.sum()), fp, fn, e50, e95, enear, t * 1e3])
         print(f"  accuracy {label}: FP {fp} FN {fn} err50 {e50:.4f} err95 {e95:.4f} t {t*1e3:.2f} ms", flush=True)
     header = ["backend", "poses", "exact contacts", "false positives", "false negatives",
-              "median |distance error| m", "p95 |distance error| m", "median ms/query"]
+              "median |distance error| m", "p95 |distance error| m", "median |error| m, exact < 0.3 m",
+              "median ms/query"]
     return header, rows, (scene, poses, flags, dist)
 
 
@@ -264,7 +269,7 @@ def bench_st(quick, rng, acc_data):
         n_acc = 0 if st < 0.01 else (40 if quick else 200)
         if n_acc:
             bea = make_backend("basis_point", scene, "missile vs tank", BackendConfig(st=st))
-            fp, fn, e50, _, _ = accuracy(bea, poses[:n_acc], aflags[:n_acc], adist[:n_acc])
+            fp, fn, e50, _, _, _ = accuracy(bea, poses[:n_acc], aflags[:n_acc], adist[:n_acc])
             err_rate = (fp + fn) / n_acc
         else:
             fp = fn = -1
@@ -286,7 +291,7 @@ def bench_cells(quick, rng, acc_data):
     for c in cells:
         be = make_backend("honeycomb", scene, "missile vs tank", BackendConfig(cells_n=c, cells_m=c))
         be.fixed_threshold = 0.0
-        fp, fn, e50, e95, t = accuracy(be, poses[:n_acc], flags[:n_acc], dist[:n_acc])
+        fp, fn, e50, e95, t, _ = accuracy(be, poses[:n_acc], flags[:n_acc], dist[:n_acc])
         rows.append([f"{c}x{c}", n_acc, fp, fn, (fp + fn) / n_acc, e50, t * 1e3])
         print(f"  cells {c}x{c}: {rows[-1][1:]}", flush=True)
     header = ["cells n x m", "poses", "FP", "FN", "flag error rate", "median |dist err| m", "median ms/query"]
@@ -420,7 +425,11 @@ def main():
             f"* FMU default backend (`fcl`) within 1.2x of raw python-fcl on the same queries (5040-tank field, "
             f"collide + distance per step): **{r_med:.2f}x** (ratio of medians), {r_tot:.2f}x (ratio of totals): "
             f"**{'met' if r_med <= 1.2 else 'NOT met'}**. With continuous collision (time of impact, which raw "
-            f"python-fcl does not compute) {ratio_5040[3]:.2f}x. All field sizes: `field_ratio.csv`.",
+            f"python-fcl does not compute) {ratio_5040[3]:.2f}x. Over all field sizes of this run the ratio of "
+            f"medians spans {min(r[1] for r in rrows):.2f}x .. {max(r[1] for r in rrows):.2f}x and the ratio of "
+            f"totals {min(r[2] for r in rrows):.2f}x .. {max(r[2] for r in rrows):.2f}x (table below): the fixed "
+            f"per-step Python cost (pose check, bookkeeping, per-candidate callbacks) is about 0.1 ms, so the ratio "
+            f"exceeds 1.2 where a step's narrow phase is cheap.",
             f"* 5040-tank scene <= 1 ms per step: fcl backend median **{big[2]:.3f} ms** "
             f"(with time of impact {big[3]:.3f} ms; raw python-fcl {big[1]:.3f} ms): "
             f"**{'met' if big[2] <= 1.0 else 'NOT met'}**"
@@ -435,7 +444,9 @@ def main():
         "computation to 1e-7 m in `tests/collision/test_fcl_backend.py`). Honeycomb runs at rest (threshold "
         "d = 0): with motion it flags contacts one step ahead by design. Distance errors over poses both call "
         "apart; the thesis backends' distances are estimates (basis_point: nearest feature at the scan "
-        "resolution; honeycomb: section gap along the depth axis).",
+        "resolution; honeycomb: section gap along the depth axis) and, for bodies their cull rejects, bounds "
+        "(sphere or AABB gap), hence the large median over all poses; the column `exact < 0.3 m` restricts it "
+        "to near misses.",
         "",
         md_table(acc_h, acc_rows),
         "## Time vs triangles (tables 4-1, 5-1, 5-2)",
