@@ -4,13 +4,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.validation import validate_fmu
 
 from immersim.fmus.common import markdown_table
 from immersim.orchestrator.build import build_unit, default_build_dir
+from tests.fmpy_runner import Runner
 
 UNIT = Path(__file__).resolve().parents[2] / "fmus" / "collision"
 H = 0.033
@@ -24,73 +23,6 @@ REF_OUTPUTS = ["pair[1].in_contact", "pair[1].distance", "pair[1].depth", "pair[
 @pytest.fixture(scope="module")
 def fmu():
     return build_unit(UNIT, default_build_dir())
-
-
-class Runner:
-    """A minimal FMPy co-simulation loop with a capturing logger (FMU2Slave)."""
-
-    def __init__(self, path, name="c", params=None, init=True):
-        import tempfile
-        import zipfile
-
-        self.md = read_model_description(str(path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.types = {v.name: v.type for v in self.md.modelVariables}
-        self.tmp = tempfile.mkdtemp(prefix="coll_fmu_")
-        zipfile.ZipFile(path).extractall(self.tmp)
-        self.messages = []
-
-        def logger(env, inst, status, category, message):
-            self.messages.append(message.decode(errors="replace"))
-
-        self.cb = fmi2CallbackFunctions()
-        self._logger = fmi2CallbackLoggerTYPE(logger)
-        self.cb.logger = self._logger
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.tmp,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=self.cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
-        self.set(params or {})
-        if init:
-            self.fmu.exitInitializationMode()
-        self.k = 0
-
-    def set(self, values):
-        for name, value in values.items():
-            t = self.types[name]
-            if t == "Real":
-                self.fmu.setReal([self.vr[name]], [float(value)])
-            elif t == "Integer":
-                self.fmu.setInteger([self.vr[name]], [int(value)])
-            elif t == "Boolean":
-                self.fmu.setBoolean([self.vr[name]], [bool(value)])
-            else:
-                self.fmu.setString([self.vr[name]], [str(value)])
-
-    def get(self, names):
-        out = []
-        for n in names:
-            t = self.types[n]
-            if t == "Boolean":
-                out.append(float(self.fmu.getBoolean([self.vr[n]])[0]))
-            elif t == "Integer":
-                out.append(float(self.fmu.getInteger([self.vr[n]])[0]))
-            else:
-                out.append(self.fmu.getReal([self.vr[n]])[0])
-        return np.array(out)
-
-    def step(self, inputs=None):
-        if inputs:
-            self.set(inputs)
-        self.fmu.doStep(currentCommunicationPoint=self.k * H, communicationStepSize=H)
-        self.k += 1
-
-    def close(self):
-        try:
-            self.fmu.terminate()
-        finally:
-            self.fmu.freeInstance()
 
 
 def missile_inputs(k):

@@ -3,19 +3,17 @@
 Regenerate the reference with ``python tests/network/test_network_fmu.py --write-reference``.
 """
 import sys
-import tempfile
-import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.validation import validate_fmu
 
 from immersim.fmus.common import markdown_table
 from immersim.orchestrator.build import build_unit, default_build_dir
+from tests.fmpy_runner import Runner
 
 UNIT = Path(__file__).resolve().parents[2] / "fmus" / "network"
 H = 0.033
@@ -28,65 +26,6 @@ REF_OUTPUTS = (["avatar[1].x", "avatar[1].y", "avatar[1].yaw", "avatar[1].vx", "
 @pytest.fixture(scope="module")
 def fmu():
     return build_unit(UNIT, default_build_dir())
-
-
-class Runner:
-    """A minimal FMPy co-simulation loop over FMU2Slave with a capturing logger."""
-
-    def __init__(self, path, name="n", params=None):
-        self.md = read_model_description(str(path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.types = {v.name: v.type for v in self.md.modelVariables}
-        self.tmp = tempfile.mkdtemp(prefix="net_fmu_")
-        zipfile.ZipFile(path).extractall(self.tmp)
-        self.messages = []
-
-        def logger(env, inst, status, category, message):
-            self.messages.append(message.decode(errors="replace"))
-
-        self.cb = fmi2CallbackFunctions()
-        self._logger = fmi2CallbackLoggerTYPE(logger)
-        self.cb.logger = self._logger
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.tmp,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=self.cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
-        self.set(params or {})
-        self.fmu.exitInitializationMode()
-        self.k = 0
-
-    def set(self, values):
-        for name, value in values.items():
-            t, vr = self.types[name], [self.vr[name]]
-            if t == "Real":
-                self.fmu.setReal(vr, [float(value)])
-            elif t == "Integer":
-                self.fmu.setInteger(vr, [int(value)])
-            elif t == "Boolean":
-                self.fmu.setBoolean(vr, [bool(value)])
-            else:
-                self.fmu.setString(vr, [str(value)])
-
-    def get(self, names):
-        out = []
-        for n in names:
-            t, vr = self.types[n], [self.vr[n]]
-            out.append(float(self.fmu.getBoolean(vr)[0]) if t == "Boolean" else
-                       float(self.fmu.getInteger(vr)[0]) if t == "Integer" else self.fmu.getReal(vr)[0])
-        return np.array(out)
-
-    def step(self, inputs=None):
-        if inputs:
-            self.set(inputs)
-        self.fmu.doStep(currentCommunicationPoint=self.k * H, communicationStepSize=H)
-        self.k += 1
-
-    def close(self):
-        try:
-            self.fmu.terminate()
-        finally:
-            self.fmu.freeInstance()
 
 
 def drive(k):
