@@ -76,3 +76,37 @@ class Runner:
             self.fmu.terminate()
         finally:
             self.fmu.freeInstance()
+
+
+def simulate(path, params, inputs, outputs, n_steps, runner=Runner):
+    """Run ``n_steps`` with ``inputs(k)`` applied before step k; rows of (t, *outputs) after each step."""
+    r = runner(path, params=params)
+    rows = []
+    try:
+        for k in range(n_steps):
+            r.step(inputs(k))
+            rows.append(np.concatenate([[(k + 1) * r.h if hasattr(r, "h") else (k + 1) * H], r.get(outputs)]))
+    finally:
+        r.close()
+    return np.array(rows)
+
+
+def wrapper_class(unit_dir):
+    """The FMU wrapper class of ``fmus/<unit>/`` (imported from its script, as pythonfmu does)."""
+    import importlib.util
+    from pathlib import Path
+
+    unit_dir = Path(unit_dir)
+    spec = importlib.util.spec_from_file_location(f"{unit_dir.name}_fmu_test", unit_dir / f"{unit_dir.name}_fmu.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return getattr(module, unit_dir.name)
+
+
+def readme_has_generated_table(unit_dir) -> bool:
+    """Whether the unit README contains the variable table generated from the wrapper's VARIABLES."""
+    from pathlib import Path
+
+    from immersim.fmus.common import markdown_table
+
+    return markdown_table(wrapper_class(unit_dir).VARIABLES) in (Path(unit_dir) / "README.md").read_text()

@@ -7,9 +7,8 @@ import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
-from immersim.fmus.common import markdown_table
 from immersim.orchestrator.build import build_unit, default_build_dir
-from tests.fmpy_runner import Runner
+from tests.fmpy_runner import Runner, readme_has_generated_table, simulate
 
 UNIT = Path(__file__).resolve().parents[2] / "fmus" / "collision"
 H = 0.033
@@ -31,28 +30,15 @@ def missile_inputs(k):
 
 
 def simulate_reference(path, n_steps=30):
-    r = Runner(path, params=dict(PARAMS, **missile_inputs(-1)))  # start poses before initialisation
-    rows = []
-    try:
-        for k in range(n_steps):
-            r.step(missile_inputs(k))
-            rows.append(np.concatenate([[(k + 1) * H], r.get(REF_OUTPUTS)]))
-    finally:
-        r.close()
-    return np.array(rows)
+    return simulate(path, dict(PARAMS, **missile_inputs(-1)), missile_inputs, REF_OUTPUTS, n_steps)
+
+
+def test_readme_holds_generated_variable_table():
+    assert readme_has_generated_table(UNIT)
 
 
 def test_validates(fmu):
     assert validate_fmu(str(fmu)) == []
-
-
-def test_readme_holds_generated_variable_table():
-    sys.path.insert(0, str(UNIT))
-    try:
-        from collision_fmu import collision
-    finally:
-        sys.path.remove(str(UNIT))
-    assert markdown_table(collision.VARIABLES) in (UNIT / "README.md").read_text()
 
 
 def test_golden_reference(fmu):

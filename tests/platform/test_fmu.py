@@ -1,6 +1,5 @@
 """The platform FMU: validation, golden reference, robustness, state, FMPy vs libcosim."""
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -8,11 +7,11 @@ import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
-from immersim.fmus.common import markdown_table
 from immersim.models.platform.kinematics import inverse_kinematics, workspace_check
 from immersim.orchestrator.build import build_unit, default_build_dir
 from immersim.orchestrator.errors import FmuCallError
 from immersim.orchestrator.fmu import FmuInstance
+from tests.fmpy_runner import readme_has_generated_table, simulate
 
 UNIT = Path(__file__).resolve().parents[2] / "fmus" / "platform"
 REF_OUTPUTS = ["pose.x", "pose.y", "pose.z", "pose.gamma", "pose.beta", "pose.alpha"] + \
@@ -59,28 +58,15 @@ def sine_inputs(k):
 
 
 def simulate_reference(path, n_steps=91):
-    r = Runner(path, params={"cueing": "pose"})
-    rows = []
-    try:
-        for k in range(n_steps):
-            r.step(sine_inputs(k))
-            rows.append(np.concatenate([[(k + 1) * H], r.get(REF_OUTPUTS)]))
-    finally:
-        r.close()
-    return np.array(rows)
+    return simulate(path, {"cueing": "pose"}, sine_inputs, REF_OUTPUTS, n_steps, runner=Runner)
+
+
+def test_readme_holds_generated_variable_table():
+    assert readme_has_generated_table(UNIT)
 
 
 def test_validates(fmu):
     assert validate_fmu(str(fmu)) == []
-
-
-def test_readme_holds_generated_variable_table():
-    sys.path.insert(0, str(UNIT))
-    try:
-        from platform_fmu import platform
-    finally:
-        sys.path.pop(0)
-    assert markdown_table(platform.VARIABLES) in (UNIT / "README.md").read_text()
 
 
 def test_golden_reference_and_ik_consistency(fmu):
