@@ -226,3 +226,40 @@ def test_disk_filling_up_keeps_the_completed_steps_that_fitted(tmp_path, built_f
     finally:
         if d is not None:
             subprocess.run(["umount", str(d)], capture_output=True)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "orchestrator: SIGINT while the FMUs are being instantiated/initialised (before the step loop) is raised "
+    "inside the FMU's Python code: the unit returns fatal and the run exits 1 with 'KeyboardInterrupt()' and a "
+    "message claiming 'the log ... holds steps 0..0' although no log was written; sometimes pythonfmu swallows "
+    "it and the run goes on to the end (exit 0). Wanted: defer SIGINT from the start of set-up, exit 130"))
+def test_sigint_during_start_up_exits_130_without_claiming_a_missing_log(tmp_path, built_fmus):
+    """SIGINT at a few instants after the FMU build check (logged just before the FMU is loaded,
+    instantiated and initialised, which takes about a second here)."""
+    sc = write_scenario(_platform_run(stop=60.0), tmp_path / "s.toml")
+    problems = []
+    for delay in (0.25, 0.45, 0.7):
+        mcap = tmp_path / f"s{delay}.mcap"
+        proc = subprocess.Popen(CLI + ["-v", "run", str(sc), "-o", str(mcap), "-q"], stderr=subprocess.PIPE,
+                                text=True)
+        try:
+            lines = []
+            for line in proc.stderr:
+                lines.append(line)
+                if "up to date" in line or "built" in line:
+                    break
+            time.sleep(delay)
+            proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=300)
+            err = "".join(lines) + err
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        last = err.strip().splitlines()[-1] if err.strip() else ""
+        if proc.returncode != 130:
+            problems.append(f"{delay} s: exit {proc.returncode}: {last[:200]}")
+        if "Traceback" in err:
+            problems.append(f"{delay} s: traceback")
+        if "holds steps" in err and not mcap.exists():
+            problems.append(f"{delay} s: the message names a log that was not written")
+    assert not problems, problems
