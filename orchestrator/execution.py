@@ -140,17 +140,35 @@ class Execution:
                 slot.setter = RealSetter(inst, slot.real_inputs)
                 slot.in_vals = [float(inst.var(n).start or 0.0) for n in slot.real_inputs]
             slots[name] = slot
-        for name in system.needed:
-            spec = sc.unit(name)
-            params = dict(spec.parameters)
-            for s in sc.inputs:  # initial value of each scenario signal
-                if s.unit == name:
-                    from .manipulators import signal
-                    params[s.var] = signal(s)(sc.start_ns / 1e9)
-            system.instances[name].initialize(sc.start_ns, sc.stop_ns, params, sc.tolerance)
+        self._initialize(slots, conns)
         master = Master(sc, slots, conns)
         master.initial(sc.start_ns)
         return master
+
+    def _initialize(self, slots: Dict[str, Slot], conns) -> None:
+        """Initialize the units in connection order: a unit's connected inputs get the outputs
+        its sources report after their own initialization (with gain and offset), its scenario
+        signals their value at the start time, so every unit starts from consistent inputs.
+        Inputs fed across a cycle keep their start values (the delayed connections)."""
+        from .graph import gauss_seidel_order
+        from .manipulators import signal
+
+        sc = self.scenario
+        order, _ = gauss_seidel_order(list(slots), conns)
+        done = set()
+        for name in order:
+            values = dict(sc.unit(name).parameters)
+            for s in sc.inputs:
+                if s.unit == name:
+                    values[s.var] = signal(s)(sc.start_ns / 1e9)
+            for c in conns:
+                if c.dst_unit == name and c.src_unit in done:
+                    src = slots[c.src_unit]
+                    y = src.cur[src.index(c.src_var)]
+                    values[c.dst_var] = c.gain * y + c.offset if c.scaled else y
+            slots[name].inst.initialize(sc.start_ns, sc.stop_ns, values, sc.tolerance)
+            slots[name].read()
+            done.add(name)
 
     def _open_log(self, master: Master) -> None:
         from importlib.metadata import version

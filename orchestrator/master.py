@@ -41,8 +41,8 @@ class Slot:
     real_inputs: List[str] = field(default_factory=list)
     setter: Optional[RealSetter] = None
     in_vals: List[float] = field(default_factory=list)
-    # (input index, source slot, source index, delayed?)
-    float_feeds: List[Tuple[int, "Slot", int, bool]] = field(default_factory=list)
+    # (input index, source slot, source index, delayed?, gain, offset)
+    float_feeds: List[Tuple[int, "Slot", int, bool, float, float]] = field(default_factory=list)
     other_feeds: List[Tuple[str, "Slot", int]] = field(default_factory=list)
     signals: List[Tuple[int, Callable[[float], float]]] = field(default_factory=list)
     faults: List[Tuple[Fault, Optional[int]]] = field(default_factory=list)
@@ -96,7 +96,8 @@ class Master:
             dst, src = slots[c.dst_unit], slots[c.src_unit]
             fam = dst.inst.var(c.dst_var).family
             if fam == "float":
-                dst.float_feeds.append((dst.real_inputs.index(c.dst_var), src, src.index(c.src_var), c in delayed))
+                dst.float_feeds.append((dst.real_inputs.index(c.dst_var), src, src.index(c.src_var), c in delayed,
+                                        c.gain, c.offset))
             else:
                 dst.other_feeds.append((c.dst_var, src, src.index(c.src_var)))
         for s in scenario.inputs:
@@ -119,12 +120,12 @@ class Master:
             return None
         vals = slot.in_vals
         linear = self.linear
-        for i, src, j, delayed in slot.float_feeds:
+        for i, src, j, delayed, gain, offset in slot.float_feeds:
             y = src.cur[j]
             if linear and src.prev:
                 y0 = src.prev[j]
                 y = 0.5 * (y + y0) if (src.stepped and not delayed) else y + 0.5 * (y - y0)
-            vals[i] = y
+            vals[i] = gain * y + offset
         if slot.signals:
             t = t_ns / 1e9
             for i, fn in slot.signals:
@@ -195,9 +196,11 @@ class Master:
             slot.stepped = True
 
     def finish(self) -> None:
-        """Bring lazily stepped units to the final time."""
+        """Bring lazily stepped units to the final time (counted as the unit's time)."""
         for slot in self.slots.values():
+            t0 = perf_counter_ns()
             self.catch_up(slot)
+            slot.busy_ns += perf_counter_ns() - t0
 
     def initial(self, t_ns: int) -> None:
         """Read the values after initialization and apply initial inputs."""

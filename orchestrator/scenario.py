@@ -19,6 +19,8 @@ Example::
     [[connections]]
     from = "net.avatar[1].f_x"
     to = "plat.cue.f_x"
+    gain = 1.0                   # optional, Real only: to = gain * from + offset
+    offset = 0.0
 
     [[inputs]]                   # scenario inputs (manipulators)
     target = "net.avatar[1].throttle"
@@ -65,13 +67,22 @@ class UnitSpec:
 
 @dataclass(frozen=True)
 class Connection:
+    """``dst = gain * src + offset`` (gain and offset only for Real variables)."""
+
     src_unit: str
     src_var: str
     dst_unit: str
     dst_var: str
+    gain: float = 1.0
+    offset: float = 0.0
+
+    @property
+    def scaled(self) -> bool:
+        return self.gain != 1.0 or self.offset != 0.0
 
     def __str__(self) -> str:
-        return f"{self.src_unit}.{self.src_var} -> {self.dst_unit}.{self.dst_var}"
+        scale = f" (x {self.gain:g} + {self.offset:g})" if self.scaled else ""
+        return f"{self.src_unit}.{self.src_var} -> {self.dst_unit}.{self.dst_var}{scale}"
 
 
 @dataclass
@@ -262,17 +273,26 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
         raise ScenarioError(f"{f}: 'connections' must be an array")
     for i, c in enumerate(raw_conns):
         where = f"{f}: connections[{i}]"
+        gain, offset = 1.0, 0.0
         if isinstance(c, str):
             if "->" not in c:
                 raise ScenarioError(f"{where}: {c!r} is not of the form 'unit.out -> unit.in'")
             src, dst = (s.strip() for s in c.split("->", 1))
         elif isinstance(c, dict):
+            unknown = set(c) - {"from", "to", "gain", "offset"}
+            if unknown:
+                raise ScenarioError(f"{where}: unknown key {sorted(unknown)[0]!r} (from, to, gain, offset)")
             src, dst = c.get("from"), c.get("to")
+            for key in ("gain", "offset"):
+                v = c.get(key, 1.0 if key == "gain" else 0.0)
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ScenarioError(f"{where}: {key} must be a finite number, got {v!r}")
+            gain, offset = float(c.get("gain", 1.0)), float(c.get("offset", 0.0))
         else:
             raise ScenarioError(f"{where} must be a string 'a.x -> b.y' or a table with from/to")
         su, sv = check_ref(src, where)
         du, dv = check_ref(dst, where)
-        conn = Connection(su, sv, du, dv)
+        conn = Connection(su, sv, du, dv, gain, offset)
         if any((x.dst_unit, x.dst_var) == (du, dv) for x in connections):
             raise ScenarioError(f"{where}: input {du}.{dv} is already connected")
         connections.append(conn)

@@ -122,6 +122,9 @@ def check_system(scenario: Scenario) -> System:
                                 f"{dst.causality}, expected input")
         if src.family != dst.family:
             raise ScenarioError(f"{f}: connection {c}: type mismatch {src.type} -> {dst.type}")
+        if c.scaled and src.family != "float":
+            raise ScenarioError(f"{f}: connection {c}: gain and offset apply to Real variables only, "
+                                f"not {src.type}")
     for s in scenario.inputs:
         v = lookup(s.unit, s.var, f"input {s.unit}.{s.var}")
         if v.causality != "input":
