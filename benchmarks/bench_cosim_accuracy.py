@@ -345,8 +345,9 @@ def report(results: Dict[str, Dict]) -> str:
                         f"{ln.split('|')[1].strip()} {', '.join(x.strip() for x in ln.split('|')[3:7])}" for ln in prod)
                     + ". There the error is dominated by what no master setting changes: scenario input signals "
                     "sampled at the start of each step (platform_tracking_product: all four identical) and contact "
-                    "events seen at different steps (campus_drive_product); Jacobi + linear extrapolates across the "
-                    "contact jumps and is the worst there.")
+                    "events seen at different steps (the 1 ms reference of campus_drive_product has no avatar-tank "
+                    "contact, the 33 ms runs do). Jacobi + linear is the worst there at 33 ms; not isolated -- "
+                    "extrapolating contact outputs (flags, normals) across their jumps is the likely cause.")
     head += ["", "Why: Jacobi feeds every connection with the previous step's output (one macro step of",
              "delay on every coupling), Gauss-Seidel only on the connections that close a cycle (here the",
              "collision -> network contact feedback). Zero-order hold makes the coupling error first order",
