@@ -6,7 +6,7 @@ the scripts must not compete). A script that is missing or fails does not stop t
 ``results/bench_runs.md`` records, for this invocation, the machine, the commit, and per
 script its command, exit status and wall time. Exit status: 0 when every script succeeded.
 
-Usage: ``python benchmarks/run_all.py [--quick] [--only NAME ...] [--skip NAME ...]``
+Usage: ``python benchmarks/run_all.py [--quick] [--only NAME ...] [--skip NAME ...] [--dry-run]``
 (NAME is the script name without ``bench_`` and ``.py``, e.g. ``platform``).
 """
 from __future__ import annotations
@@ -50,6 +50,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="each script in its quick mode")
     ap.add_argument("--only", nargs="*", default=None, help="run only these benchmarks")
     ap.add_argument("--skip", nargs="*", default=[], help="do not run these benchmarks")
+    ap.add_argument("--dry-run", action="store_true", help="print the commands, run and write nothing")
     args = ap.parse_args(argv)
     found = discover()
     rows = []
@@ -69,6 +70,8 @@ def main(argv=None) -> int:
         shown = "python " + " ".join(str(Path(c).relative_to(ROOT)) if c.startswith(str(ROOT)) else c
                                      for c in cmd[1:])
         print(f"run_all: {shown}", flush=True)
+        if args.dry_run:
+            continue
         t0 = time.perf_counter()
         rc = subprocess.run(cmd, cwd=ROOT).returncode
         dt = time.perf_counter() - t0
@@ -76,6 +79,8 @@ def main(argv=None) -> int:
         failed += rc != 0
         print(f"run_all: {name}: {status} in {dt:.0f} s", flush=True)
         rows.append((name, f"`{shown}`", status, dt))
+    if args.dry_run:
+        return 0
     lines = ["# Benchmark runs", "",
              f"Runner: `python benchmarks/run_all.py{' --quick' if args.quick else ''}` (`make bench`)  ",
              f"Commit: `{commit()}`  ", f"Machine: {machine()}  ",
