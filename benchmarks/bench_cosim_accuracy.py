@@ -14,8 +14,13 @@ are taken at the common time points ``k * 33 ms``: the maximum absolute differen
 reference of chosen signals (platform strokes and pose, network avatar positions). Wall time is
 the run's loop time (``RunResult.timing["loop"]``), measured in the same process.
 
+Studies: two coupled study scenarios in ``benchmarks/scenarios/`` (4 s, all four macro steps) and
+the shipped ``scenarios/campus_drive.toml`` and ``scenarios/platform_tracking.toml`` (5 s, 33 to
+8.25 ms). Each study's rows go to ``results/cosim/<study>.json``; the README, CSV and plots are
+rebuilt from every saved study, so ``--studies NAME`` reruns one study only.
+
 Run: ``python benchmarks/bench_cosim_accuracy.py [--quick]`` -> ``results/cosim/``.
-``--quick``: 2 s of simulated time and the macro steps 33 and 16.5 ms only.
+``--quick``: the two study scenarios, 2 s of simulated time, macro steps 33 and 16.5 ms.
 """
 from __future__ import annotations
 
@@ -62,6 +67,9 @@ class Study:
     #: glob of a Boolean signal (e.g. a contact flag): errors are also reported before its first rise
     #: in the reference, where the coupling is smooth, and the ranking uses that window
     event: Optional[List[str]] = None
+    #: full-mode simulated time and macro steps when not the defaults (the shipped scenarios are slower)
+    stop: Optional[float] = None
+    steps: Optional[Tuple[float, ...]] = None
 
 
 META = ("scenario", "step_ms", "algorithm", "extrapolation", "wall_s", "ref_spread", "k_event")
@@ -96,11 +104,11 @@ def studies() -> List[Study]:
             "platform strokes [m]": ["plat.stroke*"],
             "platform pose x,y,z [m]": ["plat.pose.x", "plat.pose.y", "plat.pose.z"],
             "avatar positions [m]": [f"net.avatar[{i}].{c}" for i in (1, 2, 3) for c in "xy"],
-        }, event=[f"coll.pair[{i}].in_contact" for i in (1, 2, 3)]),
+        }, event=[f"coll.pair[{i}].in_contact" for i in (1, 2, 3)], stop=5.0, steps=(33.0, 16.5, 8.25)),
         Study("platform_tracking_product", prod / "platform_tracking.toml", ("plat_y", "plat_yz"), {
             "strokes [m]": ["plat_*.stroke*"],
             "pose y,z [m]": ["plat_*.pose.y", "plat_*.pose.z"],
-        }),
+        }, stop=5.0, steps=(33.0, 16.5, 8.25)),
     ]
 
 
@@ -370,19 +378,22 @@ def report(results: Dict[str, Dict]) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="2 s simulated, macro steps 33 and 16.5 ms")
-    ap.add_argument("--studies", nargs="*", default=["platform_tracking", "campus_drive"],
-                    help="studies to (re)run: " + ", ".join(st.name for st in studies()))
+    ap.add_argument("--studies", nargs="*", default=None,
+                    help="studies to (re)run (default: all; --quick: platform_tracking campus_drive): "
+                         + ", ".join(st.name for st in studies()))
     ap.add_argument("--stop", type=float, default=None, help="simulated seconds (default 4, quick 2)")
     ap.add_argument("--steps", type=float, nargs="*", default=None, help="macro steps in ms (divisors of 33)")
     ap.add_argument("--report-only", action="store_true", help="rebuild README/CSV/plots from the saved JSON")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
-    steps = tuple(args.steps) if args.steps else (STEPS_MS[:2] if args.quick else STEPS_MS)
-    stop = args.stop or (2.0 if args.quick else 4.0)
+    argv_studies = args.studies is not None
+    if args.studies is None:
+        args.studies = ["platform_tracking", "campus_drive"] if args.quick else [st.name for st in studies()]
+    quick_or_default = STEPS_MS[:2] if args.quick else STEPS_MS
     OUT.mkdir(parents=True, exist_ok=True)
     from common import commit
     cmd = "python benchmarks/bench_cosim_accuracy.py" + (" --quick" if args.quick else "") + \
-        (f" --studies {' '.join(args.studies)}" if args.studies != ["platform_tracking", "campus_drive"] else "") + \
+        (f" --studies {' '.join(args.studies)}" if argv_studies else "") + \
         (f" --stop {args.stop:g}" if args.stop else "") + \
         (f" --steps {' '.join(f'{h:g}' for h in args.steps)}" if args.steps else "")
     if not args.report_only:
@@ -390,6 +401,8 @@ def main(argv=None) -> int:
             for st in studies():
                 if st.name not in args.studies:
                     continue
+                steps = tuple(args.steps) if args.steps else (st.steps if st.steps and not args.quick else quick_or_default)
+                stop = args.stop or (2.0 if args.quick else st.stop or 4.0)
                 rows, ref_wall = study_rows(st, steps, stop, Path(tmp))
                 (OUT / f"{st.name}.json").write_text(json.dumps({
                     "rows": rows, "steps_ms": list(steps), "stop": stop, "ref_wall": ref_wall, "command": cmd,
