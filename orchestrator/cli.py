@@ -71,7 +71,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
     from .mcapio import read_info
 
     info = read_info(args.file)
-    lines = [f"{info.path}"]
+    lines = [f"{info.path}" + (" (ends early: the complete records are shown)" if info.truncated else "")]
     run = info.metadata.get("run", {})
     if run:
         lines.append(f"run: {run.get('status')} after {run.get('steps_done')} of {run.get('steps_total')} steps"

@@ -230,30 +230,36 @@ class Execution:
         loop_start = None
         master: Optional[Master] = None
         bar = None
+        # SIGINT is deferred from the start: raised inside an FMU's Python code during set-up or
+        # a step it would leave the unit fatal; it is acted on between phases and steps instead.
+        sigint = _DeferredSigint()
         try:
-            master = self.master = self._setup()
-            result.delayed_connections = [str(c) for c in master.delayed] if sc.algorithm == "gauss-seidel" else []
-            if self.output is not None:
-                self._open_log(master)
-            self._observe(master, 0, sc.start_ns)
-            if self.progress:
-                from tqdm import tqdm
-                bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None)
-            t0, h, stop = sc.start_ns, sc.step_ns, sc.stop_ns
-            loop_start = time.perf_counter()
-            with _DeferredSigint() as sigint:
+            with sigint:
+                master = self.master = self._setup()
+                result.delayed_connections = ([str(c) for c in master.delayed]
+                                              if sc.algorithm == "gauss-seidel" else [])
+                if sigint.requested:
+                    raise KeyboardInterrupt
+                if self.output is not None:
+                    self._open_log(master)
+                self._observe(master, 0, sc.start_ns)
+                if self.progress:
+                    from tqdm import tqdm
+                    bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None)
+                t0, h, stop = sc.start_ns, sc.step_ns, sc.stop_ns
+                loop_start = time.perf_counter()
                 for k in range(n):
+                    if sigint.requested:
+                        raise KeyboardInterrupt
                     t_ns, t_next = t0 + k * h, min(t0 + (k + 1) * h, stop)
                     master.step(t_ns, t_next - t_ns)
                     self._observe(master, k + 1, t_next)
                     result.steps_done, result.t_ns = k + 1, t_next
                     if bar is not None:
                         bar.update(1)
-                    if sigint.requested:
-                        raise KeyboardInterrupt
-            master.finish()
-            if self.observer is not None:
-                self._close_log(result)
+                master.finish()
+                if self.observer is not None:
+                    self._close_log(result)
         except KeyboardInterrupt:
             result.status, result.reason = "interrupted", "interrupted by SIGINT"
             raise RunInterrupted(self._stop_message(result), result) from None
@@ -275,6 +281,8 @@ class Execution:
 
     def _stop_message(self, r: RunResult) -> str:
         where = f"; the log {r.output} holds steps 0..{r.steps_done}" if r.output else ""
+        if r.output and self.observer is None:
+            where = f"; no log was written (stopped before {r.output} was opened)"
         if r.output and r.reason.startswith("cannot "):  # LogWriteError: the disk decides what is kept
             where = f"; the log {r.output} keeps what the disk accepted"
         return (f"run of {r.scenario} {r.status} at t = {r.t_ns / 1e9:.9g} s after {r.steps_done} of "

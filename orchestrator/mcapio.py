@@ -4,12 +4,15 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Tuple
+import logging
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
 from .errors import ImmersimError
 from .patterns import matches
+
+log = logging.getLogger(__name__)
 
 
 class LogReadError(ImmersimError, OSError):
@@ -37,40 +40,76 @@ class LogInfo:
     path: Path
     channels: Dict[str, Channel] = field(default_factory=dict)
     metadata: Dict[str, Dict[str, str]] = field(default_factory=dict)
+    #: the file ended early (a killed process or a full disk): only its complete records were read
+    truncated: bool = False
 
 
-def _reader(path: Path):
-    from mcap.reader import make_reader
-
+def _check_exists(path: Path) -> None:
     if not path.exists():
         raise LogReadError(f"log file {path} does not exist")
-    fh = open(path, "rb")
+
+
+def _salvage(path: Path, topics: Optional[List[str]] = None) -> Tuple[List[Tuple], Dict[str, Dict[str, str]]]:
+    """Every complete message and metadata record of a file that ends early.
+
+    A run stopped by a full disk or a killed process leaves no summary; the records written
+    up to that point (finished chunks) are read in order until the first incomplete one.
+    """
+    from mcap.records import Channel as ChannelRecord, Chunk, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    schemas, channels, out, metadata = {}, {}, [], {}
+    with open(path, "rb") as fh:
+        try:
+            for record in StreamReader(fh, skip_magic=False, emit_chunks=True).records:
+                inner = breakup_chunk(record) if isinstance(record, Chunk) else [record]
+                for r in inner:
+                    if isinstance(r, Schema):
+                        schemas[r.id] = r
+                    elif isinstance(r, ChannelRecord):
+                        channels[r.id] = r
+                    elif isinstance(r, Message):
+                        ch = channels[r.channel_id]
+                        if topics is None or ch.topic in topics:
+                            out.append((schemas[ch.schema_id], ch, r))
+                    elif isinstance(r, Metadata):
+                        metadata[r.name] = dict(r.metadata)
+        except Exception as exc:  # the first incomplete record ends what can be read
+            log.info("%s: read up to an incomplete record (%s)", path, exc)
+    if not out and not metadata:
+        raise LogReadError(f"{path}: not a readable MCAP file (no complete record)")
+    return out, metadata
+
+
+def _messages(path: Path, topics: Optional[List[str]] = None):
+    """``(messages, metadata, truncated)``; messages as (schema, channel, message) tuples."""
+    from mcap.reader import make_reader
+
+    _check_exists(path)
     try:
-        return fh, make_reader(fh)
-    except Exception as exc:
-        fh.close()
-        raise LogReadError(f"{path}: not a readable MCAP file: {exc}") from None
+        with open(path, "rb") as fh:
+            reader = make_reader(fh)
+            msgs = list(reader.iter_messages(topics=topics))
+            metadata = {md.name: dict(md.metadata) for md in reader.iter_metadata()}
+        return msgs, metadata, False
+    except Exception:
+        msgs, metadata = _salvage(path, topics)
+        return msgs, metadata, True
 
 
 def read_info(path: Path | str) -> LogInfo:
-    """Channels, signals, message counts, time span and metadata of a log."""
+    """Channels, signals, message counts, time span and metadata of a log (also of a log that
+    ends early: then ``truncated`` is set and the complete records are counted)."""
     path = Path(path)
-    fh, reader = _reader(path)
     info = LogInfo(path)
-    try:
-        for schema, channel, message in reader.iter_messages():
-            ch = info.channels.get(channel.topic)
-            if ch is None:
-                ch = info.channels[channel.topic] = Channel(channel.topic, json.loads(schema.data),
-                                                            first_ns=message.log_time)
-            ch.count += 1
-            ch.last_ns = message.log_time
-        for md in reader.iter_metadata():
-            info.metadata[md.name] = dict(md.metadata)
-    except Exception as exc:
-        raise LogReadError(f"{path}: error while reading: {exc}") from None
-    finally:
-        fh.close()
+    msgs, info.metadata, info.truncated = _messages(path)
+    for schema, channel, message in msgs:
+        ch = info.channels.get(channel.topic)
+        if ch is None:
+            ch = info.channels[channel.topic] = Channel(channel.topic, json.loads(schema.data),
+                                                        first_ns=message.log_time)
+        ch.count += 1
+        ch.last_ns = message.log_time
     return info
 
 
@@ -97,16 +136,13 @@ def read_series(path: Path | str, patterns: List[str]) -> Dict[str, Tuple[np.nda
                            f"(signals: {', '.join(avail[:12])}{' ...' if len(avail) > 12 else ''})")
     times: Dict[str, List[int]] = {t: [] for t in wanted}
     vals: Dict[Tuple[str, str], List[float]] = {(t, v): [] for t, vs in wanted.items() for v in vs}
-    fh, reader = _reader(path)
-    try:
-        for _schema, channel, message in reader.iter_messages(topics=list(wanted)):
-            obj = json.loads(message.data)
-            times[channel.topic].append(message.log_time)
-            for v in wanted[channel.topic]:
-                x = obj.get(v)
-                vals[(channel.topic, v)].append(np.nan if x is None else float(x))
-    finally:
-        fh.close()
+    msgs, _, _ = _messages(path, list(wanted))
+    for _schema, channel, message in msgs:
+        obj = json.loads(message.data)
+        times[channel.topic].append(message.log_time)
+        for v in wanted[channel.topic]:
+            x = obj.get(v)
+            vals[(channel.topic, v)].append(np.nan if x is None else float(x))
     out = {}
     for (topic, v), series in vals.items():
         out[f"{topic}.{v}"] = (np.asarray(times[topic], dtype=np.int64) * 1e-9, np.asarray(series),

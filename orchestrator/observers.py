@@ -117,6 +117,10 @@ def _fast_writer_class():
 class McapObserver:
     """Writes the MCAP log; :meth:`close` always leaves a readable file.
 
+    Chunks are finished after the first step and then at least every ``flush_seconds`` of
+    wall time (and at ``CHUNK_BYTES`` of uncompressed data), so a run killed or stopped by a
+    full disk keeps the steps of its finished chunks (``immersim info`` reads such a file).
+
     Parameters
     ----------
     path : Path
@@ -126,19 +130,21 @@ class McapObserver:
         process keeps almost every completed step.
     """
 
+    CHUNK_BYTES = 256 * 1024
+
     def __init__(self, path: Path | str, flush_seconds: float = 1.0) -> None:
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fh = open(self.path, "wb")
-            self.writer = _fast_writer_class()(self._fh)
+            self.writer = _fast_writer_class()(self._fh, chunk_size=self.CHUNK_BYTES)
             self.writer.start(profile="", library="immersim")
         except OSError as exc:
             raise LogWriteError(f"cannot write the log {self.path}: {exc.strerror or exc}") from None
         self.channels: Dict[str, int] = {}
         self.encoders: Dict[str, ChannelEncoder] = {}
         self.flush_seconds = flush_seconds
-        self._last_flush = time.monotonic()
+        self._last_flush = -float("inf")  # the first step is flushed at once
         self._closed = False
         self.messages = 0
 

@@ -204,11 +204,6 @@ def test_disk_filling_up_mid_run_fails_cleanly(tmp_path, built_fmus):
             subprocess.run(["umount", str(d)], capture_output=True)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "orchestrator: after the disk fills, the truncated MCAP is unreadable -- mcapio.read_info needs the "
-    "summary section ('record has length ... exceeds limit') and the steps written before the failure sit "
-    "in an unfinished chunk; wanted: the log keeps every completed step that fitted (chunks finished at "
-    "each flush) and read_info/`immersim info` fall back to a streaming read of the complete records"))
 def test_disk_filling_up_keeps_the_completed_steps_that_fitted(tmp_path, built_fmus):
     """Same as above; the log must still be readable and hold the steps that fitted (at least one)."""
     from immersim.orchestrator.mcapio import read_info
@@ -228,11 +223,6 @@ def test_disk_filling_up_keeps_the_completed_steps_that_fitted(tmp_path, built_f
             subprocess.run(["umount", str(d)], capture_output=True)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "orchestrator: SIGINT while the FMUs are being instantiated/initialised (before the step loop) is raised "
-    "inside the FMU's Python code: the unit returns fatal and the run exits 1 with 'KeyboardInterrupt()' and a "
-    "message claiming 'the log ... holds steps 0..0' although no log was written; sometimes pythonfmu swallows "
-    "it and the run goes on to the end (exit 0). Wanted: defer SIGINT from the start of set-up, exit 130"))
 def test_sigint_during_start_up_exits_130_without_claiming_a_missing_log(tmp_path, built_fmus):
     """SIGINT at a few instants after the FMU build check (logged just before the FMU is loaded,
     instantiated and initialised, which takes about a second here)."""
