@@ -16,6 +16,20 @@ Monitored pairs spec
 new lines), each ``A vs B`` where ``A`` is a body name and ``B`` is a body name, ``any G``
 (every body whose group is ``G`` or whose name matches the glob ``G``, e.g. ``tank_1*``) or
 ``scene`` (every other body). An empty spec monitors each dynamic body against the scene.
+A pair may end with options in parentheses: ``avatar_1 vs scene (horizontal)`` projects the
+reported normal onto the horizontal plane (for ground vehicles and avatars).
+
+Reported normal (all backends)
+------------------------------
+The unit normal points **from B to A**: the direction in which A has to move to separate
+from its partner (``avatar_1 vs scene`` gives "from the obstacle to the avatar", what a
+contact response needs). Separated: from B's nearest point to A's nearest point (fcl) or
+the backend's separating axis. In contact: the separating direction of the pair's last
+contact-free step with the same partner, kept while the contact holds; without such a
+step (contact from the start, or the partner was beyond ``max_distance``) the backend's
+contact normal (fcl: the deepest contact's), oriented from B to A. ``closing_speed`` > 0
+when A and B approach along it. Beyond ``max_distance`` a pair reports ``distance =
+max_distance``, no point, no normal and no partner; -1 is reserved for a pair without members.
 """
 from __future__ import annotations
 
@@ -111,6 +125,7 @@ class PairSpec:
     label: str
     a: int
     members: np.ndarray
+    horizontal: bool = False
 
 
 @dataclass
@@ -127,7 +142,9 @@ class PairResult:
     point : ndarray, shape (3,)
         Contact point (in contact) or the closest point on ``a`` (world frame, m).
     normal : ndarray, shape (3,)
-        Unit normal from ``a`` towards the partner.
+        Unit normal. Backends' ``_evaluate`` return it from ``a`` towards the partner;
+        :meth:`CollisionBackend.query` reports it from the partner towards ``a`` (the
+        separation direction of ``a``, module docstring).
     toi : float
         s from the start of the step to the first contact, -1 when none in the step.
     closing_speed : float
@@ -170,9 +187,19 @@ def parse_pairs(spec: str, scene: Scene) -> List[PairSpec]:
     known = ", ".join(list(names)[:8]) + (" ..." if len(names) > 8 else "")
     pairs = []
     for part in parts:
+        label = part
+        horizontal = False
+        if part.endswith(")") and "(" in part:
+            part, _, opts = part[:-1].rpartition("(")
+            for opt in (o.strip() for o in opts.split(",")):
+                if opt == "horizontal":
+                    horizontal = True
+                elif opt:
+                    raise PairSpecError(f"pairs spec {label!r}: unknown option {opt!r} (options: horizontal)")
+            part = part.strip()
         left, sep, right = part.partition(" vs ")
         if not sep:
-            raise PairSpecError(f"pairs spec {part!r}: expected 'A vs B'")
+            raise PairSpecError(f"pairs spec {label!r}: expected 'A vs B'")
         left, right = left.strip(), right.strip()
         if left not in names:
             raise PairSpecError(f"pairs spec {part!r}: no body named {left!r} (bodies: {known})")
@@ -191,7 +218,7 @@ def parse_pairs(spec: str, scene: Scene) -> List[PairSpec]:
             members = [names[right]]
         else:
             raise PairSpecError(f"pairs spec {part!r}: no body named {right!r} (bodies: {known})")
-        pairs.append(PairSpec(part, a, np.asarray(sorted(members), dtype=int)))
+        pairs.append(PairSpec(label, a, np.asarray(sorted(members), dtype=int), horizontal))
     return pairs
 
 
@@ -315,6 +342,10 @@ class CollisionBackend(ABC):
                 self._dyn_poses[i] = row
                 self.poses[i] = row
                 self.T[i] = pose_matrix(row)
+        if self._last is None:
+            # the first query's poses are the initial poses: the move from the scene spec's
+            # pose to them is no motion (no time of impact, closing speed or honeycomb threshold)
+            self.prev_T[self.dyn] = self.T[self.dyn]
         if moved:
             moved_arr = np.asarray(moved, dtype=int)
             self._stale[moved_arr] = True
@@ -331,6 +362,7 @@ class CollisionBackend(ABC):
                 res, c, m = PairResult(), 0, 0
             else:
                 res, c, m = self._evaluate(pair, dt)
+                self._report_normal(pair, res, cached)
             res.closing_speed = self._closing_speed(pair.a, res, dt)
             self._cache[k] = res
             out.append(res)
@@ -339,6 +371,31 @@ class CollisionBackend(ABC):
         self._last = QueryResult(out, self.n, n_cand, n_narrow, False)
         return self._last
 
+    def _report_normal(self, pair: PairSpec, res: PairResult, prev: Optional[PairResult]) -> None:
+        """Turn a backend result into the reported one (module docstring): cap the distance
+        at ``max_distance``, normal from the partner to ``a``, a contact keeps the separating
+        direction of the last contact-free step, optional horizontal projection."""
+        md = self.config.max_distance
+        if not res.in_contact and (res.distance < 0 or res.distance >= md):
+            if math.isfinite(md):
+                res.distance, res.partner = float(md), -1
+                res.point, res.normal = np.zeros(3), np.zeros(3)
+            return
+        n = -np.asarray(res.normal, float)
+        if (res.in_contact and prev is not None and prev.partner == res.partner
+                and prev.normal.any()):
+            n = prev.normal.copy()  # last separating direction, or the one the contact began with
+        elif pair.horizontal:
+            n = n.copy()
+        if pair.horizontal and n[2] != 0.0:
+            n[2] = 0.0
+            if not n.any() and res.partner >= 0:  # a vertical normal: centre to centre instead
+                self.ensure_bounds([pair.a, res.partner])
+                n = self.sphere_c[pair.a] - self.sphere_c[res.partner]
+                n[2] = 0.0
+        norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        res.normal = n / norm if norm > 0 else np.zeros(3)
+
     def _closing_speed(self, a: int, res: PairResult, dt: float) -> float:
         if res.partner < 0 or dt <= 0:
             return 0.0
@@ -346,8 +403,8 @@ class CollisionBackend(ABC):
         if not (self.is_dynamic[a] or self.is_dynamic[b]):
             return 0.0
         rel = (self.T[a, :3, 3] - self.prev_T[a, :3, 3]) - (self.T[b, :3, 3] - self.prev_T[b, :3, 3])
-        n = res.normal
-        return float(rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]) / dt
+        n = res.normal  # from b to a: approaching when a moves against it
+        return -float(rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]) / dt
 
     # -- state (FMI get/set FMU state) ----------------------------------------------------
     def get_state(self) -> dict:

@@ -85,6 +85,8 @@ class FclBackend(CollisionBackend):
             self._pair_parts[id(pair)] = (mask, stat, members[self.is_dynamic[members]], use_tree)
         self._creq = fcl.CollisionRequest(num_max_contacts=self.config.max_contacts, enable_contact=True)
         self._dreq = fcl.DistanceRequest(enable_nearest_points=True)
+        self._faces = np.array([len(self.scene.meshes[b.mesh_key].faces) for b in self.scene.bodies])
+        self._a_first = False
         self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
         self._radius = self.sphere_r + np.linalg.norm(
             np.array([self._local[b.mesh_key][1] for b in self.scene.bodies]), axis=1)
@@ -124,14 +126,40 @@ class FclBackend(CollisionBackend):
 
     def _distance(self, a: int, b: int, res: "fcl.DistanceResult") -> bool:
         """Narrow-phase distance into a shared result (fcl prunes with the best distance so
-        far, as python-fcl's default callback does). True when ``b`` became the nearest."""
-        before = res.min_distance
-        fcl.distance(self.objs[b], self.objs[a], self._dreq, res)  # member first (see _collide)
-        return res.min_distance < before
+        far, as python-fcl's default callback does). True when ``b`` became the nearest.
 
-    @staticmethod
-    def _distance_result(res: "fcl.DistanceResult") -> PairResult:
+        Skipped without a query when the AABB gap already reaches the best distance so far
+        (at first ``max_distance``): a far pair costs no mesh-mesh distance."""
+        before = res.min_distance
+        if self._gap(a, b) >= before:
+            return False
+        if self._faces[a] > self._faces[b]:  # the larger BVH first: fcl's traversal is cheaper
+            fcl.distance(self.objs[a], self.objs[b], self._dreq, res)
+            if res.min_distance < before:
+                self._a_first = True
+                return True
+            return False
+        fcl.distance(self.objs[b], self.objs[a], self._dreq, res)  # member first (see _collide)
+        if res.min_distance < before:
+            self._a_first = False
+            return True
+        return False
+
+    def _gap(self, a: int, b: int) -> float:
+        """AABB gap of two bodies (m, 0 if overlapping), scalar code for the per-candidate path."""
+        if self._stale[a] or self._stale[b]:
+            self.ensure_bounds([a, b])
+        (alo, ahi), (blo, bhi) = self.aabb[a].tolist(), self.aabb[b].tolist()
+        g = 0.0
+        for k in range(3):
+            d = max(blo[k] - ahi[k], alo[k] - bhi[k], 0.0)
+            g += d * d
+        return math.sqrt(g)
+
+    def _distance_result(self, res: "fcl.DistanceResult") -> PairResult:
         pb, pa = (np.array(p, float) for p in res.nearest_points)  # computed as (member, a)
+        if self._a_first:
+            pa, pb = pb, pa
         n = pb - pa
         norm = np.linalg.norm(n)
         return PairResult(False, float(max(res.min_distance, 0.0)), 0.0, pa, n / norm if norm > 0 else n)
@@ -165,9 +193,8 @@ class FclBackend(CollisionBackend):
                 results.append((b, hit))
         if not results:
             results = self._nearest(a, stat, dyn, counts)
-        res = aggregate(results, math.inf)
-        if res.distance > self.config.max_distance:
-            res.distance = self.config.max_distance
+        # no member within max_distance: the base class reports distance = max_distance
+        res = aggregate(results, self.config.max_distance)
         if self.config.ccd and (self.prev_T[a] != self.T[a]).any():
             T0, T1 = self.prev_T[a], self.T[a]
             travel = (np.linalg.norm(T1[:3, 3] - T0[:3, 3])

@@ -70,10 +70,13 @@ def test_distances_match_brute_force_on_random_poses():
             continue
         ref = brute_distance(ball, block)
         assert r.distance == pytest.approx(ref, abs=1e-7)
-        # the reported point lies on the ball's surface and the normal points to the block
+        # the reported point lies on the ball's surface, the normal points from the block to
+        # the ball: stepping back along it by the distance lands on the block's surface
         _, dp, _ = trimesh.proximity.closest_point(ball, r.point[None])
         assert dp[0] < 1e-6
         assert np.linalg.norm(r.normal) == pytest.approx(1.0)
+        _, db, _ = trimesh.proximity.closest_point(block, (r.point - r.distance * r.normal)[None])
+        assert db[0] < 1e-6
         checked += 1
     assert checked >= 15
 
@@ -83,12 +86,60 @@ def test_contact_depth_and_normal_of_an_overlap():
     be = make_backend("fcl", scene, "cube vs floor")
     r = be.query([[0, 0, 0.6, 0, 0, 0]]).pairs[0]
     assert not r.in_contact and r.distance == pytest.approx(0.1)
-    assert r.normal == pytest.approx([0, 0, -1])
+    assert r.normal == pytest.approx([0, 0, 1])  # from the floor (B) up to the cube (A)
     r = be.query([[0, 0, 0.4, 0, 0, 0]]).pairs[0]
     assert r.in_contact and r.distance == 0.0
     assert r.depth == pytest.approx(0.1, abs=1e-6)
-    assert abs(r.normal[2]) == pytest.approx(1.0, abs=1e-6)
-    assert r.closing_speed == pytest.approx(0.2 / 0.033 * abs(r.normal[2]) * np.sign(-r.normal[2]), rel=1e-6)
+    assert r.normal == pytest.approx([0, 0, 1], abs=1e-12)  # the last separating direction
+    assert r.closing_speed == pytest.approx(0.2 / 0.033, rel=1e-6)
+
+
+def test_contact_keeps_the_separating_direction_of_the_last_free_step():
+    """A cube sinks into the corner of a step-shaped obstacle: fcl's deepest contact may be
+    vertical, the reported normal stays the horizontal approach direction while the contact
+    holds; without a free step the contact normal is oriented from B to A."""
+    scene = parse_scene("box:name=wall,sx=1,sy=4,sz=4;box:name=cube,sx=1,sy=1,sz=1,dynamic=1,x=5")
+    be = make_backend("fcl", scene, "cube vs wall")
+    be.query([[1.2, 0, 0, 0, 0, 0]])
+    r = be.query([[0.9, 0, 0, 0, 0, 0]]).pairs[0]
+    assert r.in_contact and r.normal == pytest.approx([1, 0, 0])
+    r = be.query([[0.9, 0, -1.9, 0, 0, 0]]).pairs[0]  # slides down, still in contact
+    assert r.in_contact and r.normal == pytest.approx([1, 0, 0])
+    fresh = make_backend("fcl", scene, "cube vs wall")
+    r = fresh.query([[0.9, 0, 0, 0, 0, 0]]).pairs[0]  # in contact from the first query
+    assert r.in_contact and r.normal @ np.array([1.0, 0, 0]) > 0.99
+
+
+def test_horizontal_option_projects_the_normal():
+    scene = parse_scene("box:name=wall,sx=1,sy=4,sz=4;box:name=cube,sx=1,sy=1,sz=1,dynamic=1,x=5")
+    be = make_backend("fcl", scene, "cube vs wall; cube vs wall (horizontal)")
+    full, flat = be.query([[1.5, 0, 3, 0, 0, 0]]).pairs  # the cube's bottom edge over the wall's top edge
+    assert full.distance == flat.distance == pytest.approx(np.hypot(0.5, 0.5))
+    assert full.normal == pytest.approx(np.array([1, 0, 1]) / np.sqrt(2))
+    assert flat.normal == pytest.approx([1, 0, 0])
+    # straight above: no horizontal direction (the centres are stacked too): zero normal
+    assert not be.query([[0, 0, 3, 0, 0, 0]]).pairs[1].normal.any()
+    # off-centre above: the vertical normal falls back to the horizontal centre-to-centre direction
+    assert be.query([[0.2, 0, 3, 0, 0, 0]]).pairs[1].normal == pytest.approx([1, 0, 0])
+
+
+def test_far_pairs_report_max_distance_without_an_exact_query(monkeypatch):
+    from immersim.models.collision import fcl_backend
+
+    calls = []
+    real = fcl_backend.fcl.distance
+    monkeypatch.setattr(fcl_backend.fcl, "distance", lambda *a: calls.append(1) or real(*a))
+    scene = parse_scene("tank:name=t;tanks:n=50,spacing=10,x=200;box:name=av,sx=4,sy=2,sz=4.4,dynamic=1,x=30")
+    be = make_backend("fcl", scene, "av vs t; av vs any tank_*", BackendConfig(max_distance=5.0))
+    for x in (30.0, 29.0, 28.0):
+        res = be.query([[x, 0, 2.5, 0, 0, 0]])
+        for r in res.pairs:
+            assert (r.in_contact, r.distance, r.partner, r.toi) == (False, 5.0, -1, -1.0)
+            assert not r.normal.any()
+    assert calls == []
+    # inside max_distance the exact distance comes back
+    r = be.query([[8.0, 0, 2.5, 0, 0, 0]]).pairs[0]
+    assert 0 < r.distance < 5.0 and r.partner == 0 and calls
 
 
 def test_closing_speed_is_positive_when_approaching():
@@ -96,10 +147,19 @@ def test_closing_speed_is_positive_when_approaching():
     be = make_backend("fcl", scene, "cube vs wall")
     be.query([[5, 0, 0, 0, 0, 0]])
     r = be.query([[4, 0, 0, 0, 0, 0]], dt=0.1).pairs[0]
-    assert r.normal == pytest.approx([-1, 0, 0])
+    assert r.normal == pytest.approx([1, 0, 0])  # from the wall to the cube
     assert r.closing_speed == pytest.approx(10.0)
     r = be.query([[4.5, 0, 0, 0, 0, 0]], dt=0.1).pairs[0]
     assert r.closing_speed == pytest.approx(-5.0)
+
+
+def test_first_query_poses_are_the_initial_poses_not_a_motion():
+    """The move from the scene spec's pose to the first input pose is no displacement."""
+    scene = parse_scene("tank:name=t,tris=5.4k;box:name=av,sx=4,sy=2,sz=4.4,dynamic=1")
+    for backend in ("fcl", "honeycomb"):
+        r = make_backend(backend, scene, "av vs t").query([[16, 0, 2.5, 0, 0, 0]]).pairs[0]
+        assert not r.in_contact, backend  # honeycomb's threshold d was 16 m
+        assert r.toi == -1.0 and r.closing_speed == 0.0
 
 
 def test_time_of_impact_catches_tunnelling():
