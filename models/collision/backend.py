@@ -389,10 +389,12 @@ class CollisionBackend(ABC):
             n = n.copy()
         if pair.horizontal and n[2] != 0.0:
             n[2] = 0.0
-            if not n.any() and res.partner >= 0:  # a vertical normal: centre to centre instead
+            if math.hypot(n[0], n[1]) < 1e-9 and res.partner >= 0:  # (nearly) vertical: centre to centre
                 self.ensure_bounds([pair.a, res.partner])
                 n = self.sphere_c[pair.a] - self.sphere_c[res.partner]
                 n[2] = 0.0
+                if math.hypot(n[0], n[1]) < 1e-9:
+                    n[:] = 0.0
         norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
         res.normal = n / norm if norm > 0 else np.zeros(3)
 
