@@ -53,7 +53,7 @@ def test_golden_reference(fmu):
 
 
 def test_two_instances_in_one_process(fmu):
-    a = Runner(fmu, "a", PARAMS)
+    a = Runner(fmu, "a", dict(PARAMS, max_distance=100.0))
     b = Runner(fmu, "b", {"scene": "box:name=wall,sx=1,sy=4,sz=4;sphere:name=ball,r=0.5,dynamic=1", "pairs": ""})
     try:
         for k in range(3):
@@ -135,6 +135,42 @@ def test_fmu_state_roll_back(fmu):
         for k in range(20, 28):
             r.step(missile_inputs(k))
         np.testing.assert_array_equal(r.get(REF_OUTPUTS), first)
+        r.fmu.freeFMUstate(s)
+    finally:
+        r.close()
+
+
+def test_unchanged_inputs_return_the_cached_outputs_and_roll_back(fmu):
+    """Steps without a pose change: same contact, distance, point and normal, no time of
+    impact or closing speed, nothing tested; a state saved in a rest step restores it."""
+    outs = REF_OUTPUTS + ["pair[2].toi"]
+    r = Runner(fmu, params=dict(PARAMS, **missile_inputs(-1)))
+    try:
+        for k in range(12):  # into contact
+            r.step(missile_inputs(k))
+        moving = dict(zip(outs, r.get(outs)))
+        assert moving["pair[1].in_contact"] == 1 and moving["at_rest"] == 0
+        rest = []
+        for _ in range(3):
+            r.step(missile_inputs(11))
+            rest.append(dict(zip(outs, r.get(outs))))
+        s = r.fmu.getFMUstate()
+        k0 = r.k
+        for got in rest:
+            assert got["at_rest"] == 1 and got["n_candidates"] == got["n_narrow"] == 0
+            assert got["pair[1].toi"] == got["pair[2].toi"] == -1.0 and got["pair[1].closing_speed"] == 0.0
+            for name in ("pair[1].in_contact", "pair[1].distance", "pair[1].depth", "pair[1].px",
+                         "pair[1].nx", "pair[1].ny", "pair[1].nz", "pair[2].distance"):
+                assert got[name] == moving[name], name
+        r.step(missile_inputs(12))
+        after = r.get(outs)
+        assert dict(zip(outs, after))["at_rest"] == 0
+        r.fmu.setFMUstate(s)
+        r.k = k0
+        r.step(missile_inputs(11))  # still at rest after the roll back
+        assert dict(zip(outs, r.get(outs)))["at_rest"] == 1
+        r.step(missile_inputs(12))
+        np.testing.assert_array_equal(r.get(outs), after)
         r.fmu.freeFMUstate(s)
     finally:
         r.close()
