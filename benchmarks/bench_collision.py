@@ -39,6 +39,8 @@ from immersim.models.collision.geometry import pose_matrix
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "collision"
 RNG_SEED = 2010
+FMU_MAX_DISTANCE = 5.0  # m, the FMU's default max_distance
+CAMPUS = ROOT / "scenarios" / "campus_drive.toml"
 
 
 def random_poses(n, lo, hi, rng, margin=1.0):
@@ -177,15 +179,17 @@ def bench_field(quick, rng):
         fb = make_backend("fcl", scene, "missile vs any tank", BackendConfig(ccd=False))
         setup = time.perf_counter() - t0
         fb_ccd = make_backend("fcl", scene, "missile vs any tank")
+        fb_md = make_backend("fcl", scene, "missile vs any tank", BackendConfig(max_distance=FMU_MAX_DISTANCE))
         raw = RawField(fb, len(scene.bodies) - 1)
         # interleave raw and backend step by step (same poses, same machine load)
         reps = 5 if quick else 10
-        t_raw, t_fcl, t_ccd = [], [], []
+        t_raw, t_fcl, t_ccd, t_md = [], [], [], []
         for _ in range(reps):
             for p in traj:
                 t = time.perf_counter(); raw.query([p]); t_raw.append(time.perf_counter() - t)
                 t = time.perf_counter(); fb.query([p]); t_fcl.append(time.perf_counter() - t)
                 t = time.perf_counter(); fb_ccd.query([p]); t_ccd.append(time.perf_counter() - t)
+                t = time.perf_counter(); fb_md.query([p]); t_md.append(time.perf_counter() - t)
         # nothing moves: cached result
         fb.query([traj[-1]])
         t_rest = []
@@ -197,12 +201,12 @@ def bench_field(quick, rng):
         t_bp = time_queries(bp, traj[::3])[0]
         t_raw, t_fcl, t_ccd = (np.array(x) for x in (t_raw, t_fcl, t_ccd))
         rows.append([n, np.median(t_raw) * 1e3, np.median(t_fcl) * 1e3, np.median(t_ccd) * 1e3,
-                     np.median(t_rest) * 1e3, t_hc * 1e3, t_bp * 1e3, setup])
+                     np.median(t_rest) * 1e3, t_hc * 1e3, t_bp * 1e3, setup, np.median(t_md) * 1e3])
         ratio_rows.append([n, float(np.median(t_fcl) / np.median(t_raw)), float(t_fcl.sum() / t_raw.sum()),
                            float(np.median(t_ccd) / np.median(t_raw))])
         print(f"  tanks {n}: " + ", ".join(f"{x:.3f}" for x in rows[-1][1:]), flush=True)
     header = ["tanks", "raw python-fcl ms", "fcl ms", "fcl+ccd ms", "fcl at rest ms", "honeycomb ms",
-              "basis_point ms", "fcl setup s"]
+              "basis_point ms", "fcl setup s", f"fcl+ccd max_distance={FMU_MAX_DISTANCE:g} ms"]
     return header, rows, ["tanks", "fcl/raw (medians)", "fcl/raw (totals)", "fcl+ccd/raw (medians)"], ratio_rows
 
 
@@ -377,13 +381,143 @@ def machine():
     return commit, os.cpu_count(), cpu, platform.python_version(), ray
 
 
+# -- campus_drive replay (before/after) ----------------------------------------------------------
+def _baseline_package(commit, dest):
+    """Extract ``models/collision`` of ``commit`` (self-contained: relative imports only) and
+    import it as the package ``collision_<commit>``."""
+    import importlib
+    import io
+    import tarfile
+
+    name = f"collision_{commit}"
+    tar = subprocess.run(["git", "-C", str(ROOT), "archive", commit, "models/collision"],
+                         check=True, capture_output=True).stdout
+    with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
+        tf.extractall(dest, filter="data")
+    pkg = Path(dest) / name
+    if not pkg.exists():
+        (Path(dest) / "models" / "collision").rename(pkg)
+    sys.path.insert(0, str(dest))
+    return importlib.import_module(name)
+
+
+def bench_campus(log, baseline=None, reps=3):
+    """Replay the collision unit's logged inputs of a campus_drive run through the model:
+    this tree (FMU default max_distance and max_distance = inf, i.e. exact distances) and
+    optionally the model of an earlier commit with that commit's FMU default
+    (max_distance = 1e6), interleaved step by step. Returns header, rows and the number of steps."""
+    import tempfile
+    import tomllib
+
+    from immersim.orchestrator.mcapio import read_series
+
+    params = next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
+    scene_spec, pairs = params["scene"], params["pairs"]
+    scene = parse_scene(scene_spec)
+    axes = ("x", "y", "z", "roll", "pitch", "yaw")
+    series = read_series(log, ["coll.body*"])
+    n_dyn = len(scene.dynamic)
+    poses = np.stack([np.stack([series[f"coll.body[{i + 1}].{ax}"][1] for ax in axes], 1)
+                      for i in range(n_dyn)], 1)  # (steps, bodies, 6)
+    variants = [("this tree, max_distance = 5 m (FMU default)",
+                 lambda: make_backend("fcl", parse_scene(scene_spec), pairs, BackendConfig(max_distance=FMU_MAX_DISTANCE))),
+                ("this tree, max_distance = inf (exact distances)",
+                 lambda: make_backend("fcl", parse_scene(scene_spec), pairs, BackendConfig()))]
+    tmp = tempfile.mkdtemp(prefix="bench_collision_")
+    if baseline:
+        old = _baseline_package(baseline, tmp)
+        variants.append((f"commit {baseline}, max_distance = 1e6 (its FMU default)",
+                         lambda: old.make_backend("fcl", old.parse_scene(scene_spec), pairs,
+                                                  old.BackendConfig(max_distance=1.0e6))))
+    times = {name: [] for name, _ in variants}
+    for _ in range(reps):
+        bes = [(name, make()) for name, make in variants]
+        for k in range(len(poses)):
+            for name, be in bes:
+                t = time.perf_counter()
+                be.query(poses[k], 0.033)
+                times[name].append(time.perf_counter() - t)
+    rows = []
+    for name, _ in variants:
+        t = np.array(times[name]) * 1e3
+        rows.append([name, float(np.mean(t)), float(np.median(t)), float(np.percentile(t, 95)),
+                     float(t.max())])
+    return ["model", "mean ms/step", "median ms/step", "p95 ms/step", "max ms/step"], rows, len(poses)
+
+
+def fmu_rest_cost(n_calls=300):
+    """Median us of an fmi2DoStep whose inputs did not change, through FMPy (campus scene and
+    the 5040-tank field)."""
+    import tomllib
+
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from immersim.orchestrator.build import build_unit
+
+    path = build_unit(ROOT / "fmus" / "collision", Path(os.environ.get("TMPDIR", "/tmp")) / "bench_collision_fmu")
+    md = read_model_description(path)
+    unzipped = extract(path)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    params = next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
+    out = []
+    for label, scene, pairs in (("campus_drive scene and pairs", params["scene"], params["pairs"]),
+                                ("5040-tank field, missile vs any tank", "tanks:n=5040,tris=5.4k;missile:z=8",
+                                 "missile vs any tank")):
+        s = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="rest")
+        s.instantiate()
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.setString([vr["scene"], vr["pairs"]], [scene, pairs])
+        s.exitInitializationMode()
+        t_now, ts = 0.0, []
+        for k in range(n_calls + 2):
+            t = time.perf_counter()
+            s.doStep(t_now, 0.033)
+            ts.append(time.perf_counter() - t)
+            t_now += 0.033
+        s.terminate()
+        s.freeInstance()
+        out.append([label, float(np.median(ts[2:]) * 1e6)])
+    return ["scene", "median us per unchanged fmi2DoStep"], out
+
+
+def campus_main(log, baseline):
+    commit, ncpu, cpu, py, _ = machine()
+    ch, crows, n_steps = bench_campus(log, baseline)
+    rh, rrows = fmu_rest_cost()
+    write_csv("campus_replay.csv", ch, crows)
+    write_csv("fmu_rest.csv", rh, rrows)
+    text = [
+        "## campus_drive: the collision unit's inputs replayed through the model",
+        "",
+        f"Command: `python benchmarks/bench_collision.py --campus {log}"
+        f"{' --baseline ' + baseline if baseline else ''}` (log of `immersim run scenarios/campus_drive.toml`, "
+        f"{n_steps} steps of 33 ms, scene and pairs of the scenario; each variant run 3 times, interleaved step by "
+        f"step). Commit `{commit}`, {ncpu} CPUs ({cpu}), Python {py}.",
+        "",
+        md_table(ch, crows),
+        "At rest (no input changed), one `fmi2DoStep` through FMPy:",
+        "",
+        md_table(rh, rrows),
+    ]
+    (OUT / "campus.md").write_text("\n".join(text))
+    print("\n".join(text))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer sizes and poses (about 2 minutes)")
+    ap.add_argument("--campus", metavar="LOG", help="only: replay a campus_drive MCAP log (-> campus.md)")
+    ap.add_argument("--baseline", metavar="COMMIT", help="with --campus: also replay the model of COMMIT")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     warnings.simplefilter("ignore")
     OUT.mkdir(parents=True, exist_ok=True)
+    if args.campus:
+        campus_main(args.campus, args.baseline)
+        return
     rng = np.random.default_rng(RNG_SEED)
     t_start = time.perf_counter()
     print("accuracy ...", flush=True)

@@ -251,11 +251,17 @@ class CollisionBackend(ABC):
         for key, mesh in scene.meshes.items():
             v = np.asarray(mesh.vertices, float)
             c = (v.min(0) + v.max(0)) / 2
-            self._local[key] = (v, c, float(np.linalg.norm(v - c, axis=1).max()))
+            # the AABB of a rotated mesh is that of its convex hull's vertices (fewer to rotate)
+            try:
+                hull = np.asarray(mesh.convex_hull.vertices, float) if len(v) > 64 else v
+            except Exception:  # degenerate (flat) meshes: qhull fails, keep every vertex
+                hull = v
+            self._local[key] = (hull, c, float(np.linalg.norm(v - c, axis=1).max()))
         self.aabb = np.zeros((self.n, 2, 3))
         self.sphere_c = np.zeros((self.n, 3))
         self.sphere_r = np.array([self._local[b.mesh_key][2] for b in scene.bodies])
         self._aabb_cache: Dict[tuple, np.ndarray] = {}
+        self._dyn_box: Dict[int, tuple] = {}
         self._stale = np.zeros(self.n, bool)
         self._moved_set = np.zeros(self.n, bool)
         self._update_bounds(np.arange(self.n))
@@ -295,12 +301,20 @@ class CollisionBackend(ABC):
             key = self.scene.bodies[i].mesh_key
             v, c, _ = self._local[key]
             T = self.T[i]
-            rkey = None if self.is_dynamic[i] else (key, T[:3, :3].round(12).tobytes())
-            box = self._aabb_cache.get(rkey) if rkey else None
+            # static bodies share rotated boxes by rotation; a dynamic body keeps its last one
+            # (a body that only translates never rotates its vertices again)
+            rkey = (key, T[:3, :3].tobytes()) if self.is_dynamic[i] else (key, T[:3, :3].round(12).tobytes())
+            if self.is_dynamic[i]:
+                last = self._dyn_box.get(i)
+                box = last[1] if last is not None and last[0] == rkey else None
+            else:
+                box = self._aabb_cache.get(rkey)
             if box is None:
                 pts = v @ T[:3, :3].T
                 box = np.stack([pts.min(0), pts.max(0)])
-                if rkey:
+                if self.is_dynamic[i]:
+                    self._dyn_box[i] = (rkey, box)
+                else:
                     self._aabb_cache[rkey] = box
             self.aabb[i] = box + T[:3, 3]
             self.sphere_c[i] = T[:3, :3] @ c + T[:3, 3]

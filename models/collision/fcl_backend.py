@@ -87,6 +87,7 @@ class FclBackend(CollisionBackend):
         self._dreq = fcl.DistanceRequest(enable_nearest_points=True)
         self._faces = np.array([len(self.scene.meshes[b.mesh_key].faces) for b in self.scene.bodies])
         self._a_first = False
+        self._exact: Dict[Tuple[int, int], tuple] = {}  # (a, b) -> last distance, T_a, T_b
         self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
         self._radius = self.sphere_r + np.linalg.norm(
             np.array([self._local[b.mesh_key][1] for b in self.scene.bodies]), axis=1)
@@ -131,19 +132,43 @@ class FclBackend(CollisionBackend):
         Skipped without a query when the AABB gap already reaches the best distance so far
         (at first ``max_distance``): a far pair costs no mesh-mesh distance."""
         before = res.min_distance
-        if self._gap(a, b) >= before:
+        if self._gap(a, b) >= before or self._bound(a, b) >= before:
             return False
         if self._faces[a] > self._faces[b]:  # the larger BVH first: fcl's traversal is cheaper
-            fcl.distance(self.objs[a], self.objs[b], self._dreq, res)
+            d = fcl.distance(self.objs[a], self.objs[b], self._dreq, res)
+            self._exact[(a, b)] = (d, self.T[a].copy(), self.T[b].copy())
             if res.min_distance < before:
                 self._a_first = True
                 return True
             return False
-        fcl.distance(self.objs[b], self.objs[a], self._dreq, res)  # member first (see _collide)
+        d = fcl.distance(self.objs[b], self.objs[a], self._dreq, res)  # member first (see _collide)
+        self._exact[(a, b)] = (d, self.T[a].copy(), self.T[b].copy())
         if res.min_distance < before:
             self._a_first = False
             return True
         return False
+
+    def _bound(self, a: int, b: int) -> float:
+        """Lower bound (m) of the distance of ``a`` and ``b`` from their last exact distance:
+        ``d_last - mu``, ``mu`` bounding any surface point's travel since (translation +
+        rotation angle x radius about the body origin, for each body). A pure speed-up cache:
+        a member is skipped only when it cannot beat the best distance so far, so the
+        reported result is the same with or without it (not part of the FMU state).
+
+        ``fcl.distance`` returns the exact distance only when it is below the best so far
+        (its traversal stops at that bound); ``d_last`` is then that lower bound itself,
+        which keeps the rule valid."""
+        last = self._exact.get((a, b))
+        if last is None:
+            return -math.inf
+        d, A0, B0 = last
+        A1, B1 = self.T[a], self.T[b]
+        mu = 0.0
+        for X0, X1, r in ((A0, A1, self._radius[a]), (B0, B1, self._radius[b])):
+            if X0 is X1 or (X0 == X1).all():
+                continue
+            mu += float(np.linalg.norm(X1[:3, 3] - X0[:3, 3])) + rotation_angle(X1[:3, :3] @ X0[:3, :3].T) * r
+        return d - mu
 
     def _gap(self, a: int, b: int) -> float:
         """AABB gap of two bodies (m, 0 if overlapping), scalar code for the per-candidate path."""
