@@ -39,7 +39,7 @@ from immersim.models.collision.geometry import pose_matrix
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "collision"
 RNG_SEED = 2010
-FMU_MAX_DISTANCE = 5.0  # m, the FMU's default max_distance
+FMU_MAX_DISTANCE = 2.0  # m, the FMU's default max_distance
 CAMPUS = ROOT / "scenarios" / "campus_drive.toml"
 
 
@@ -419,7 +419,7 @@ def bench_campus(log, baseline=None, reps=3):
     n_dyn = len(scene.dynamic)
     poses = np.stack([np.stack([series[f"coll.body[{i + 1}].{ax}"][1] for ax in axes], 1)
                       for i in range(n_dyn)], 1)  # (steps, bodies, 6)
-    variants = [("this tree, max_distance = 5 m (FMU default)",
+    variants = [(f"this tree, max_distance = {FMU_MAX_DISTANCE:g} m (FMU default)",
                  lambda: make_backend("fcl", parse_scene(scene_spec), pairs, BackendConfig(max_distance=FMU_MAX_DISTANCE))),
                 ("this tree, max_distance = inf (exact distances)",
                  lambda: make_backend("fcl", parse_scene(scene_spec), pairs, BackendConfig()))]

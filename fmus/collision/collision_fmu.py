@@ -38,7 +38,7 @@ def _variables():
         Var("st", "parameter", "Real", 0.05, "1", "basis_point sampling threshold ST (eq. 5-8..5-11)"),
         Var("cells_n", "parameter", "Integer", 8, "", "honeycomb cells n (rows, §4.4)"),
         Var("cells_m", "parameter", "Integer", 8, "", "honeycomb cells m (columns, §4.4)"),
-        Var("max_distance", "parameter", "Real", 5.0, "m",
+        Var("max_distance", "parameter", "Real", 2.0, "m",
             "pairs farther apart (AABB gap) skip the exact distance and report distance = max_distance"),
         Var("ccd", "parameter", "Boolean", True, "", "fcl: time of impact (conservative advancement) for moved bodies"),
     ]

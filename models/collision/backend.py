@@ -290,7 +290,7 @@ class CollisionBackend(ABC):
     # -- bounds ---------------------------------------------------------------------------
     def ensure_bounds(self, idx) -> None:
         """Bring ``aabb`` / ``sphere_c`` of bodies ``idx`` up to date (they are lazy)."""
-        idx = np.atleast_1d(idx)
+        idx = np.asarray(idx, dtype=int).ravel()
         stale = idx[self._stale[idx]]
         if len(stale):
             self._update_bounds(stale)
@@ -321,7 +321,10 @@ class CollisionBackend(ABC):
 
     def aabb_gap(self, a: int, members: np.ndarray) -> np.ndarray:
         """Euclidean gap between the AABB of ``a`` and those of ``members`` (0 if overlapping)."""
-        self.ensure_bounds(np.append(members, a))
+        if self._stale[a]:
+            self._update_bounds([a])
+        if self._stale[members].any():
+            self.ensure_bounds(members)
         lo = np.maximum(self.aabb[members, 0] - self.aabb[a, 1], 0)
         hi = np.maximum(self.aabb[a, 0] - self.aabb[members, 1], 0)
         return np.linalg.norm(np.maximum(lo, hi), axis=1)

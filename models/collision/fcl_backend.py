@@ -73,6 +73,7 @@ class FclBackend(CollisionBackend):
             self._by_pose.setdefault(self._key(self.objs[i]), []).append(int(i))
         self._member_mask = np.zeros(self.n, bool)
         self._pair_parts = {}
+        self._small: Dict[int, np.ndarray] = {}
         for k, pair in enumerate(self.pairs):
             mask = np.zeros(self.n, bool)
             mask[pair.members] = True
@@ -82,7 +83,9 @@ class FclBackend(CollisionBackend):
             # the tree serves groups that are all static bodies or larger than 8; small subsets
             # of a larger scene are checked directly
             use_tree = len(stat) > 8 or (len(stat) > 0 and len(stat) == len(self.static_idx))
-            self._pair_parts[id(pair)] = (mask, stat, members[self.is_dynamic[members]], use_tree)
+            dyn = members[self.is_dynamic[members]]
+            self._pair_parts[id(pair)] = (mask, stat, dyn, use_tree)
+            self._small[id(pair)] = np.concatenate([dyn, [] if use_tree else stat]).astype(int)
         self._creq = fcl.CollisionRequest(num_max_contacts=self.config.max_contacts, enable_contact=True)
         self._dreq = fcl.DistanceRequest(enable_nearest_points=True)
         self._faces = np.array([len(self.scene.meshes[b.mesh_key].faces) for b in self.scene.bodies])
@@ -202,10 +205,12 @@ class FclBackend(CollisionBackend):
         cands: List[int] = []
         if use_tree:
             self.manager.collide(obj_a, fcl.CollisionData(), self._collector(cands))
-        elif len(stat):
-            cands += [int(b) for b in stat[self.aabb_gap(a, stat) <= 0]]
-        if len(dyn):
-            cands += [int(b) for b in dyn[self.aabb_gap(a, dyn) <= 0]]
+        # members checked directly (dynamic ones, and static ones outside the tree): one AABB
+        # gap computation serves the broad phase and the nearest-member search
+        small = self._small[id(pair)]
+        gaps = self.aabb_gap(a, small) if len(small) else None
+        if gaps is not None:
+            cands += small[gaps <= 0].tolist()
         seen = set()
         for b in cands:
             if b in seen:
@@ -217,7 +222,7 @@ class FclBackend(CollisionBackend):
             if hit is not None:
                 results.append((b, hit))
         if not results:
-            results = self._nearest(a, stat, dyn, counts)
+            results = self._nearest(a, small, gaps, counts)
         # no member within max_distance: the base class reports distance = max_distance
         res = aggregate(results, self.config.max_distance)
         if self.config.ccd and (self.prev_T[a] != self.T[a]).any():
@@ -237,16 +242,14 @@ class FclBackend(CollisionBackend):
                     res.toi = dt * prev.distance / (prev.distance + max(res.depth, 1e-12))
         return res, counts[0], counts[1]
 
-    def _nearest(self, a, stat, dyn, counts) -> List[Tuple[int, PairResult]]:
-        """Nearest member: pruned tree traversal for static members, direct for dynamic."""
+    def _nearest(self, a, small, gaps, counts) -> List[Tuple[int, PairResult]]:
+        """Nearest member: pruned tree traversal for static members, direct (nearest AABB gap
+        first, ``gaps`` of the members ``small``) for the others."""
         mask, obj_a = self._member_mask, self.objs[a]
         res = fcl.DistanceResult(self.config.max_distance
                                  if math.isfinite(self.config.max_distance) else 1.7976931348623157e308)
         best = [-1]
-        small = list(dyn) + ([] if self._use_tree else list(stat))
-        if small:
-            small = np.asarray(small, int)
-            gaps = self.aabb_gap(a, small)
+        if gaps is not None and gaps.min() < res.min_distance:
             for b, gap in sorted(zip(small.tolist(), gaps.tolist()), key=lambda bg: bg[1]):
                 if gap >= res.min_distance:
                     break

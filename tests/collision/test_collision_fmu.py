@@ -13,7 +13,8 @@ from tests.fmpy_runner import Runner, readme_has_generated_table, simulate
 UNIT = Path(__file__).resolve().parents[2] / "fmus" / "collision"
 H = 0.033
 SCENE = "tanks:n=4,tris=5.4k;missile:z=8"
-PARAMS = {"scene": SCENE, "pairs": "missile vs any tank; tank_0 vs tank_1"}
+# max_distance 5 m: the dive starts 3 m above the tank (exact distances) and ends 5.05 m below it (capped)
+PARAMS = {"scene": SCENE, "pairs": "missile vs any tank; tank_0 vs tank_1", "max_distance": 5.0}
 REF_OUTPUTS = ["pair[1].in_contact", "pair[1].distance", "pair[1].depth", "pair[1].px", "pair[1].py", "pair[1].pz",
                "pair[1].nx", "pair[1].ny", "pair[1].nz", "pair[1].toi", "pair[1].closing_speed",
                "pair[2].distance", "n_candidates", "n_narrow", "at_rest"]
@@ -191,7 +192,7 @@ def test_same_outputs_under_fmpy_and_libcosim(fmu):
 @pytest.mark.parametrize("backend", ["fcl", "basis_point", "honeycomb"])
 def test_every_backend_runs_in_the_fmu(fmu, backend):
     params = {"scene": "tank:tris=5.4k;missile:z=8", "pairs": "missile vs tank", "backend": backend,
-              "st": 0.1, "cells_n": 4, "cells_m": 4, "body[1].z": 8.0}
+              "st": 0.1, "cells_n": 4, "cells_m": 4, "body[1].z": 8.0, "max_distance": 100.0}
     r = Runner(fmu, f"b_{backend}", params)
     try:
         r.step({"body[1].x": 0.5, "body[1].z": 7.0, "body[1].pitch": 0.3})
