@@ -6,12 +6,16 @@ ControllerPackets to the group's master and act when they arrive; collision resp
 (``contact[p].*``) bounce or stop avatar ``p`` at the start of the step. The model itself is
 :class:`immersim.models.network.NetworkModel`.
 """
+import numpy as np
+
 from immersim.fmus.common import TableSlave, Var
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.config import OWNERSHIP_RULES, TOPOLOGIES
 
 CAPACITY = 4
 N_ENTITY_OUT = 16
+#: per-avatar outputs in the order of the block written each step
+AVATAR_FIELDS = ("x", "y", "z", "yaw", "vx", "vy", "f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "jolt", "jolt_acc")
 
 
 def _player_vars():
@@ -36,11 +40,12 @@ def _player_vars():
             Var(f"{a}.vy", "output", "Real", 0.0, "m/s", f"velocity y of avatar {p}"),
             Var(f"{a}.f_x", "output", "Real", 0.0, "m/s2", f"body-frame specific force x (forward) of avatar {p}"),
             Var(f"{a}.f_y", "output", "Real", 0.0, "m/s2", f"body-frame specific force y (left) of avatar {p}: v * yaw rate"),
-            Var(f"{a}.f_z", "output", "Real", 0.0, "m/s2", f"body-frame specific force z of avatar {p}: +g"),
+            Var(f"{a}.f_z", "output", "Real", 0.0, "m/s2", f"body-frame specific force z (up) of avatar {p}, gravity included: +9.81 on flat ground (a 'minus 1 g' cue input needs offset -9.81)"),
             Var(f"{a}.w_x", "output", "Real", 0.0, "rad/s", f"body-frame angular rate x of avatar {p}"),
             Var(f"{a}.w_y", "output", "Real", 0.0, "rad/s", f"body-frame angular rate y of avatar {p}"),
             Var(f"{a}.w_z", "output", "Real", 0.0, "rad/s", f"body-frame angular rate z (yaw rate) of avatar {p}"),
-            Var(f"{a}.jolt", "output", "Real", 0.0, "m/s", f"|velocity change| of avatar {p} from collision responses in the step"),
+            Var(f"{a}.jolt", "output", "Real", 0.0, "m/s", f"velocity change |dv| of avatar {p} (m/s, not an acceleration) from the collision responses applied at the start of the step, summed"),
+            Var(f"{a}.jolt_acc", "output", "Real", 0.0, "m/s2", f"jolt / step size: the acceleration that, held for the step, gives the same velocity change (a platform's jolt input)"),
             Var(f"perceived[{p}].x", "output", "Real", 0.0, "m", f"x of avatar {p} as shown by a slave render node of player 1 (cached frame)"),
             Var(f"perceived[{p}].y", "output", "Real", 0.0, "m", f"y of avatar {p} as shown by a slave render node of player 1 (cached frame)"),
         ]
@@ -74,13 +79,13 @@ class network(TableSlave):
         Var("inconsistency_max", "output", "Real", 0.0, "m", "max position error of any displayed copy in the step (eq. 3-1/3-2)"),
         Var("inconsistency_rms", "output", "Real", 0.0, "m", "RMS position error over displayed copies at the last frame"),
         Var("desync_frames", "output", "Integer", 0, "", "largest lag (frames) of a slave behind its master in the step"),
-        Var("messages", "output", "Integer", 0, "", "messages sent in the step"),
-        Var("bytes", "output", "Integer", 0, "", "bytes sent in the step (PDU headers + payloads)"),
+        Var("messages", "output", "Integer", 0, "", "messages sent in the last frame interval ((k-1)T, kT] ending in the step, heartbeats excluded"),
+        Var("bytes", "output", "Integer", 0, "", "bytes (PDU headers + payloads) of those messages"),
         Var("handovers", "output", "Integer", 0, "", "entity ownership hand-overs in the step"),
         Var("dropped_frames", "output", "Integer", 0, "", "slave frames dropped at the tick in the step (§3.5.2)"),
         Var("rejected_updates", "output", "Integer", 0, "", "updates from non-owners rejected in the step"),
         Var("online_nodes", "output", "Integer", 0, "", "nodes in the supernode's heartbeat index table"),
-        Var("at_rest", "output", "Boolean", False, "", "no input changed, nothing moves, nothing pending"),
+        Var("at_rest", "output", "Boolean", False, "", "stepping on with unchanged inputs changes no output (no input changed, nothing moves, nothing pending, dis_threshold <= 0)"),
     )
 
     def _param_error(self, name, msg):
@@ -112,7 +117,21 @@ class network(TableSlave):
             grid=bool(v["grid"]), dis_threshold=v["dis_threshold"], scene_size=v["scene_size"],
             entity_speed=v["entity_speed"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
         self.model = NetworkModel(cfg)
+        self._names()
         self._write_outputs()
+
+    def _names(self):
+        """Variable names used every step, built once (no string formatting per step)."""
+        G, E = self.model.cfg.groups, self.model.cfg.entities
+        q = range(1, G + 1)
+        self._in_names = [(f"avatar[{p}].throttle", f"avatar[{p}].steer", f"contact[{p}].active",
+                           f"contact[{p}].nx", f"contact[{p}].ny") for p in q]
+        self._avatar_names = [f"avatar[{p}].{n}" for p in q for n in AVATAR_FIELDS]
+        self._perceived_names = [f"perceived[{p}].{c}" for p in q for c in "xy"]
+        self._entity_names = [f"entity[{e}].{c}" for e in range(1, min(E, N_ENTITY_OUT) + 1) for c in "xyz"]
+        self.values.update({f"avatar[{p}].{n}": 0.0 for p in range(G + 1, CAPACITY + 1) for n in AVATAR_FIELDS})
+        self.values.update({f"perceived[{p}].{c}": 0.0 for p in range(G + 1, CAPACITY + 1) for c in "xy"})
+        self.values.update({f"entity[{e}].{c}": 0.0 for e in range(E + 1, N_ENTITY_OUT + 1) for c in "xyz"})
 
     def step_model(self, t, h):
         v, m = self.values, self.model
@@ -120,42 +139,43 @@ class network(TableSlave):
             raise ValueError(f"{self.instance_name}: input latency_scale = {v['latency_scale']} must be >= 0 (t = {t:g} s)")
         m.latency_scale = v["latency_scale"]
         m.world.jolt[:] = 0.0
-        for p in range(m.cfg.groups):
-            q = p + 1
-            m.set_input(p, v[f"avatar[{q}].throttle"], v[f"avatar[{q}].steer"], t)
-            if v[f"contact[{q}].active"]:
-                m.bounce(p, (v[f"contact[{q}].nx"], v[f"contact[{q}].ny"]))
+        for p, (thr, steer, active, nx, ny) in enumerate(self._in_names):
+            m.set_input(p, v[thr], v[steer], t)
+            if v[active]:
+                m.bounce(p, (v[nx], v[ny]))
         m.step(h)
-        self._write_outputs()
+        self._write_outputs(h)
 
-    def _write_outputs(self):
+    def _write_outputs(self, h=None):
         v, m = self.values, self.model
         w = m.world
         G = m.cfg.groups
-        vel, f, om = w.avel, w.specific_force(), w.angular_rate()
+        # one (G, 14) block: x, y, z, yaw, vx, vy, f (3), w (3), jolt, jolt_acc
+        blk = np.zeros((G, len(AVATAR_FIELDS)))
+        blk[:, 0:2] = w.apos
+        blk[:, 3] = w.yaw
+        blk[:, 4:6] = w.avel
+        blk[:, 6:9] = w.specific_force()
+        blk[:, 9:12] = w.angular_rate()
+        blk[:, 12] = w.jolt
+        if h:
+            blk[:, 13] = w.jolt / h
+        v.update(zip(self._avatar_names, blk.ravel().tolist()))
         slave = 1 if m.cfg.render_nodes > 1 else 0
-        for p in range(CAPACITY):
-            a, q = f"avatar[{p + 1}]", p + 1
-            if p < G:
-                vals = (w.apos[p, 0], w.apos[p, 1], 0.0, w.yaw[p], vel[p, 0], vel[p, 1], *f[p], *om[p], w.jolt[p])
-                per = m.perceived_avatar(slave, p)
-            else:
-                vals, per = (0.0,) * 13, (0.0, 0.0)
-            for name, val in zip(("x", "y", "z", "yaw", "vx", "vy", "f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "jolt"), vals):
-                v[f"{a}.{name}"] = float(val)
-            v[f"perceived[{q}].x"], v[f"perceived[{q}].y"] = float(per[0]), float(per[1])
-        E = m.cfg.entities
-        for e in range(N_ENTITY_OUT):
-            if e < E:
-                v[f"entity[{e + 1}].x"], v[f"entity[{e + 1}].y"] = float(w.epos[e, 0]), float(w.epos[e, 1])
-                v[f"entity[{e + 1}].z"] = float(w.ez[e])
-            else:
-                v[f"entity[{e + 1}].x"] = v[f"entity[{e + 1}].y"] = v[f"entity[{e + 1}].z"] = 0.0
+        v.update(zip(self._perceived_names, m.perceived_avatars(slave).ravel().tolist()))
+        n = len(self._entity_names) // 3
+        if n:
+            ent = np.empty((n, 3))
+            ent[:, 0:2] = w.epos[:n]
+            ent[:, 2] = w.ez[:n]
+            v.update(zip(self._entity_names, ent.ravel().tolist()))
         s = m.metrics
         v["inconsistency_max"], v["inconsistency_rms"] = float(s.inconsistency_max), float(s.inconsistency_rms)
-        for name in ("desync_frames", "messages", "bytes", "handovers", "dropped_frames", "rejected_updates"):
-            v[name] = int(getattr(s, name))
-        v["online_nodes"] = int(m.online.sum())
+        v["desync_frames"] = int(s.desync_frames)
+        v["messages"], v["bytes"] = int(s.frame_messages), int(s.frame_bytes)
+        v["handovers"], v["dropped_frames"] = int(s.handovers), int(s.dropped_frames)
+        v["rejected_updates"] = int(s.rejected_updates)
+        v["online_nodes"] = int(s.online_nodes)
         v["at_rest"] = bool(m.at_rest())
 
     def get_model_state(self):

@@ -47,7 +47,7 @@ class SceneGrid:
             return np.repeat(np.arange(M), O), np.tile(np.arange(O), M)
         order = np.argsort(object_cells, kind="stable")
         counts = np.bincount(object_cells, minlength=self.C * self.C)
-        starts = np.r_[0, np.cumsum(counts)[:-1]]
+        starts = np.cumsum(counts) - counts
         cells = self.neigh[viewer_cells].ravel()          # (M*9,)
         owner = np.repeat(np.arange(M), 9)
         valid = cells >= 0
@@ -58,6 +58,10 @@ class SceneGrid:
         offs = np.cumsum(lens) - lens
         pos = np.arange(total) - np.repeat(offs, lens) + np.repeat(starts[cells], lens)
         return viewer, order[pos]
+
+
+#: below this many (avatar, entity) pairs, brute force beats building k-d trees every frame
+BRUTE_FORCE_PAIRS = 4096
 
 
 # -- ownership §3.6.2 ----------------------------------------------------------------------------
@@ -125,13 +129,22 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     """
     if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
         return current
-    from scipy.spatial import cKDTree
-
     a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis, foci)
     centre = avatar_pos + shift if rule == "mahalanobis" else avatar_pos
-    etree = etree if etree is not None else cKDTree(entity_pos)
-    sd = cKDTree(centre).sparse_distance_matrix(etree, float(a.max()), output_type="ndarray")
-    gi, ei = sd["i"].astype(np.int64), sd["j"].astype(np.int64)
+    if etree is None and len(centre) * len(entity_pos) <= BRUTE_FORCE_PAIRS:
+        # small scenes: every (avatar, entity) pair, no k-d tree (same result: the winner is
+        # chosen by (entity, distance, avatar) below, whatever order the candidates come in)
+        gi = np.repeat(np.arange(len(centre)), len(entity_pos))
+        ei = np.tile(np.arange(len(entity_pos)), len(centre))
+        if rule == "euclidean":
+            r = entity_pos[ei] - centre[gi]
+            sd = {"v": np.sqrt(np.einsum("ij,ij->i", r, r))}
+    else:
+        from scipy.spatial import cKDTree
+
+        etree = etree if etree is not None else cKDTree(entity_pos)
+        sd = cKDTree(centre).sparse_distance_matrix(etree, float(a.max()), output_type="ndarray")
+        gi, ei = sd["i"].astype(np.int64), sd["j"].astype(np.int64)
     if rule == "mahalanobis":
         d = mahalanobis_ellipsoid(entity_pos[ei], centre[gi], u[gi], a[gi], b[gi])
         keep = d <= 1.0
@@ -143,7 +156,8 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     if len(ei):
         order = np.lexsort((gi, d, ei))
         ei, gi = ei[order], gi[order]
-        first = np.r_[True, ei[1:] != ei[:-1]]
+        first = np.ones(len(ei), bool)
+        first[1:] = ei[1:] != ei[:-1]
         out[ei[first]] = gi[first]
     return out
 

@@ -77,7 +77,10 @@ def transmit(rng: np.random.Generator, links: Dict[str, LinkClass], send_t: np.n
         s_sorted, t_sorted, tx_sorted = sender[order], send_t[order], tx[order]
         end = np.empty(n)
         # send times within one batch are equal per sender in our use, so a cumulative sum suffices
-        first = np.r_[True, s_sorted[1:] != s_sorted[:-1]]
+        diff = s_sorted[1:] != s_sorted[:-1]
+        first = np.empty(n, bool)
+        first[0] = True
+        first[1:] = diff
         start0 = np.maximum(t_sorted, busy_until[s_sorted])
         grp = np.cumsum(first) - 1
         csum = np.cumsum(tx_sorted)
@@ -86,7 +89,9 @@ def transmit(rng: np.random.Generator, links: Dict[str, LinkClass], send_t: np.n
         done = np.empty(n)
         done[order] = end
         arrival += done
-        last = np.r_[s_sorted[1:] != s_sorted[:-1], True]
+        last = np.empty(n, bool)
+        last[-1] = True
+        last[:-1] = diff
         busy_until[s_sorted[last]] = end[last]
     else:
         arrival += send_t

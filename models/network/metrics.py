@@ -63,6 +63,10 @@ class StepMetrics:
     published: int = 0
     online_nodes: int = 0
     frames: int = 0
+    #: traffic of the last frame interval ((k-1) T, k T] ending in the step, heartbeats excluded
+    #: (the FMU's ``messages``/``bytes``; kept in steps without a frame)
+    frame_messages: int = 0
+    frame_bytes: int = 0
 
     def as_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -110,7 +110,11 @@ class NetworkModel:
         self.totals = Totals()
         self.overlay: Optional[PastryOverlay] = None
         self.join_hops: List[int] = []
+        self._iv = [0, 0]                # messages, bytes since the last frame (heartbeats excluded)
+        self._frame_traffic = (0, 0)     # the same for the interval that ended at the last frame
         self._bootstrap()
+        self._iv = [0, 0]                # the bootstrap JOINs belong to no frame interval
+        self.metrics.online_nodes = int(self.online.sum())
 
     # -- set-up ---------------------------------------------------------------------------
     def _initial_entity_owners(self) -> np.ndarray:
@@ -281,6 +285,7 @@ class NetworkModel:
             m.inconsistency_max, m.inconsistency_rms, m.desync_frames = self._last_display
         self._last_display = (m.inconsistency_max, m.inconsistency_rms, m.desync_frames)
         m.online_nodes = int(self.online.sum())
+        m.frame_messages, m.frame_bytes = self._frame_traffic
         self.totals.add(m)
         self.inputs_changed = False
         return m
@@ -329,6 +334,9 @@ class NetworkModel:
     def _count(self, messages: int, nbytes: int, ptype: int) -> None:
         self.metrics.messages += int(messages)
         self.metrics.bytes += int(nbytes)
+        if ptype != PduType.HEARTBEAT:
+            self._iv[0] += int(messages)
+            self._iv[1] += int(nbytes)
         bt = self.totals.by_type
         name = PduType(ptype).name
         bt[name] = bt.get(name, 0) + int(nbytes)
@@ -359,7 +367,9 @@ class NetworkModel:
         self.metrics.frames += 1
         online_g = self.master >= 0
         # 1. collision responses between avatars and entities (the owner responds)
-        etree = w.entity_tree() if cfg.entities else None
+        # one k-d tree of the entities shared by contacts and ownership (large scenes only:
+        # small ones use brute force, cheaper than a tree built every frame)
+        etree = w.entity_tree() if cfg.entities and cfg.groups * cfg.entities > 4096 else None
         ai, ei, dv = w.contacts(etree)
         if len(ai):
             ai, ei, dv = ai[online_g[ai]], ei[online_g[ai]], dv[online_g[ai]]
@@ -443,13 +453,18 @@ class NetworkModel:
         self._flip_frames(t)
         # 6. display and metrics (eq. 3-1/3-2)
         self._display(vg, vo, fi, og)
+        self._frame_traffic = (self._iv[0], self._iv[1])
+        self._iv = [0, 0]
 
     def _transmit(self, tr):
         cfg = self.cfg
         n = len(tr.send_t)
         arrival, lost = np.zeros(n), np.zeros(n, bool)
+        nb = int(tr.nbytes.sum())
         self.metrics.messages += n
-        self.metrics.bytes += int(tr.nbytes.sum())
+        self.metrics.bytes += nb
+        self._iv[0] += n
+        self._iv[1] += nb
         bt = self.totals.by_type
         per_type = np.bincount(tr.ptype, weights=tr.nbytes, minlength=64)
         for p in np.flatnonzero(per_type):
@@ -616,16 +631,27 @@ class NetworkModel:
         frame = max(frame, self.k - HIST + 1)
         return self.hist[frame % HIST, grp, g].copy()
 
-    def at_rest(self) -> bool:
-        """Nothing to do: no input changed in the step, nothing moves, no input or collision
-        event is queued and every node shows the true state.
+    def perceived_avatars(self, node: int) -> np.ndarray:
+        """Positions (G, 2) of every avatar as shown by render node ``node`` now (m)."""
+        grp = int(self.reg.group[node])
+        frame = self.k if node == self.master[grp] else int(self.shown_frame[node])
+        frame = max(frame, self.k - HIST + 1)
+        return self.hist[frame % HIST, grp].copy()
 
-        Periodic traffic (heartbeats, frame sync, unchanged state records) never stops in a
-        live network and is not counted as pending work.
+    def at_rest(self) -> bool:
+        """Stepping on with unchanged inputs would change no per-frame output.
+
+        True when no input changed in the step, nothing moves, no input, collision, join or
+        leave event is queued, every node shows the true state and updates go out every frame
+        (``dis_threshold <= 0``; with DIS the 1 s re-publication changes a frame's traffic).
+        The per-frame traffic of such a frame (``StepMetrics.frame_messages``/``frame_bytes``:
+        STATE, FRAME, REPORT of a scene that does not move) is then the same every frame;
+        heartbeats (and the supernode's time-out checks) go on but are not part of it.
         """
         pending = any(kind in ("input", "impulse", "join", "leave") for _, _, kind, _ in self._heap)
         return (not self.inputs_changed and not self.world.moving() and not pending
-                and self.metrics.inconsistency_max == 0.0 and self.cfg.driven_groups == self.cfg.groups)
+                and self.metrics.inconsistency_max == 0.0 and self.cfg.driven_groups == self.cfg.groups
+                and self.cfg.dis_threshold <= 0)
 
     def shown_position(self, viewer: int, obj: int) -> np.ndarray:
         """Position (2,) m of object ``obj`` as the master of group ``viewer`` shows it at the

@@ -95,25 +95,31 @@ class Traffic:
 
 
 class _Builder:
+    """Collects message columns; scalars are expanded only once, in :meth:`arrays`."""
+
+    NAMES = ("send_t", "sender", "receiver", "link", "nbytes", "ptype", "hop_of")
+
     def __init__(self) -> None:
-        self.cols: Dict[str, list] = {k: [] for k in ("send_t", "sender", "receiver", "link", "nbytes", "ptype", "hop_of")}
+        self.parts: List[tuple] = []
         self.n = 0
 
-    def add(self, send_t, sender, receiver, link, nbytes, ptype, hop_of=None) -> np.ndarray:
-        sender = np.asarray(sender, np.int64)
+    def add(self, send_t, sender, receiver, link, nbytes, ptype, hop_of=-1) -> np.ndarray:
         k = len(sender)
-        for name, val in (("send_t", send_t), ("sender", sender), ("receiver", receiver), ("link", link),
-                          ("nbytes", nbytes), ("ptype", ptype), ("hop_of", -1 if hop_of is None else hop_of)):
-            self.cols[name].append(np.broadcast_to(np.asarray(val), (k,)))
+        self.parts.append((k, (send_t, sender, receiver, link, nbytes, ptype, -1 if hop_of is None else hop_of)))
         idx = np.arange(self.n, self.n + k)
         self.n += k
         return idx
 
     def arrays(self):
         out = {}
-        for name, parts in self.cols.items():
+        for j, name in enumerate(self.NAMES):
             dtype = float if name == "send_t" else np.int64
-            out[name] = np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+            col = np.empty(self.n, dtype)
+            at = 0
+            for k, vals in self.parts:
+                col[at:at + k] = vals[j]
+                at += k
+            out[name] = col
         return out
 
 

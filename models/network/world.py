@@ -55,18 +55,22 @@ class World:
     @property
     def avel(self) -> np.ndarray:
         """Avatar velocity (G, 2), m/s."""
-        return self.speed[:, None] * np.c_[np.cos(self.yaw), np.sin(self.yaw)]
+        out = np.empty((len(self.yaw), 2))
+        np.cos(self.yaw, out=out[:, 0])
+        np.sin(self.yaw, out=out[:, 1])
+        out *= self.speed[:, None]
+        return out
 
     def aacc(self) -> np.ndarray:
         """Avatar acceleration in the world frame (G, 2), m/s^2."""
         c, s = np.cos(self.yaw), np.sin(self.yaw)
         lat = self.speed * self.yaw_rate
-        return np.c_[self.accel * c - lat * s, self.accel * s + lat * c]
+        return np.stack((self.accel * c - lat * s, self.accel * s + lat * c), axis=1)
 
     def eacc(self) -> np.ndarray:
         """Entity acceleration (E, 2), m/s^2."""
         v = self.evel
-        return self.eturn[:, None] * np.c_[-v[:, 1], v[:, 0]] - self.cfg.entity_drag * v
+        return self.eturn[:, None] * np.stack((-v[:, 1], v[:, 0]), axis=1) - self.cfg.entity_drag * v
 
     def positions(self) -> np.ndarray:
         """All objects (avatars then entities), (G + E, 2)."""
@@ -80,12 +84,13 @@ class World:
 
     def specific_force(self) -> np.ndarray:
         """Body-frame specific force of every avatar (G, 3), m/s^2, gravity included on z."""
-        return np.c_[self.accel, self.speed * self.yaw_rate, np.full(len(self.speed), G_ACC)]
+        return np.stack((self.accel, self.speed * self.yaw_rate, np.full(len(self.speed), G_ACC)), axis=1)
 
     def angular_rate(self) -> np.ndarray:
         """Body-frame angular rate (G, 3), rad/s."""
-        z = np.zeros(len(self.speed))
-        return np.c_[z, z, self.yaw_rate]
+        out = np.zeros((len(self.speed), 3))
+        out[:, 2] = self.yaw_rate
+        return out
 
     def moving(self, eps: float = 1e-9) -> bool:
         return bool(np.any(np.abs(self.speed) > eps) or np.any(np.abs(self.evel) > eps)
@@ -120,7 +125,12 @@ class World:
             vm = 0.5 * (v0 + v1)
             self.yaw_rate = vm * k_steer
             yaw_m = self.yaw + 0.5 * self.yaw_rate * h
-            self.apos = self.apos + (vm * h)[:, None] * np.c_[np.cos(yaw_m), np.sin(yaw_m)]
+            step = vm * h
+            apos = np.empty_like(self.apos)
+            np.multiply(step, np.cos(yaw_m), out=apos[:, 0])
+            np.multiply(step, np.sin(yaw_m), out=apos[:, 1])
+            apos += self.apos
+            self.apos = apos
             self.yaw = np.mod(self.yaw + self.yaw_rate * h + np.pi, 2 * np.pi) - np.pi
             self.speed = v1
             self._avatar_walls()
@@ -208,6 +218,13 @@ class World:
         if G == 0 or E == 0:
             return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
         r = self.cfg.avatar_radius + self.cfg.entity_radius
+        if etree is None and G * E <= 4096:
+            # small scenes: a brute-force distance check finds the (rare) frames with a contact;
+            # the exact k-d tree path below (its pair order) only runs then
+            dx = self.epos[:, 0] - self.apos[:, 0, None]
+            dy = self.epos[:, 1] - self.apos[:, 1, None]
+            if not ((dx * dx + dy * dy) <= r * r * (1.0 + 1e-9)).any():
+                return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
         etree = etree if etree is not None else cKDTree(self.epos)
         pairs = cKDTree(self.apos).query_ball_tree(etree, r) if G < 8 else None
         if pairs is not None:

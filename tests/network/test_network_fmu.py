@@ -126,11 +126,12 @@ def test_collision_input_bounces_and_reports_a_jolt(fmu):
         speed = np.hypot(vx, vy)
         n = -np.array([vx, vy]) / speed                      # head-on obstacle
         r.step({"contact[1].active": True, "contact[1].nx": n[0], "contact[1].ny": n[1]})
-        jolt, vx2, vy2 = r.get(["avatar[1].jolt", "avatar[1].vx", "avatar[1].vy"])
+        jolt, jolt_acc, vx2, vy2 = r.get(["avatar[1].jolt", "avatar[1].jolt_acc", "avatar[1].vx", "avatar[1].vy"])
         assert jolt == pytest.approx(1.5 * speed, rel=0.05)   # restitution 0.5
+        assert jolt_acc == pytest.approx(jolt / H, rel=1e-12)  # m/s2: the same dv held over the 33 ms step
         assert vx2 * vx + vy2 * vy < 0                        # moving away
         r.step({"contact[1].active": False})
-        assert r.get(["avatar[1].jolt"])[0] == 0.0
+        assert r.get(["avatar[1].jolt"])[0] == 0.0 and r.get(["avatar[1].jolt_acc"])[0] == 0.0
     finally:
         r.close()
 
