@@ -6,7 +6,10 @@
 3. scale: 1000 render nodes (250 groups x 4) and 10,000 free entities, wall time of a 33 ms
    step against the real-time target (<= 33 ms).
 
-Usage: python benchmarks/bench_network.py [--quick]
+4. campus: the campus_drive / campus_idle configuration (3 players x 3 render nodes, 8 or 0
+   entities) through the FMU class's ``do_step`` (model + wrapper), CPU time per 33 ms step.
+
+Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus]
 """
 from __future__ import annotations
 
@@ -127,6 +130,56 @@ def bench_scale(quick: bool):
     return res
 
 
+def bench_campus(quick: bool):
+    """CPU and wall time of the FMU class's do_step at the campus scenes' size (in process)."""
+    sys.path.insert(0, str(ROOT / "fmus" / "network"))
+    from network_fmu import network
+
+    steps = 200 if quick else 600
+    res = []
+    for label, entities, drive in (("campus_drive (driving)", 8, True), ("campus_idle (at rest)", 0, False)):
+        s = network(instance_name="bench", resources=str(ROOT), visible=False, logging_callback=None)
+        s.values.update(players=3, render_nodes=3, entities=entities, seed=0, prediction_order=1)
+        s.setup_experiment(0.0, None, None)
+        s.exit_initialization_mode()
+        if drive:
+            for p, (thr, steer) in enumerate(((0.8, 0.0), (0.7, 0.1), (0.6, -0.2)), start=1):
+                s.values[f"avatar[{p}].throttle"], s.values[f"avatar[{p}].steer"] = thr, steer
+        wall, cpu = [], []
+        load0 = os.getloadavg()[0]
+        for k in range(steps):
+            t0, c0 = time.perf_counter(), time.process_time()
+            s.do_step(k * T, T)
+            wall.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
+        wall, cpu = np.array(wall[10:]) * 1e3, np.array(cpu[10:]) * 1e3
+        res.append(dict(scene=label, steps=steps, median_ms=float(np.median(wall)), p90_ms=float(np.percentile(wall, 90)),
+                        cpu_median_ms=float(np.median(cpu)), cpu_mean_ms=float(cpu.mean()),
+                        load=0.5 * (load0 + os.getloadavg()[0]), at_rest=bool(s.values["at_rest"])))
+    return res
+
+
+SCALE_COLS = (["dis_threshold", "measure", "nodes", "entities", "init_s", "median_ms", "p90_ms", "mean_ms",
+               "cpu_median_ms", "load", "rt_factor", "messages", "mbytes", "rms"],
+              {"init_s": "{:.2f}", "median_ms": "{:.1f}", "p90_ms": "{:.1f}", "mean_ms": "{:.1f}",
+               "cpu_median_ms": "{:.1f}", "load": "{:.1f}",
+               "rt_factor": "{:.2f}", "messages": "{:.0f}", "mbytes": "{:.2f}", "rms": "{:.4f}"})
+CAMPUS_COLS = (["scene", "steps", "median_ms", "p90_ms", "cpu_median_ms", "cpu_mean_ms", "load", "at_rest"],
+               {"median_ms": "{:.3f}", "p90_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "cpu_mean_ms": "{:.3f}",
+                "load": "{:.1f}"})
+
+
+def only(parts, quick: bool) -> None:
+    """Run some parts only and write their tables (the README is then edited by hand)."""
+    head = f"<!-- {' '.join(sys.argv)} at {commit()} on {machine()} -->\n"
+    if "campus" in parts:
+        (OUT / "campus.md").write_text(head + table(bench_campus(quick), *CAMPUS_COLS))
+        print((OUT / "campus.md").read_text())
+    if "scale" in parts:
+        (OUT / "scale.md").write_text(head + table(bench_scale(quick), *SCALE_COLS))
+        print((OUT / "scale.md").read_text())
+
+
 def table(rows, cols, fmt=None):
     fmt = fmt or {}
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
@@ -138,8 +191,12 @@ def table(rows, cols, fmt=None):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer points and steps (about a minute)")
+    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus")
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
+    if args.only:
+        only(set(args.only.split(",")), args.quick)
+        return
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -27,6 +27,7 @@ state in ``mStates``.
 from __future__ import annotations
 
 import enum
+import functools
 import ipaddress
 import struct
 from dataclasses import dataclass, field
@@ -178,16 +179,19 @@ def object_record(obj: int, order: int) -> RenderPacket:
     return RenderPacket(f"E{obj:06d}", (1.0, 2.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.1, 0.2, 0.0), states)
 
 
+@functools.lru_cache(maxsize=None)  # sizes are constant: pack once, not every frame
 def record_bytes(order: int) -> int:
     """Bytes of one object's RenderPacket (measured by packing one), prediction order ``order``."""
     return len(object_record(0, order).pack())
 
 
+@functools.lru_cache(maxsize=None)  # sizes are constant: pack once, not every frame
 def controller_bytes() -> int:
     """Bytes of one ControllerPacket with empty maps."""
     return len(ControllerPacket("C0000").pack())
 
 
+@functools.lru_cache(maxsize=None)  # sizes are constant: pack once, not every frame
 def report_bytes() -> int:
     """Bytes of a slave's report (one RenderPacket with a collision command)."""
     return len(RenderPacket("R0000", commands={1: "collide"}).pack())

@@ -120,7 +120,7 @@ class World:
         for _ in range(n):
             v0 = self.speed
             a = cfg.max_accel * self.throttle - cfg.drag * v0
-            v1 = np.clip(v0 + a * h, -cfg.max_speed, cfg.max_speed)
+            v1 = np.minimum(np.maximum(v0 + a * h, -cfg.max_speed), cfg.max_speed)
             self.accel = (v1 - v0) / h
             vm = 0.5 * (v0 + v1)
             self.yaw_rate = vm * k_steer
@@ -153,6 +153,8 @@ class World:
     def _entity_walls(self) -> None:
         S = self.cfg.scene_size
         p, v = self.epos, self.evel
+        if len(p) == 0 or (p.min() >= 0.0 and p.max() <= S):
+            return
         lo, hi = p < 0.0, p > S
         if lo.any() or hi.any():
             p[lo] = -p[lo]
@@ -161,6 +163,8 @@ class World:
 
     def _avatar_walls(self) -> None:
         S = self.cfg.scene_size
+        if len(self.apos) == 0 or (self.apos.min() >= 0.0 and self.apos.max() <= S):
+            return
         out = (self.apos < 0.0) | (self.apos > S)
         if out.any():
             self.apos = np.clip(self.apos, 0.0, S)
