@@ -570,6 +570,14 @@ def main():
             f"{'' if big[3] <= 1.0 else ' without time of impact only'}.",
             f"* Nothing moves: a cached step of the 5040-tank scene costs {big[4] * 1e3:.1f} us (median).",
         ]
+    if big is not None and len(big) > 8:
+        lines.append(f"* 5040-tank field with the FMU's default `max_distance = {FMU_MAX_DISTANCE:g} m` (and time of "
+                     f"impact): median **{big[8]:.3f} ms** per step. Not comparable with raw python-fcl, which "
+                     "computes the exact distance to the nearest tank however far it is; this reports "
+                     "`max_distance` then.")
+    campus = OUT / "campus.md"
+    if campus.exists():  # written by --campus (a separate run: it needs a campus_drive log)
+        lines += ["", campus.read_text().replace("## campus_drive", "## campus_drive (separate run)", 1)]
     lines += [
         "",
         "## Accuracy against FCL (random missile poses around a 5.4k tank)",

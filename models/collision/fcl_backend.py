@@ -129,11 +129,14 @@ class FclBackend(CollisionBackend):
                           n / (np.linalg.norm(n) or 1.0))
 
     def _distance(self, a: int, b: int, res: "fcl.DistanceResult") -> bool:
-        """Narrow-phase distance into a shared result (fcl prunes with the best distance so
-        far, as python-fcl's default callback does). True when ``b`` became the nearest.
+        """Narrow-phase distance into a shared result (it keeps the smallest distance and its
+        nearest points). True when ``b`` became the nearest.
 
-        Skipped without a query when the AABB gap already reaches the best distance so far
-        (at first ``max_distance``): a far pair costs no mesh-mesh distance."""
+        Skipped without a query when the AABB gap, or the lower bound from the pair's last
+        exact distance (:meth:`_bound`), already reaches the best distance so far (at first
+        ``max_distance``): a far pair costs no mesh-mesh distance. (``fcl.distance`` itself
+        does not prune with the result's current minimum: it always returns the exact
+        distance, checked with python-fcl 0.7.)"""
         before = res.min_distance
         if self._gap(a, b) >= before or self._bound(a, b) >= before:
             return False
@@ -153,24 +156,24 @@ class FclBackend(CollisionBackend):
 
     def _bound(self, a: int, b: int) -> float:
         """Lower bound (m) of the distance of ``a`` and ``b`` from their last exact distance:
-        ``d_last - mu``, ``mu`` bounding any surface point's travel since (translation +
-        rotation angle x radius about the body origin, for each body). A pure speed-up cache:
+        ``d_last - mu``, ``mu`` bounding any surface point's travel since (``|t1 - t0| +
+        ||R1 - R0||_F r`` per body, ``r`` its radius about the body origin). A pure speed-up cache:
         a member is skipped only when it cannot beat the best distance so far, so the
-        reported result is the same with or without it (not part of the FMU state).
-
-        ``fcl.distance`` returns the exact distance only when it is below the best so far
-        (its traversal stops at that bound); ``d_last`` is then that lower bound itself,
-        which keeps the rule valid."""
+        reported result is the same with or without it (not part of the FMU state). Valid
+        because the distance of two rigid bodies changes by at most the sum of the largest
+        displacements of their surface points."""
         last = self._exact.get((a, b))
         if last is None:
             return -math.inf
         d, A0, B0 = last
-        A1, B1 = self.T[a], self.T[b]
         mu = 0.0
-        for X0, X1, r in ((A0, A1, self._radius[a]), (B0, B1, self._radius[b])):
-            if X0 is X1 or (X0 == X1).all():
-                continue
-            mu += float(np.linalg.norm(X1[:3, 3] - X0[:3, 3])) + rotation_angle(X1[:3, :3] @ X0[:3, :3].T) * r
+        for X0, X1, r in ((A0, self.T[a], self._radius[a]), (B0, self.T[b], self._radius[b])):
+            # |(R1 - R0) p + t1 - t0| <= |t1 - t0| + ||R1 - R0||_F |p|  (Frobenius >= spectral norm)
+            m = (X1 - X0).ravel().tolist()
+            t2 = m[3] * m[3] + m[7] * m[7] + m[11] * m[11]
+            r2 = sum(m[k] * m[k] for k in (0, 1, 2, 4, 5, 6, 8, 9, 10))
+            if t2 or r2:
+                mu += math.sqrt(t2) + math.sqrt(r2) * r
         return d - mu
 
     def _gap(self, a: int, b: int) -> float:

@@ -226,3 +226,48 @@ def test_nan_pose_is_rejected_naming_the_body():
     be = make_backend("fcl", scene)
     with pytest.raises(ValueError, match=r"'missile' \(pitch\) = nan is not finite"):
         be.query([[0, 0, 8, 0, float("nan"), 0]])
+
+
+def test_distance_lower_bound_cache_changes_no_output():
+    """The skip rule 'last exact distance minus the travel since cannot beat the best so far'
+    is a pure speed-up: the same trajectory without it gives identical results, and it does
+    skip exact queries (a ball near the corner of the tank's AABB: gap 0.87 m, distance 3.4 m)."""
+    from immersim.models.collision import fcl_backend
+
+    scene = parse_scene("tank:name=t,tris=5.4k;sphere:name=ball,r=0.3,dynamic=1,x=20")
+    cached = make_backend("fcl", scene, "ball vs t", BackendConfig(max_distance=2.0))
+    plain = make_backend("fcl", scene, "ball vs t", BackendConfig(max_distance=2.0))
+    plain._bound = lambda a, b: -np.inf
+    calls = {"cached": 0, "plain": 0}
+    real = fcl_backend.fcl.distance
+    rng = np.random.default_rng(3)
+    p = np.array([5.7, 2.5, 4.7])
+    seen = []
+    for k in range(60):  # a random walk from the corner towards the tank, in and out of range
+        p = p + rng.uniform(-0.1, 0.04, 3)
+        pose = [[*p, *rng.uniform(-0.2, 0.2, 3)]]
+        out = {}
+        for name, be in (("cached", cached), ("plain", plain)):
+            fcl_backend.fcl.distance = lambda *a, _n=name: calls.__setitem__(_n, calls[_n] + 1) or real(*a)
+            try:
+                out[name] = be.query(pose).pairs[0]
+            finally:
+                fcl_backend.fcl.distance = real
+        rc, r = out["cached"], out["plain"]
+        seen.append(r.distance)
+        assert (rc.in_contact, rc.distance, rc.partner) == (r.in_contact, r.distance, r.partner)
+        np.testing.assert_array_equal(rc.normal, r.normal)
+        np.testing.assert_array_equal(rc.point, r.point)
+    assert calls["cached"] < calls["plain"]
+    assert min(seen) < 2.0 and max(seen) == 2.0  # the walk was in and out of range
+
+
+def test_cached_dynamic_boxes_equal_fresh_ones():
+    scene = parse_scene("tank:name=t,tris=5.4k,dynamic=1;missile:z=8")
+    be = make_backend("fcl", scene, "missile vs t")
+    for pose in ([[0, 0, 0, 0, 0, 0.3], [1, 0, 8, 0, 1.2, 0]], [[2, 1, 0, 0, 0, 0.3], [1, 0, 7, 0, 1.2, 0]]):
+        be.query(pose)
+        be.ensure_bounds([0, 1])
+        for i in (0, 1):
+            v = posed(scene, i, pose[i]).vertices
+            np.testing.assert_allclose(be.aabb[i], [v.min(0), v.max(0)], atol=1e-12)
