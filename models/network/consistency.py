@@ -32,7 +32,7 @@ class SceneGrid:
 
     def cell(self, pos: np.ndarray) -> np.ndarray:
         """Cell index of each position (n, 2) -> (n,) int."""
-        ij = np.clip((pos / self.size * self.C).astype(np.int64), 0, self.C - 1)
+        ij = np.minimum(np.maximum((pos / self.size * self.C).astype(np.int64), 0), self.C - 1)
         return ij[:, 0] * self.C + ij[:, 1]
 
     def view_pairs(self, viewer_cells: np.ndarray, object_cells: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:

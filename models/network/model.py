@@ -390,11 +390,11 @@ class NetworkModel:
         if cfg.ownership != "none" and cfg.entities:
             cand = np.flatnonzero(online_g)
             cur = self.owner[G:]
-            new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos,
-                                      np.searchsorted(cand, cur).clip(0, max(len(cand) - 1, 0)),
+            cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
+            new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
                                       cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci,
                                       etree)  # contacts change velocities, not positions: the tree holds
-            claimed = new_local != np.searchsorted(cand, cur).clip(0, max(len(cand) - 1, 0))
+            claimed = new_local != cur_local
             new = cur.copy()
             new[claimed] = cand[new_local[claimed]]
             self._handover(np.arange(G, self.n_obj), new)
