@@ -9,7 +9,10 @@
   whose AABB overlaps ``a``'s; each gets a narrow-phase ``fcl.collide`` with contacts
   (penetration depth = deepest contact's ``penetration_depth``). Without contact,
   ``manager.distance(a)`` finds the nearest member: the tree prunes every member whose AABB is
-  farther than the best distance so far (or than ``max_distance``).
+  farther than the best distance so far (or than ``max_distance``). Before each exact
+  ``fcl.distance`` the member's AABB gap and the lower bound from its last exact distance
+  (minus the motion since) are checked against the best so far: a member at least
+  ``max_distance`` away costs no mesh-mesh distance and the pair reports ``max_distance``.
 * Time of impact for bodies that moved. Slow movers (travel in the step below
   ``ccd_fast`` x their thinnest extent: they cannot tunnel) that enter contact get
   ``toi = h d0 / (d0 + depth)`` from the distance at the start and the depth at the end of
