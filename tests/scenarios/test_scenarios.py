@@ -24,6 +24,8 @@ SCEN = ROOT / "scenarios"
 CAMPUS = SCEN / "campus_drive.toml"
 MY_SWEEPS = ("campus_backends.toml", "campus_prediction.toml", "tank_field_n.toml")
 RESTITUTION = 0.5  # network default (fmus/network/README.md)
+MAX_DISTANCE = 2.0  # collision default (fmus/collision/README.md)
+JOLT_GAIN = 0.03  # campus_drive: net.avatar[1].jolt_acc -> plat.jolt cue gain
 
 
 def series(path: Path, name: str) -> np.ndarray:
@@ -51,22 +53,25 @@ def test_campus_drive_short_run(tmp_path):
     assert {"unit:net", "unit:coll", "unit:plat"} <= set(res.timing)
     d = series(out, "coll.pair[1].distance")
     x = series(out, "net.avatar[1].x")
-    # avatar 1 drives towards tank_a and the collision unit sees it coming
-    assert x[-1] > x[0] + 1.0 and d[-1] < d[0] - 1.0
+    # avatar 1 drives towards tank_a, still farther than the collision unit's max_distance
+    # (2 m, the FMU default): the pair reports exactly max_distance, never an exact distance
+    assert x[-1] > x[0] + 1.0 and np.all(d == MAX_DISTANCE)
     # the avatar's acceleration reaches the platform through the washout (cue.f_x wired)
     assert np.array_equal(series(out, "plat.cue.f_x")[1:], series(out, "net.avatar[1].f_x")[1:])
+    assert np.array_equal(series(out, "plat.cue.f_z")[1:], series(out, "net.avatar[1].f_z")[1:] - 9.81)
     assert np.abs(series(out, "plat.stroke[1]")).max() > 1e-3
 
 
 def _campus_variant(tmp_path: Path, name: str, drop_jolt: bool) -> Path:
     """campus_drive with tank_a 6.5 m ahead of avatar 1 (contact within 2 s), optionally
-    without the net.avatar[1].jolt -> plat.jolt connection."""
+    without the net.avatar[1].jolt_acc -> plat.jolt connection."""
     text = CAMPUS.read_text()
     text, n = re.subn(r"tank:name=tank_a,tris=5\.4k,x=[0-9.]+,y=[0-9.]+",
                       "tank:name=tank_a,tris=5.4k,x=48.123,y=53.310", text)
     assert n == 1
     if drop_jolt:
-        text, n = re.subn(r"\[\[connections\]\][^\n]*\nfrom = \"net\.avatar\[1\]\.jolt\"\nto = \"plat\.jolt\"\n", "", text)
+        text, n = re.subn(r"\[\[connections\]\][^\n]*\nfrom = \"net\.avatar\[1\]\.jolt_acc\"[^\n]*\n"
+                          r"to = \"plat\.jolt\"\ngain = [0-9.]+\n", "", text)
         assert n == 1
     path = tmp_path / name
     path.write_text(text)
@@ -82,12 +87,17 @@ def test_campus_closed_loop_collision_bounce_and_jolt(tmp_path):
     assert contact.any(), "no collision of avatar 1 within 2 s"
     k = int(np.flatnonzero(contact)[0])
     assert 5 < k < 60
+    # approaching: max_distance while far, then exact distances falling to contact
+    d = series(a, "coll.pair[1].distance")
+    near = np.flatnonzero(d[:k] < MAX_DISTANCE)
+    assert d[0] == MAX_DISTANCE and near.size >= 2 and near[-1] == k - 1
+    assert np.all(np.diff(d[near[0]:k]) < 0) and d[k] == 0.0
     active = series(a, "net.contact[1].active") > 0
     nx, ny = series(a, "coll.pair[1].nx"), series(a, "coll.pair[1].ny")
     # collision -> network: the contact reaches the network input one step later (cycle broken there)
     assert not active[:k + 1].any() and active[k + 1]
     assert series(a, "net.contact[1].nx")[k + 1] == nx[k] and series(a, "net.contact[1].ny")[k + 1] == ny[k]
-    # the normal points from tank_a to the avatar, against its velocity: the network bounces it
+    # the normal points from tank_a (partner) to the avatar (first body), against its velocity: the network bounces it
     vx, vy = series(a, "net.avatar[1].vx"), series(a, "net.avatar[1].vy")
     n = np.array([nx[k], ny[k]]) / np.hypot(nx[k], ny[k])
     vn_before = vx[k] * n[0] + vy[k] * n[1]
@@ -98,8 +108,11 @@ def test_campus_closed_loop_collision_bounce_and_jolt(tmp_path):
     # |dv| = (1 + e)|v.n| (the throttle adds a little over the step)
     assert jolt[k + 1] == pytest.approx((1 + RESTITUTION) * -vn_before, rel=0.05)
     # network -> platform: the jolt arrives in the same step (Gauss-Seidel, platform after network)
+    # wired as jolt_acc = jolt / h (m/s2) with the cue gain of the connection
+    acc = series(a, "net.avatar[1].jolt_acc")
+    assert acc[k + 1] == pytest.approx(jolt[k + 1] / 0.033, rel=1e-12)
     pj = series(a, "plat.jolt")
-    assert pj[k + 1] == jolt[k + 1] and not pj[:k + 1].any()
+    assert pj[k + 1] == pytest.approx(JOLT_GAIN * acc[k + 1], rel=1e-15) and not pj[:k + 1].any()
     # and the platform responds: strokes equal to the no-jolt run until the jolt, then differ
     s = np.array([series(a, f"plat.stroke[{i}]") for i in range(1, 7)])
     s0 = np.array([series(b, f"plat.stroke[{i}]") for i in range(1, 7)])
