@@ -41,6 +41,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except RunFailed as exc:
         sys.stderr.write(f"immersim: error: {exc}\n")
         return EXIT_FAILED
+    if args.late_sigint.requested:  # the signal came after the last step, while the run closed
+        sys.stderr.write(f"immersim: interrupted by SIGINT after the run completed; the log {out} holds "
+                         f"all {res.steps_done} steps\n")
+        return EXIT_INTERRUPTED
     sys.stdout.write(f"{res.scenario}: {res.steps_done} steps to t = {res.t_ns / 1e9:.6g} s -> {out}\n")
     summary = res.timing_summary()
     if summary:
@@ -158,7 +162,16 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = parser.parse_args(argv)
     level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    # `run` defers SIGINT for the whole command (the run itself acts on it between steps): a
+    # signal while FMUs are being freed would otherwise kill the interpreter (exit -2). As the
+    # program's entry point (argv None) SIGINT is ignored once the command has finished.
+    from .execution import DeferredSigint
+
+    args.late_sigint = DeferredSigint(restore=argv is not None)
     try:
+        if args.fn is _cmd_run:
+            with args.late_sigint:
+                return args.fn(args)
         return args.fn(args)
     except ImmersimError as exc:
         if args.debug:

@@ -23,20 +23,28 @@ from .system import System, check_system, fmu_hashes
 log = logging.getLogger(__name__)
 
 
-class _DeferredSigint:
+class DeferredSigint:
     """Turn SIGINT into a flag checked between macro steps.
 
     A KeyboardInterrupt raised inside an FMU's own Python code (pythonfmu FMUs share this
     interpreter) would leave the FMU in a fatal state; deferring it to the end of the step
     stops the run cleanly with every completed step logged. Only the main thread can install
     the handler; elsewhere SIGINT keeps its default behaviour.
+
+    Parameters
+    ----------
+    restore : bool
+        Put the previous handler back on exit. False (a program's entry point): ignore SIGINT
+        from then on, so a late signal cannot kill the interpreter while it frees the FMUs
+        (Python's finalization puts a Python-level handler back to the default, not SIG_IGN).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, restore: bool = True) -> None:
         self.requested = False
+        self.restore = restore
         self._old = None
 
-    def __enter__(self) -> "_DeferredSigint":
+    def __enter__(self) -> "DeferredSigint":
         import signal
         import threading
 
@@ -50,8 +58,13 @@ class _DeferredSigint:
     def __exit__(self, *exc) -> None:
         import signal
 
-        if self._old is not None:
+        if self._old is not None and not self.restore:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        elif self._old is not None:
             signal.signal(signal.SIGINT, self._old)
+            outer = getattr(self._old, "__self__", None)
+            if self.requested and isinstance(outer, DeferredSigint):
+                outer.requested = True  # not acted on here (it came after the last check): pass it on
 
 
 class RunFailed(ImmersimError, RuntimeError):
@@ -232,7 +245,7 @@ class Execution:
         bar = None
         # SIGINT is deferred from the start: raised inside an FMU's Python code during set-up or
         # a step it would leave the unit fatal; it is acted on between phases and steps instead.
-        sigint = _DeferredSigint()
+        sigint = DeferredSigint()
         try:
             with sigint:
                 master = self.master = self._setup()

@@ -225,10 +225,13 @@ def test_disk_filling_up_keeps_the_completed_steps_that_fitted(tmp_path, built_f
 
 def test_sigint_during_start_up_exits_130_without_claiming_a_missing_log(tmp_path, built_fmus):
     """SIGINT at a few instants after the FMU build check (logged just before the FMU is loaded,
-    instantiated and initialised, which takes about a second here)."""
+    instantiated and initialised, which takes about a second here). The run is short (60 s
+    simulated, well under a second of loop on a quiet machine), so the later instants land in the
+    loop, while the log is closed, or while the FMUs are freed after the last step: every one
+    of them must exit 130 with a message, never die of the signal (exit -2)."""
     sc = write_scenario(_platform_run(stop=60.0), tmp_path / "s.toml")
     problems = []
-    for delay in (0.25, 0.45, 0.7):
+    for delay in (0.25, 0.45, 0.7, 1.0, 1.4):
         mcap = tmp_path / f"s{delay}.mcap"
         proc = subprocess.Popen(CLI + ["-v", "run", str(sc), "-o", str(mcap), "-q"], stderr=subprocess.PIPE,
                                 text=True)
@@ -239,6 +242,7 @@ def test_sigint_during_start_up_exits_130_without_claiming_a_missing_log(tmp_pat
                 if "up to date" in line or "built" in line:
                     break
             time.sleep(delay)
+            sent = proc.poll() is None  # the process may have finished before this instant
             proc.send_signal(signal.SIGINT)
             _, err = proc.communicate(timeout=300)
             err = "".join(lines) + err
@@ -246,6 +250,14 @@ def test_sigint_during_start_up_exits_130_without_claiming_a_missing_log(tmp_pat
             if proc.poll() is None:
                 proc.kill()
         last = err.strip().splitlines()[-1] if err.strip() else ""
+        late = proc.returncode == 130 and "after the run completed" in last
+        if not sent or late or (proc.returncode == 0 and "Traceback" not in err):
+            # the process had finished, or the signal came after the last step (reported, or
+            # ignored once the command was done): the log must be complete
+            log = check_log(mcap)
+            if log.run.get("status") != "completed" or log.messages.get("p") != 1820:
+                problems.append(f"{delay} s: exit {proc.returncode} but the log is incomplete: {log.run}")
+            continue
         if proc.returncode != 130:
             problems.append(f"{delay} s: exit {proc.returncode}: {last[:200]}")
         if "Traceback" in err:
