@@ -35,6 +35,12 @@ class SceneGrid:
         ij = np.minimum(np.maximum((pos / self.size * self.C).astype(np.int64), 0), self.C - 1)
         return ij[:, 0] * self.C + ij[:, 1]
 
+    def adjacent(self, a, b):
+        """Cell ``b`` is in the 9-cell neighbourhood of cell ``a`` (symmetric), elementwise."""
+        ia, ja = np.divmod(a, self.C)
+        ib, jb = np.divmod(b, self.C)
+        return (np.abs(ia - ib) <= 1) & (np.abs(ja - jb) <= 1)
+
     def view_pairs(self, viewer_cells: np.ndarray, object_cells: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         """All (viewer, object) pairs with the object in the viewer's 9-cell neighbourhood.
 

@@ -38,6 +38,21 @@ from .world import World
 log = logging.getLogger(__name__)
 
 HIST = 16  # frames of displayed-avatar history kept for slaves that lag
+REC_W = 8  # cache row: t, px, py, vx, vy, ax, ay, subscription time
+T_COL, ENTER_COL = 0, 7
+
+
+def _aligned_rows(n: int, w: int) -> np.ndarray:
+    """Zeroed C-contiguous (n, w) float64 array whose rows start on 64-byte boundaries."""
+    buf = np.zeros(n * w + 8)
+    off = (-buf.ctypes.data % 64) // 8
+    return buf[off:off + n * w].reshape(n, w)
+
+
+def _row_prefix(a: np.ndarray, ncol: int) -> np.ndarray:
+    """The first ``ncol`` floats of every row of the C-contiguous (n, w) array ``a`` as one
+    ``ncol * 8``-byte opaque item per row (a view: whole-record gathers and scatters)."""
+    return np.ndarray((a.shape[0],), np.dtype((np.void, 8 * ncol)), a, 0, (a.strides[0],))
 
 
 class NetworkModel:
@@ -80,13 +95,14 @@ class NetworkModel:
         # ownership: avatars by their group; entities initially by the nearest avatar
         self.owner = np.r_[np.arange(G), self._initial_entity_owners()]
         self.pending_contact = np.zeros(E, bool)
-        # receivers' caches (viewer group x object): record time, position, velocity, acceleration
-        # one entry per (object, viewer), flat index object * G + viewer (object-major: the pairs
-        # of a frame are sorted by object, so gathers and scatters walk memory forward):
-        # rows t, p(2), v(2), a(2)
-        # stored column-wise, cache[j] contiguous (fast gathers): rows t, px, py, vx, vy, ax, ay
-        self.cache = np.zeros((7, G * self.n_obj))
-        self.cache[0] = -np.inf
+        # receivers' caches (viewer group x object): one row of REC_W floats per (object, viewer),
+        # flat index object * G + viewer (object-major: the pairs of a frame are sorted by
+        # object, so gathers and scatters walk memory forward). Row: record time t, position
+        # p (2), velocity v (2), acceleration a (2), and the time the pair last entered the
+        # viewer's neighbourhood (subscription). One 64-byte row per pair: the display error
+        # of a pair reads one cache line instead of one per column.
+        self.cache = _aligned_rows(G * self.n_obj, REC_W)
+        self.cache[:, T_COL] = -np.inf
         # owner's knowledge of what it last published (DIS)
         self.pub_t = np.full(self.n_obj, -np.inf)
         self.pub_p = np.zeros((self.n_obj, 2))
@@ -100,9 +116,10 @@ class NetworkModel:
         self._frames: Dict[str, np.ndarray] = {k: np.zeros(0, t) for k, t in
                                                (("arr", float), ("slave", np.int64), ("frame", np.int64))}
         self.hist = np.zeros((HIST, G, G, 2))
-        # subscription: which objects were in each viewer's neighbourhood, and since when
-        self.view_frame = np.zeros((self.n_obj, G), np.int64)   # last frame the pair was in view
-        self.enter_t = np.zeros((self.n_obj, G))
+        # subscription: object cells and online viewers of the last frame (a pair is in view
+        # when the object's cell is in the 9-cell neighbourhood of the viewer avatar's cell);
+        # None before the first frame: every pair counts as in view at frame 0 (scene file)
+        self._view_prev: Optional[tuple] = None
         self.per_object_max = np.zeros(self.n_obj)
         self.per_object_rms = np.zeros(self.n_obj)
         self.metrics = StepMetrics()
@@ -149,7 +166,7 @@ class NetworkModel:
         """Frame 0: every node starts from the same scene file (the shared initial state)."""
         P, V, A = self.world.positions(), self.world.velocities(), self.world.accelerations()
         rec = np.c_[np.zeros(self.n_obj), P, V, A]
-        self.cache[:] = np.repeat(rec.T, self.cfg.groups, axis=1)
+        self.cache[:, :ENTER_COL] = np.repeat(rec, self.cfg.groups, axis=0)
         self.pub_t[:] = 0.0
         self.pub_p, self.pub_v, self.pub_a = P.copy(), V.copy(), A.copy()
 
@@ -250,7 +267,8 @@ class NetworkModel:
                       arrival: Optional[float] = None) -> None:
         """Put a STATE record from ``sender_group`` for ``obj`` in flight (e.g. a forged one)."""
         t = self.t if arrival is None else arrival
-        rec = np.r_[self.t, np.asarray(pos, float), np.asarray(vel, float), 0.0, 0.0][:, None]
+        rec = np.zeros((1, REC_W))
+        rec[0, :7] = np.r_[self.t, np.asarray(pos, float), np.asarray(vel, float), 0.0, 0.0]
         self._add_inflight(np.array([t]), np.array([self.index(viewer_group, obj)]), np.array([sender_group]),
                            rec, np.zeros(1, np.int64), epoch=-1)
 
@@ -351,7 +369,8 @@ class NetworkModel:
             # the old owner knew the exact state when it let go: its cache starts from it
             w = self.world
             P, V, A = w.positions()[o], w.velocities()[o], w.accelerations()[o]
-            rec = np.ascontiguousarray(np.c_[np.full(len(o), self.t), P, V, A].T)
+            rec = np.zeros((len(o), REC_W))
+            rec[:, :7] = np.c_[np.full(len(o), self.t), P, V, A]
             self._scatter(self.index(old, o), rec, np.arange(len(o)))
             self._newest = max(self._newest, self.t)
             self._epoch += 1
@@ -421,11 +440,10 @@ class NetworkModel:
         if cfg.topology == "full_mesh":  # a broadcast subscribes everyone to everything
             newly = np.zeros(len(vg), bool)
         else:
-            vf = self.view_frame.ravel()
-            newly = np.take(vf, fi) != self.k - 1
-            vf[fi] = self.k
+            newly = self._entered(cells, online_g, vg, vo)
             if newly.any():
-                self.enter_t.ravel()[fi[newly]] = t
+                self.cache[fi[newly], ENTER_COL] = t
+            self._view_prev = (cells, online_g)
         send_pair = pub[vo] | newly
         tr = build_messages(cfg, self.reg, t, self.master, self.slaves, pub_obj, self.owner, vg, vo, frame_size,
                             send_pair, og)
@@ -434,10 +452,11 @@ class NetworkModel:
             r_arr, r_lost = arrival[tr.rec_msg], lost[tr.rec_msg]
             if (tr.rec_hop1 >= 0).any():
                 r_lost = r_lost | np.where(tr.rec_hop1 >= 0, lost[np.maximum(tr.rec_hop1, 0)], False)
-            # one record table per frame (objects x 7, column-major); pairs refer to it by object
-            table = np.empty((7, self.n_obj))
-            table[0] = t
-            table[1:3], table[3:5], table[5:7] = P.T, V.T, A.T
+            # one record table per frame (objects x REC_W, rows like the cache's); pairs refer
+            # to it by object
+            table = np.empty((self.n_obj, REC_W))
+            table[:, T_COL] = t
+            table[:, 1:3], table[:, 3:5], table[:, 5:7] = P, V, A
             if r_lost.any():
                 ok = ~r_lost
                 o, viewer, r_arr = tr.rec_obj[ok], tr.rec_viewer[ok], r_arr[ok]
@@ -494,12 +513,12 @@ class NetworkModel:
     def _add_inflight(self, arr: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
                       ridx: np.ndarray, epoch: Optional[int] = None) -> None:
         """Put records in flight: arrival (s), flat cache index, sending group and the record
-        ``table[:, ridx]`` (rows t, p, v, a). Each is filed under the first frame ``k`` with
+        ``table[ridx]`` (rows t, p, v, a). Each is filed under the first frame ``k`` with
         ``k T >= arrival``: it has arrived by that tick and not by the one before. ``epoch``
         is the ownership epoch the senders were checked against (-1: never checked)."""
         if not len(arr):
             return
-        meta = (self._epoch if epoch is None else epoch, float(table[0].max()))
+        meta = (self._epoch if epoch is None else epoch, float(table[:, T_COL].max()))
         T = self.cfg.frame_s
         due = np.maximum(np.ceil(arr / T - 1e-9), self.k).astype(np.int64)
         lo, hi = int(due.min()), int(due.max())
@@ -535,7 +554,7 @@ class NetworkModel:
                         self.metrics.rejected_updates += int((~valid).sum())
                         fi, ridx = fi[valid], ridx[valid]
                 if t_send < self._newest:  # possibly older than what the cache holds
-                    newer = np.take(table[0], ridx) > np.take(self.cache[0], fi)
+                    newer = np.take(table[:, T_COL], ridx) > np.take(self.cache[:, T_COL], fi)
                     if not newer.all():
                         fi, ridx = fi[newer], ridx[newer]
                 self._scatter(fi, table, ridx)
@@ -546,19 +565,46 @@ class NetworkModel:
         return np.asarray(obj) * self.cfg.groups + np.asarray(viewer)
 
     def _scatter(self, fi: np.ndarray, table: np.ndarray, ridx: np.ndarray) -> None:
-        """Write records ``table[:, ridx]`` into the cache rows ``fi`` (the columns in use)."""
-        for j in range(self._ncol):
-            self.cache[j][fi] = np.take(table[j], ridx)
+        """Write records ``table[ridx]`` into the cache rows ``fi`` (the columns the prediction
+        order uses, as one block per row; the subscription time is left alone)."""
+        n = self._ncol
+        _row_prefix(self.cache, n)[fi] = np.take(_row_prefix(table, n), ridx)
 
-    def _gather(self, fi: np.ndarray):
-        """Cached record time (k,), position, velocity, acceleration (k, 2) of rows ``fi``."""
-        c = self.cache
-        order = self.cfg.prediction_order
-        t = np.take(c[0], fi)
-        p = np.stack([np.take(c[1], fi), np.take(c[2], fi)], axis=1)
-        v = np.stack([np.take(c[3], fi), np.take(c[4], fi)], axis=1) if order >= 1 else None
-        a = np.stack([np.take(c[5], fi), np.take(c[6], fi)], axis=1) if order >= 2 else None
-        return t, p, v, a
+    def record(self, viewer: int, obj: int) -> np.ndarray:
+        """Cached record (7,) of ``obj`` at group ``viewer``: t (s), p (2, m), v (2, m/s), a (2, m/s^2)."""
+        return self.cache[int(self.index(viewer, obj)), :ENTER_COL].copy()
+
+    def in_view(self, viewer: int, obj: int) -> bool:
+        """``obj`` was in the 9-cell neighbourhood of online group ``viewer`` at the last frame."""
+        if self._view_prev is None:
+            return True
+        cells, online = self._view_prev
+        return bool(online[viewer]) and (not self.grid.enabled
+                                         or bool(self.grid.adjacent(cells[obj], cells[viewer])))
+
+    def _entered(self, cells: np.ndarray, online_g: np.ndarray, vg: np.ndarray, vo: np.ndarray) -> np.ndarray:
+        """Which of this frame's view pairs (``vg``, ``vo``) were not in view at the last frame.
+
+        A pair was in view at frame ``k - 1`` iff its viewer was online then and the object's
+        cell was in the 9-cell neighbourhood of the viewer avatar's cell (§3.3). Only pairs
+        whose object or viewer changed cell (or whose viewer came online) can have entered,
+        so the neighbourhood test runs on those alone.
+        """
+        if self._view_prev is None:
+            return np.zeros(len(vg), bool)
+        pc, pon = self._view_prev
+        G = self.cfg.groups
+        if not self.grid.enabled:
+            return ~np.take(pon, vg)
+        moved = cells != pc
+        changed_v = moved[:G] | ~pon
+        cand = np.flatnonzero(np.take(moved, vo) | np.take(changed_v, vg))
+        newly = np.zeros(len(vg), bool)
+        if len(cand):
+            g, o = vg[cand], vo[cand]
+            was = np.take(pon, g) & self.grid.adjacent(np.take(pc, o), np.take(pc, g))
+            newly[cand] = ~was
+        return newly
 
     def _flip_frames(self, t: float) -> None:
         fr = self._frames
@@ -584,9 +630,9 @@ class NetworkModel:
         if cfg.measure:
             self._measure(t, P, vg, vo, fi, og)
         # displayed avatars at every master (for slaves showing an older frame)
-        fa = np.arange(G * G)                     # avatars are objects 0..G-1: object-major block
-        at, ap, avv, aa = self._gather(fa)
-        av = dead_reckon(ap, avv, aa, t - at, cfg.prediction_order).reshape(G, G, 2).transpose(1, 0, 2)
+        blk = self.cache[:G * G]                  # avatars are objects 0..G-1: object-major block
+        av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL],
+                         cfg.prediction_order).reshape(G, G, 2).transpose(1, 0, 2)
         av[np.arange(G), np.arange(G)] = P[:G]
         self.hist[self.k % HIST] = av
         sl = np.concatenate([s for s in self.slaves if len(s)]) if any(len(s) for s in self.slaves) else np.zeros(0, int)
@@ -602,19 +648,20 @@ class NetworkModel:
             fi = self.index(vg, vo)
         if og is None:
             og = np.take(self.owner, vo)
-        c, order = self.cache, cfg.prediction_order
-        ct = np.take(c[0], fi)
-        remote = (og != vg) & (ct >= np.take(self.enter_t.ravel(), fi) - 1e-12)
-        ex = np.take(c[1], fi) - np.take(P[:, 0], vo)
-        ey = np.take(c[2], fi) - np.take(P[:, 1], vo)
+        order = cfg.prediction_order
+        c = np.take(self.cache, fi, axis=0)       # one row (cache line) per copy
+        ct = c[:, T_COL]
+        remote = (og != vg) & (ct >= c[:, ENTER_COL] - 1e-12)
+        ex = c[:, 1] - np.take(P[:, 0], vo)
+        ey = c[:, 2] - np.take(P[:, 1], vo)
         if order >= 1:
             dt = t - ct
-            ex += np.take(c[3], fi) * dt
-            ey += np.take(c[4], fi) * dt
+            ex += c[:, 3] * dt
+            ey += c[:, 4] * dt
             if order >= 2:
                 h = 0.5 * dt * dt
-                ex += np.take(c[5], fi) * h
-                ey += np.take(c[6], fi) * h
+                ex += c[:, 5] * h
+                ey += c[:, 6] * h
         ex *= ex
         ey *= ey
         ex += ey
@@ -659,7 +706,7 @@ class NetworkModel:
         if self.owner[obj] == viewer:
             return self.world.positions()[obj].copy()
         fi = int(self.index(viewer, obj))
-        c = self.cache[:, fi]
+        c = self.cache[fi]
         dt = np.array([self.k * self.cfg.frame_s - c[0]])
         return dead_reckon(c[None, 1:3], c[None, 3:5], c[None, 5:7], dt, self.cfg.prediction_order)[0]
 

@@ -78,16 +78,16 @@ def test_forged_update_from_non_owner_is_rejected_and_counted():
     owner = int(m.owner[obj])
     forger = (owner + 1) % G
     viewer = (owner + 2) % G
-    before = m.cache[:, m.index(viewer, obj)].copy()
+    before = m.record(viewer, obj)
     m.inject_update(forger, viewer, obj, pos=(1e4, 1e4))
     m._deliver(m.t)
     assert m.metrics.rejected_updates == 1
-    assert np.array_equal(m.cache[:, m.index(viewer, obj)], before)
+    assert np.array_equal(m.record(viewer, obj), before)
     # the same record from the owner is accepted
     m.inject_update(owner, viewer, obj, pos=(5.0, 6.0))
     m._deliver(m.t)
     assert m.metrics.rejected_updates == 1
-    assert tuple(m.cache[1:3, m.index(viewer, obj)]) == (5.0, 6.0)
+    assert tuple(m.record(viewer, obj)[1:3]) == (5.0, 6.0)
 
 
 def _trace(seed):
@@ -187,7 +187,7 @@ def test_at_rest_when_nothing_moves_and_shown_positions_match_truth():
     truth = m.world.positions()
     for g in range(2):
         for o in range(m.n_obj):
-            if m.view_frame[o, g] == m.k:
+            if m.in_view(g, o):
                 assert np.allclose(m.shown_position(g, o), truth[o])
     m.set_input(0, 0.5, 0.0)
     m.step(T)
