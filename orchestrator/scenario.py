@@ -7,7 +7,7 @@ Example::
     stop = 10.0            # s
     step = 0.033           # s, the macro step (default 0.033)
     algorithm = "gauss-seidel"   # or "jacobi"
-    extrapolation = "zoh"        # or "linear"
+    extrapolation = "linear"     # or "zoh" (default linear: see results/cosim/README.md)
     lazy = true                  # step units that report at_rest lazily (false: always step)
 
     [[units]]
@@ -21,6 +21,7 @@ Example::
     to = "plat.cue.f_x"
     gain = 1.0                   # optional, Real only: to = gain * from + offset
     offset = 0.0
+    extrapolation = "zoh"        # optional: this connection only (e.g. event-like signals)
 
     [[inputs]]                   # scenario inputs (manipulators)
     target = "net.avatar[1].throttle"
@@ -75,6 +76,7 @@ class Connection:
     dst_var: str
     gain: float = 1.0
     offset: float = 0.0
+    extrapolation: Optional[str] = None  # None: the scenario's simulation.extrapolation
 
     @property
     def scaled(self) -> bool:
@@ -125,7 +127,7 @@ class Scenario:
     stop_ns: int = 10 * 33_000_000
     step_ns: int = DEFAULT_STEP_NS
     algorithm: str = "gauss-seidel"
-    extrapolation: str = "zoh"
+    extrapolation: str = "linear"
     tolerance: Optional[float] = None
     lazy: bool = True
     foxglove: List[Any] = field(default_factory=list)  # foxglove.Body list (3D view)
@@ -216,7 +218,7 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     algorithm = sim.get("algorithm", "gauss-seidel")
     if algorithm not in ALGORITHMS:
         raise ScenarioError(f"{f}: simulation.algorithm {algorithm!r} is not one of {', '.join(ALGORITHMS)}")
-    extrapolation = sim.get("extrapolation", "zoh")
+    extrapolation = sim.get("extrapolation", "linear")
     if extrapolation not in EXTRAPOLATIONS:
         raise ScenarioError(f"{f}: simulation.extrapolation {extrapolation!r} is not one of {', '.join(EXTRAPOLATIONS)}")
     tolerance = sim.get("tolerance")
@@ -273,15 +275,19 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
         raise ScenarioError(f"{f}: 'connections' must be an array")
     for i, c in enumerate(raw_conns):
         where = f"{f}: connections[{i}]"
-        gain, offset = 1.0, 0.0
+        gain, offset, extrap = 1.0, 0.0, None
         if isinstance(c, str):
             if "->" not in c:
                 raise ScenarioError(f"{where}: {c!r} is not of the form 'unit.out -> unit.in'")
             src, dst = (s.strip() for s in c.split("->", 1))
         elif isinstance(c, dict):
-            unknown = set(c) - {"from", "to", "gain", "offset"}
+            unknown = set(c) - {"from", "to", "gain", "offset", "extrapolation"}
             if unknown:
-                raise ScenarioError(f"{where}: unknown key {sorted(unknown)[0]!r} (from, to, gain, offset)")
+                raise ScenarioError(f"{where}: unknown key {sorted(unknown)[0]!r} "
+                                    "(from, to, gain, offset, extrapolation)")
+            extrap = c.get("extrapolation")
+            if extrap is not None and extrap not in EXTRAPOLATIONS:
+                raise ScenarioError(f"{where}: extrapolation {extrap!r} is not one of {', '.join(EXTRAPOLATIONS)}")
             src, dst = c.get("from"), c.get("to")
             for key in ("gain", "offset"):
                 v = c.get(key, 1.0 if key == "gain" else 0.0)
@@ -292,7 +298,7 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
             raise ScenarioError(f"{where} must be a string 'a.x -> b.y' or a table with from/to")
         su, sv = check_ref(src, where)
         du, dv = check_ref(dst, where)
-        conn = Connection(su, sv, du, dv, gain, offset)
+        conn = Connection(su, sv, du, dv, gain, offset, extrap)
         if any((x.dst_unit, x.dst_var) == (du, dv) for x in connections):
             raise ScenarioError(f"{where}: input {du}.{dv} is already connected")
         connections.append(conn)

@@ -144,3 +144,24 @@ def test_unneeded_unit_is_not_loaded(tmp_path, test_fmus):
     assert ex.system.needed == ["a"] and ex.system.skipped == ["idle"]
     res = ex.run()
     assert set(res.values) == {"a"}
+
+
+def test_linear_is_the_default_and_a_connection_may_hold(tmp_path, test_fmus):
+    """Without simulation.extrapolation, Gauss-Seidel feeds the mid-step (interpolated) value of a
+    continuous Real source; a connection with extrapolation = "zoh" gets the step's end value."""
+    fmu = test_fmus["oscillator"]
+    text = (f'[simulation]\nstop = 0.66\nalgorithm = "gauss-seidel"\n'
+            f'[[units]]\nname = "m1"\nfmu = "{fmu}"\nparameters = {{ x0 = 1.0 }}\n'
+            f'[[units]]\nname = "m2"\nfmu = "{fmu}"\n'
+            f'[[units]]\nname = "m3"\nfmu = "{fmu}"\n'
+            '[[connections]]\nfrom = "m1.x"\nto = "m2.x_other"\n'
+            '[[connections]]\nfrom = "m1.x"\nto = "m3.x_other"\nextrapolation = "zoh"\n')
+    scn = tmp_path / "lin.toml"
+    scn.write_text(text)
+    assert load_scenario(scn).extrapolation == "linear"
+    run_scenario(scn, tmp_path / "lin.mcap")
+    s = read_series(tmp_path / "lin.mcap", ["m1.x", "m2.x_other", "m3.x_other"])
+    x, lin, zoh = s["m1.x"][1], s["m2.x_other"][1], s["m3.x_other"][1]
+    assert np.ptp(x) > 0.1  # m1 swings: the two feeds differ
+    np.testing.assert_array_equal(zoh[1:], x[1:])
+    np.testing.assert_allclose(lin[2:], 0.5 * (x[1:-1] + x[2:]), rtol=0, atol=1e-15)

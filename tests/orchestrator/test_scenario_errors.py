@@ -26,6 +26,8 @@ CASES = [
     ("step_negative", '[simulation]\nstep = -0.033\n' + GOOD_UNITS, ScenarioError, r"simulation.step = -0.033 s must be > 0"),
     ("stop_before_start", '[simulation]\nstart = 2.0\nstop = 1.0\n' + GOOD_UNITS, ScenarioError,
      r"simulation.stop = 1 s must be after simulation.start = 2 s"),
+    ("bad_connection_extrapolation", GOOD_UNITS + '[[connections]]\nfrom = "m1.x"\nto = "m2.x_other"\n'
+     'extrapolation = "cubic"\n', ScenarioError, r"connections\[0\]: extrapolation 'cubic' is not one of zoh, linear"),
     ("bad_algorithm", '[simulation]\nalgorithm = "newton"\n' + GOOD_UNITS, ScenarioError,
      r"simulation.algorithm 'newton' is not one of gauss-seidel, jacobi"),
     ("duplicate_instance", GOOD_UNITS + '[[units]]\nname = "m1"\nfmu = "{fmu}"\n', ScenarioError,
