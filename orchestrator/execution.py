@@ -195,13 +195,13 @@ class Execution:
             "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
             "skipped_units": ",".join(system.skipped),
             "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})
-        self._log_index: Dict[str, Optional[List[int]]] = {}
+        self._log_plan = []  # ((channel id, encoder), slot, indices into slot.cur or None for all)
         for name, slot in master.slots.items():
             logged = system.logged[name]
             if logged:
-                obs.add_channel(name, [slot.inst.var(n) for n in logged])
+                channel = obs.add_channel(name, [slot.inst.var(n) for n in logged])
                 idx = [slot.index(n) for n in logged]
-                self._log_index[name] = None if idx == list(range(len(slot.read_names))) else idx
+                self._log_plan.append((channel, slot, None if idx == list(range(len(slot.read_names))) else idx))
             if sc.log.parameters:
                 pnames = [n for n, v in slot.inst.variables.items() if v.causality in ("parameter", "structuralParameter")]
                 if pnames:
@@ -226,10 +226,8 @@ class Execution:
     def _observe_values(self, master: Master, k: int, t_ns: int) -> None:
         obs = self.observer
         if obs is not None:
-            for name, idx in self._log_index.items():
-                cur = master.slots[name].cur
-                obs.write(name, t_ns, cur if idx is None else [cur[i] for i in idx], k)
-            obs.step_done(t_ns)
+            obs.write_step(t_ns, k, [(channel, slot.cur if idx is None else [slot.cur[i] for i in idx])
+                                     for channel, slot, idx in self._log_plan])
         for fn in self.observers:
             fn(k, t_ns)
 

@@ -10,9 +10,10 @@ Layout of the file (see ``immersim info``):
   (package version, algorithm, step) and, when the run ends, ``run`` (status, completed
   steps, last time, reason).
 
-Messages are JSON objects with the variable names as keys. They are formatted from a
-template prepared once per channel, not by ``json.dumps`` per step: the logging cost of a
-step is one string format and one append to the current chunk.
+Messages are JSON objects with the variable names as keys, encoded by orjson (the same text
+as ``json.dumps`` for these values, several times faster). The logging cost of a step is one
+encoding per channel and one write of the step's records into the current chunk
+(:meth:`McapObserver.write_step`).
 """
 from __future__ import annotations
 
@@ -21,13 +22,16 @@ import logging
 import math
 import time
 from pathlib import Path
-from typing import Any, Dict, List, Sequence
+from typing import Any, Callable, Dict, List, Sequence, Tuple
+
+import orjson
 
 from .errors import LogWriteError
 from .fmu import VarInfo
 
 log = logging.getLogger(__name__)
 
+_dumps = orjson.dumps
 _JSON_TYPE = {"float": "number", "int": "integer", "bool": "boolean", "string": "string"}
 
 
@@ -55,20 +59,25 @@ def json_schema(unit: str, infos: Sequence[VarInfo]) -> Dict[str, Any]:
 
 
 class ChannelEncoder:
-    """Formats one unit's values into a JSON object with a prepared template."""
+    """Formats one unit's values into a JSON object.
+
+    orjson does it (shortest round-trip floats as ``repr``, ``true``/``false``, non-finite
+    Reals as ``null``) in a fraction of the time of ``json.dumps`` or a ``%r`` template; a
+    value orjson refuses (bytes, an integer beyond 64 bits) falls back to a template
+    formatted value by value.
+    """
 
     def __init__(self, infos: Sequence[VarInfo]) -> None:
         self.infos = list(infos)
-        self.all_float = all(v.family == "float" for v in self.infos)
-        keys = [json.dumps(v.name) for v in self.infos]
-        # %r of a finite float is its repr, valid JSON; non-finite values are stopped before logging
-        self.float_template = "{" + ",".join(f"{k}:%r" for k in keys) + "}"
-        self.template = "{" + ",".join(f"{k}:%s" for k in keys) + "}"
+        self.names = [v.name for v in self.infos]
+        self._template = "{" + ",".join(f"{json.dumps(n)}:%s" for n in self.names) + "}"
 
     def encode(self, values: Sequence[Any]) -> bytes:
-        if self.all_float:
-            return (self.float_template % tuple(values)).encode()
-        return (self.template % tuple(_json_value(v) for v in values)).encode()
+        """JSON bytes of one message; ``values`` in the order of ``infos``."""
+        try:
+            return _dumps(dict(zip(self.names, values)))
+        except TypeError:  # orjson.JSONEncodeError subclasses TypeError
+            return (self._template % tuple(_json_value(v) for v in values)).encode()
 
 
 def _fast_writer_class():
@@ -111,6 +120,47 @@ def _fast_writer_class():
             buf.write(data)
             self._Writer__maybe_finalize_chunk()
 
+        def add_step(self, log_time: int, sequence: int, items: Sequence[Tuple[int, bytes]]) -> None:
+            """The messages of one macro step (``(channel id, data)`` pairs, all at ``log_time``)
+            with one buffer write; the chunk is finished, when full, after the whole step, so a
+            step is never split across chunks. With one channel the bytes equal the library's."""
+            try:
+                stats = self._Writer__statistics
+                cb = self._Writer__chunk_builder
+                buf = cb.record_writer._buffer
+            except AttributeError:
+                for cid, data in items:
+                    super().add_message(cid, log_time, data, log_time, sequence)
+                return
+            if not items:
+                return
+            if stats.message_count == 0 or log_time < stats.message_start_time:
+                stats.message_start_time = log_time
+            if log_time > stats.message_end_time:
+                stats.message_end_time = log_time
+            if cb.num_messages == 0 or log_time < cb.message_start_time:
+                cb.message_start_time = log_time
+            if log_time > cb.message_end_time:
+                cb.message_end_time = log_time
+            stats.message_count += len(items)
+            cb.num_messages += len(items)
+            counts, indices = stats.channel_message_counts, cb.message_indices
+            pos = buf.tell()
+            parts = []
+            for cid, data in items:
+                counts[cid] += 1
+                index = indices.get(cid)
+                if not index:
+                    index = indices[cid] = MessageIndex(channel_id=cid, records=[])
+                index.records.append((log_time, pos))
+                n = len(data)
+                pos += 31 + n  # 9 bytes record header + 22 bytes message fields + data
+                parts.append(header.pack(0x05, 22 + n, cid, sequence, log_time, log_time))
+                parts.append(data)
+            buf.write(b"".join(parts))
+            if pos > self._Writer__chunk_size:
+                self._Writer__finalize_chunk()
+
     return FastWriter
 
 
@@ -151,13 +201,22 @@ class McapObserver:
     def add_metadata(self, name: str, data: Dict[str, str]) -> None:
         self.writer.add_metadata(name, {k: str(v) for k, v in data.items()})
 
-    def add_channel(self, topic: str, infos: Sequence[VarInfo]) -> None:
+    def add_channel(self, topic: str, infos: Sequence[VarInfo]) -> Tuple[int, Callable[[Sequence[Any]], bytes]]:
+        """Register a channel with its JSON schema.
+
+        Returns
+        -------
+        (channel id, encoder)
+            The pair :meth:`write_step` takes for this channel.
+        """
         schema = json.dumps(json_schema(topic, infos)).encode()
         sid = self.writer.register_schema(name=topic, encoding="jsonschema", data=schema)
-        self.channels[topic] = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        cid = self.channels[topic] = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
         self.encoders[topic] = ChannelEncoder(infos)
+        return cid, self.encoders[topic].encode
 
     def write(self, topic: str, t_ns: int, values: Sequence[Any], sequence: int = 0) -> None:
+        """One message (non-finite Reals are written as ``null``)."""
         data = self.encoders[topic].encode(values)
         try:
             self.writer.add_message(self.channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
@@ -165,6 +224,29 @@ class McapObserver:
         except OSError as exc:
             raise self._error(exc, t_ns) from None
         self.messages += 1
+
+    def write_step(self, t_ns: int, sequence: int,
+                   rows: Sequence[Tuple[Tuple[int, Callable[[Sequence[Any]], bytes]], Sequence[Any]]]) -> None:
+        """Log one macro step: one message per channel, then flush to disk now and then.
+
+        Parameters
+        ----------
+        t_ns : int
+            Simulation time of the step's end, ns (log and publish time).
+        sequence : int
+            Step number.
+        rows : sequence of ((channel id, encoder), values)
+            The pairs returned by :meth:`add_channel`, each with its values.
+        """
+        try:
+            self.writer.add_step(t_ns, sequence, [(cid, enc(values)) for (cid, enc), values in rows])
+            self.messages += len(rows)
+            now = time.monotonic()
+            if now - self._last_flush > self.flush_seconds:
+                self.writer.flush()
+                self._last_flush = now
+        except OSError as exc:
+            raise self._error(exc, t_ns) from None
 
     def step_done(self, t_ns: int = 0) -> None:
         """Called after each macro step: flush to disk now and then."""

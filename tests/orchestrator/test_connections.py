@@ -13,6 +13,7 @@ def scenario(tmp_path, fmu, conn_extra="gain = 2.0\noffset = 0.5"):
 [simulation]
 stop = 0.66
 algorithm = "gauss-seidel"
+extrapolation = "zoh"  # the exact relation below holds for the held value
 [[units]]
 name = "m2"
 fmu = "{fmu}"
