@@ -62,7 +62,7 @@ class SceneGrid:
         total = int(lens.sum())
         viewer = np.repeat(owner, lens)
         offs = np.cumsum(lens) - lens
-        pos = np.arange(total) - np.repeat(offs, lens) + np.repeat(starts[cells], lens)
+        pos = np.arange(total) + np.repeat(starts[cells] - offs, lens)
         return viewer, order[pos]
 
 

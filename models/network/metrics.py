@@ -29,8 +29,14 @@ def inconsistency(obj: np.ndarray, shown: np.ndarray, truth: np.ndarray, n_obj: 
     return inconsistency_sq(obj, dx * dx + dy * dy, n_obj, mask)
 
 
-def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None):
-    """As :func:`inconsistency`, from squared errors ``err2`` (k,) m^2 of the copies."""
+def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None, sorted_obj: bool = False):
+    """As :func:`inconsistency`, from squared errors ``err2`` (k,) m^2 of the copies.
+
+    ``sorted_obj``: ``obj`` is non-decreasing (the copies come grouped by object, as the
+    grid's view pairs do), so the per-object maxima are segment reductions. The result is
+    the same either way (a maximum does not depend on the order; the sums are the same
+    sequential ``bincount`` sums).
+    """
     n_valid = len(obj) if mask is None else int(np.count_nonzero(mask))
     if n_valid == 0:
         z = np.zeros(n_obj)
@@ -38,8 +44,14 @@ def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None):
     if mask is not None:
         err2 = np.where(mask, err2, 0.0)
     per_max = np.zeros(n_obj)
-    np.maximum.at(per_max, obj, err2)
-    cnt = np.bincount(obj, weights=None if mask is None else mask.astype(float), minlength=n_obj)
+    if sorted_obj:
+        seen = np.bincount(obj, minlength=n_obj)
+        present = np.flatnonzero(seen)
+        per_max[present] = np.maximum.reduceat(err2, (np.cumsum(seen) - seen)[present])
+        cnt = seen if mask is None else np.bincount(obj[mask], minlength=n_obj)
+    else:
+        np.maximum.at(per_max, obj, err2)
+        cnt = np.bincount(obj, weights=None if mask is None else mask.astype(float), minlength=n_obj)
     s2 = np.bincount(obj, weights=err2, minlength=n_obj)
     per_rms = np.sqrt(np.divide(s2, cnt, out=np.zeros(n_obj), where=cnt > 0))
     return np.sqrt(per_max), per_rms, float(np.sqrt(err2.max())), float(np.sqrt(err2.sum() / n_valid))

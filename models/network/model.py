@@ -554,7 +554,7 @@ class NetworkModel:
                         self.metrics.rejected_updates += int((~valid).sum())
                         fi, ridx = fi[valid], ridx[valid]
                 if t_send < self._newest:  # possibly older than what the cache holds
-                    newer = np.take(table[:, T_COL], ridx) > np.take(self.cache[:, T_COL], fi)
+                    newer = table[ridx, T_COL] > self.cache[fi, T_COL]
                     if not newer.all():
                         fi, ridx = fi[newer], ridx[newer]
                 self._scatter(fi, table, ridx)
@@ -568,7 +568,7 @@ class NetworkModel:
         """Write records ``table[ridx]`` into the cache rows ``fi`` (the columns the prediction
         order uses, as one block per row; the subscription time is left alone)."""
         n = self._ncol
-        _row_prefix(self.cache, n)[fi] = np.take(_row_prefix(table, n), ridx)
+        _row_prefix(self.cache, n)[fi] = _row_prefix(table, n)[ridx]
 
     def record(self, viewer: int, obj: int) -> np.ndarray:
         """Cached record (7,) of ``obj`` at group ``viewer``: t (s), p (2, m), v (2, m/s), a (2, m/s^2)."""
@@ -665,7 +665,7 @@ class NetworkModel:
         ex *= ex
         ey *= ey
         ex += ey
-        pm, pr, mx, rms = inconsistency_sq(vo, ex, self.n_obj, remote)
+        pm, pr, mx, rms = inconsistency_sq(vo, ex, self.n_obj, remote, sorted_obj=True)
         self.per_object_max, self.per_object_rms = pm, pr
         self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
         self.metrics.inconsistency_rms = rms
