@@ -18,13 +18,27 @@ size > 0, following the FMI Reference-FMUs), rejects NaN/inf inputs and refuses 
 non-finite outputs, each with a message naming instance, variable and time. A raised
 exception becomes ``fmi2Error`` in the pythonfmu binary and its text reaches the master's
 logger.
+
+Cost per FMI call
+-----------------
+pythonfmu calls ``get_real(vrs)`` / ``set_real(vrs, values)`` once per ``fmi2GetReal`` /
+``fmi2SetReal`` with a fresh list of value references; a master asks for the same list every
+step. Each distinct list is resolved once into an ``operator.itemgetter`` over
+``self.values`` (setters: the names, type-checked once), so a call over a few hundred
+variables costs a few microseconds instead of one Python attribute chain per variable. The
+input check runs only after a ``set_real`` that handed over a non-finite value (or a state
+restore), so unchanged inputs are not re-checked; the output check is one ``sum`` of the
+Real outputs (finite unless a term is not, or the sum overflows, which falls back to the
+element-wise search). A unit whose step changed no output (its at-rest shortcut) returns
+:data:`OUTPUTS_UNCHANGED` from ``step_model`` and skips the output check.
 """
 from __future__ import annotations
 
 import copy
 import math
 import pickle
-from typing import Any, ClassVar, Dict, List, Tuple
+from operator import itemgetter
+from typing import Any, Callable, ClassVar, Dict, List, Sequence, Tuple
 from xml.etree.ElementTree import Element, SubElement
 
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability
@@ -35,6 +49,31 @@ from .variables import Var
 
 _PY_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
 _CAST = {"Real": float, "Integer": int, "Boolean": bool, "String": str}
+
+#: returned by ``step_model`` when the step changed no output (the base class then skips the
+#: output check); any other return value (``None``) means outputs may have changed
+OUTPUTS_UNCHANGED = True
+#: distinct value-reference lists remembered per type (a master uses a handful)
+_CACHE_LIMIT = 256
+
+
+def _tuple_getter(names: Sequence[str]) -> Callable[[Dict[str, Any]], tuple]:
+    """``values -> tuple of values[name] for name in names`` (an ``itemgetter`` for >= 2)."""
+    if len(names) >= 2:
+        return itemgetter(*names)
+    if len(names) == 1:
+        name = names[0]
+        return lambda values: (values[name],)
+    return lambda values: ()
+
+
+def _first_nonfinite(names: Sequence[str], values: Dict[str, Any]):
+    """(name, value) of the first non-finite Real among ``names``, or None."""
+    for name in names:
+        value = values[name]
+        if not math.isfinite(value):
+            return name, value
+    return None
 
 
 class FmuInputError(ValueError):
@@ -67,6 +106,16 @@ class TableSlave(Fmi2Slave):
         self._initialized = False
         for var in self.VARIABLES:
             self._declare(var)
+        #: name and type of each value reference (pythonfmu numbers variables 0, 1, ... in order)
+        types = {v.name: v.type for v in self._vars}
+        self._vr_name: List[str] = [self.vars[vr].name for vr in range(len(self.vars))]
+        self._vr_type: List[str] = [types.get(name, "") for name in self._vr_name]
+        self._get_cache: Dict[Tuple[str, tuple], Callable] = {}
+        self._set_cache: Dict[Tuple[str, tuple], List[str]] = {}
+        self._inputs_getter = _tuple_getter(self._real_inputs)
+        self._outputs_getter = _tuple_getter(self._real_outputs)
+        #: a non-finite value may be among the inputs (set since the last passed input check)
+        self._check_inputs = True
 
     # -- declaration -------------------------------------------------------------------
     def _declare(self, var: Var) -> None:
@@ -147,8 +196,8 @@ class TableSlave(Fmi2Slave):
         failed step instead of a fatal Python exception that would poison the instance."""
         try:
             self._check_master(current_time, step_size)
-            self.step_model(current_time, step_size)
-            self._check_outputs(current_time + step_size)
+            if self.step_model(current_time, step_size) is not OUTPUTS_UNCHANGED:
+                self._check_outputs(current_time + step_size)
         except Exception as exc:
             self.log(f"{type(exc).__name__}: {exc}", Fmi2Status.error)
             self.failed = f"{type(exc).__name__}: {exc}"
@@ -162,31 +211,87 @@ class TableSlave(Fmi2Slave):
         if abs(t - self._time) > self.TIME_RTOL * max(1.0, abs(self._time)):
             raise FmuInputError(
                 f"{self.instance_name}: doStep current time t = {t!r} s but the FMU is at t = {self._time!r} s")
-        values = self.values
-        for name in self._real_inputs:
-            value = values[name]
-            if not math.isfinite(value):
-                raise FmuInputError(f"{self.instance_name}: input {name} = {value} at t = {t:g} s is not finite")
+        if self._check_inputs:
+            bad = self._nonfinite(self._real_inputs, self._inputs_getter)
+            if bad is not None:
+                raise FmuInputError(f"{self.instance_name}: input {bad[0]} = {bad[1]} at t = {t:g} s is not finite")
+            self._check_inputs = False
 
     def _check_outputs(self, t: float) -> None:
-        values = self.values
-        for name in self._real_outputs:
-            value = values[name]
-            if not math.isfinite(value):
-                raise FmuModelError(f"{self.instance_name}: output {name} = {value} at t = {t:g} s is not finite")
+        bad = self._nonfinite(self._real_outputs, self._outputs_getter)
+        if bad is not None:
+            raise FmuModelError(f"{self.instance_name}: output {bad[0]} = {bad[1]} at t = {t:g} s is not finite")
+
+    def _nonfinite(self, names: List[str], getter: Callable[[Dict[str, Any]], tuple]):
+        """(name, value) of the first non-finite value of ``names``, or None.
+
+        One ``sum`` screens the common case (a sum of finite floats is finite unless it
+        overflows); only a non-finite sum, or a term ``sum`` cannot add, triggers the
+        element-wise search (which names the variable, or raises ``TypeError`` for a value
+        that is not a number)."""
+        try:
+            if math.isfinite(sum(getter(self.values))):
+                return None
+        except TypeError:
+            pass
+        return _first_nonfinite(names, self.values)
 
     # -- fast bulk access (pythonfmu calls these once per fmi2Get/Set call) -------------
+    def _getter(self, kind: str, vrs: List[int]) -> Callable[[Dict[str, Any]], Any]:
+        """The cached reader of ``vrs`` (variables of type ``kind``) -> list of values."""
+        key = (kind, tuple(vrs))
+        fn = self._get_cache.get(key)
+        if fn is None:
+            names = self._names_of(kind, key[1])
+            get = _tuple_getter(names)
+            cast = _CAST[kind]
+            if kind == "Real":
+                # pythonfmu converts each item with PyFloat_AsDouble (ints, bools and numpy
+                # scalars included); the output check has made sure each output is a number
+                def fn(values, get=get):
+                    return list(get(values))
+            else:
+                def fn(values, get=get, cast=cast):
+                    return [cast(v) for v in get(values)]
+            if len(self._get_cache) >= _CACHE_LIMIT:
+                self._get_cache.clear()
+            self._get_cache[key] = fn
+        return fn
+
+    def _names_of(self, kind: str, vrs: Sequence[int]) -> List[str]:
+        names, types = self._vr_name, self._vr_type
+        out = []
+        for vr in vrs:
+            if not 0 <= vr < len(names):
+                raise KeyError(f"{self.instance_name}: no variable with valueReference {vr}")
+            if types[vr] != kind:
+                raise TypeError(f"{self.instance_name}: valueReference {vr} ({names[vr]}) is not {kind}")
+            out.append(names[vr])
+        return out
+
     def get_real(self, vrs: List[int]) -> List[float]:
-        values, vars_ = self.values, self.vars
-        return [float(values[vars_[vr].name]) for vr in vrs]
+        return self._getter("Real", vrs)(self.values)
+
+    def get_integer(self, vrs: List[int]) -> List[int]:
+        return self._getter("Integer", vrs)(self.values)
+
+    def get_boolean(self, vrs: List[int]) -> List[bool]:
+        return self._getter("Boolean", vrs)(self.values)
 
     def set_real(self, vrs: List[int], values_in: List[float]) -> None:
-        values, vars_ = self.values, self.vars
-        for vr, value in zip(vrs, values_in):
-            var = vars_[vr]
-            if not isinstance(var, Real):
-                raise TypeError(f"{self.instance_name}: valueReference {vr} ({var.name}) is not Real")
-            values[var.name] = float(value)
+        key = ("Real", tuple(vrs))
+        names = self._set_cache.get(key)
+        if names is None:
+            names = self._names_of("Real", key[1])
+            if len(self._set_cache) >= _CACHE_LIMIT:
+                self._set_cache.clear()
+            self._set_cache[key] = names
+        new = list(map(float, values_in))
+        if len(new) != len(names):
+            raise ValueError(f"{self.instance_name}: set_real got {len(new)} values for {len(names)} references")
+        self.values.update(zip(names, new))
+        if not math.isfinite(sum(new)):
+            self._check_inputs = True
 
     # -- FMU state ---------------------------------------------------------------------
     def _get_fmu_state(self) -> Dict[str, Any]:
@@ -199,6 +304,7 @@ class TableSlave(Fmi2Slave):
         if not self.CAN_HANDLE_STATE:
             raise NotImplementedError(f"{self.instance_name}: this FMU cannot get/set its state")
         self.values.update(state["values"])
+        self._check_inputs = True
         self._time = state["time"]
         self.set_model_state(copy.deepcopy(state["model"]))
 
@@ -214,7 +320,9 @@ class TableSlave(Fmi2Slave):
     def setup_model(self) -> None:
         """Build the model from the parameters in ``self.values`` and set initial outputs."""
 
-    def step_model(self, t: float, h: float) -> None:  # pragma: no cover - abstract
+    def step_model(self, t: float, h: float) -> Any:  # pragma: no cover - abstract
+        """Advance the model from ``t`` to ``t + h`` (s). Return :data:`OUTPUTS_UNCHANGED` when
+        no output changed in the step (skips the output check), else ``None``."""
         raise NotImplementedError
 
     def get_model_state(self) -> Any:
