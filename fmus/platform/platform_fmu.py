@@ -6,17 +6,25 @@ defaults, units and descriptions have a single source.
 """
 from dataclasses import fields
 
-import numpy as np
-
 from immersim.fmus.common import TableSlave, Var, vector
 from immersim.models.platform.control import ControlParams
 from immersim.models.platform.cueing import WashoutParams
 from immersim.models.platform.integrators import IntegratorConfig
 from immersim.models.platform.params import PlatformParams
-from immersim.models.platform.simulator import PlatformSim, SimConfig, StepInputs
+from immersim.models.platform.macrostep import OUT
+from immersim.models.platform.simulator import PlatformSim, SimConfig
 
 AXES = ("x", "y", "z", "gamma", "beta", "alpha")
 POSE_UNITS = ("m", "m", "m", "rad", "rad", "rad")
+#: input variables in the order of the simulator's packed step inputs (macrostep.NIN)
+PACKED_INPUTS = (("cue.f_x", "cue.f_y", "cue.f_z", "cue.w_x", "cue.w_y", "cue.w_z", "jolt")
+                 + tuple(f"ref.{a}" for a in AXES) + tuple(f"force_cmd[{i}]" for i in range(1, 7)))
+#: Real outputs in the order of the simulator's packed outputs (macrostep.OUT), then the flags
+PACKED_REAL_OUTPUTS = (tuple(f"pose.{a}" for a in AXES) + tuple(f"vel.{a}" for a in AXES)
+                       + tuple(f"stroke[{i}]" for i in range(1, 7)) + tuple(f"force[{i}]" for i in range(1, 7))
+                       + ("track_err",))
+FLAG_OUTPUTS = (("flag.saturated", OUT["saturated"]), ("flag.near_singular", OUT["near_singular"]),
+                ("flag.outside_workspace", OUT["outside_workspace"]), ("at_rest", OUT["at_rest"]))
 
 
 def _param_vars(cls, prefix):
@@ -93,29 +101,18 @@ class platform(TableSlave):
 
     def step_model(self, t, h):
         v = self.values
-        inp = StepInputs(f=np.array([v["cue.f_x"], v["cue.f_y"], v["cue.f_z"]]),
-                         omega=np.array([v["cue.w_x"], v["cue.w_y"], v["cue.w_z"]]), jolt=v["jolt"],
-                         ref=np.array([v[f"ref.{a}"] for a in AXES]),
-                         force_cmd=np.array([v[f"force_cmd[{i}]"] for i in range(1, 7)]))
         try:
-            out = self.sim.step(inp, h, t)
+            out = self.sim.step_packed([v[n] for n in PACKED_INPUTS], h, t)
         except (ValueError, ArithmeticError, RuntimeError) as exc:
             raise type(exc)(f"{self.instance_name}: {exc}") from exc
         self._write(out)
 
     def _write(self, out):
         v = self.values
-        for i, a in enumerate(AXES):
-            v[f"pose.{a}"] = float(out.pose[i])
-            v[f"vel.{a}"] = float(out.vel[i])
-        for i in range(6):
-            v[f"stroke[{i + 1}]"] = float(out.stroke[i])
-            v[f"force[{i + 1}]"] = float(out.force[i])
-        v["track_err"] = out.track_err
-        v["flag.saturated"] = out.saturated
-        v["flag.near_singular"] = out.near_singular
-        v["flag.outside_workspace"] = out.outside_workspace
-        v["at_rest"] = out.at_rest
+        packed = out.packed.tolist()
+        v.update(zip(PACKED_REAL_OUTPUTS, packed))
+        for name, i in FLAG_OUTPUTS:
+            v[name] = packed[i] != 0.0
 
     def get_model_state(self):
         return self.sim.get_state()

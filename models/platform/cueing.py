@@ -25,8 +25,13 @@ import functools
 import math
 from dataclasses import dataclass, field
 
+import casadi as ca
 import numpy as np
 from scipy.linalg import expm
+
+NW = 19          #: washout filter states
+NWS = NW + 2     #: washout state with the rate-limited tilt (gamma_t, beta_t)
+NWM = NW * NW + NW * 7 + 8 * NW + 3  #: packed washout matrices, see :func:`washout_matrices`
 
 
 @dataclass(frozen=True)
@@ -147,3 +152,49 @@ class Washout:
 
     def at_rest(self, tol: float = 1e-12) -> bool:
         return bool(np.all(np.abs(self.x) < tol) and np.all(np.abs(self.tilt) < tol))
+
+
+def washout_matrices(params: WashoutParams, h: float) -> np.ndarray:
+    """Everything :func:`washout_sx` needs for a step h (s), packed into one vector (NWM,).
+
+    Layout: ``Phi`` (19, 19), ``Gamma`` (19, 7), ``C`` (8, 19) (each column-major, as CasADi
+    reshapes), then ``sin(tilt_max)``, ``tilt_rate h`` and ``g``.
+    """
+    Phi, Gam = discrete_system(params, float(h))
+    _, _, C_pos, C_ang, C_lp = continuous_system(params)
+    C = np.vstack([C_pos, C_ang, C_lp])
+    return np.concatenate([Phi.ravel(order="F"), Gam.ravel(order="F"), C.ravel(order="F"),
+                           [math.sin(params.tilt_max), params.tilt_rate * h, params.g]])
+
+
+def washout_sx(w, cue, wm):
+    """One washout step as a CasADi expression: the same arithmetic as :meth:`Washout.step`.
+
+    Parameters
+    ----------
+    w : SX (NWS,)
+        Filter state (19) and rate-limited tilt (gamma_t, beta_t) (2).
+    cue : SX (7,)
+        Specific force (3, m/s^2), angular rate (3, rad/s), jolt (m/s^2), held over the step.
+    wm : SX (NWM,)
+        :func:`washout_matrices` of the step.
+
+    Returns
+    -------
+    (w_next (NWS,), ref (6,))
+        State at the end of the step and the pose reference (x, y, z, gamma, beta, alpha).
+    """
+    i = 0
+    mats = []
+    for rows, cols in ((NW, NW), (NW, 7), (8, NW)):
+        mats.append(ca.reshape(wm[i:i + rows * cols], rows, cols))
+        i += rows * cols
+    Phi, Gam, C = mats
+    smax, step, g = wm[i], wm[i + 1], wm[i + 2]
+    x = ca.mtimes(Phi, w[:NW]) + ca.mtimes(Gam, cue)
+    y = ca.mtimes(C, x)  # (x, y, z, gamma_hp, beta_hp, alpha_hp, lp_x, lp_y)
+    targets = (ca.asin(ca.fmin(ca.fmax(y[7] / g, -smax), smax)),     # gamma_t from f_y
+               -ca.asin(ca.fmin(ca.fmax(y[6] / g, -smax), smax)))    # beta_t from f_x
+    tilt = [w[NW + k] + ca.fmin(ca.fmax(targets[k] - w[NW + k], -step), step) for k in range(2)]
+    ref = ca.vertcat(y[0], y[1], y[2], y[3] + tilt[0], y[4] + tilt[1], y[5])
+    return ca.vertcat(x, *tilt), ref

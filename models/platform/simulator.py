@@ -1,21 +1,26 @@
 """One platform as a macro-step simulator: cueing -> workspace clamp -> prefilter -> controller ->
 dynamics -> outputs. The FMU wrapper ``fmus/platform/platform_fmu.py`` only maps variables onto it.
+
+With the default RK4 integrator a step is one native call (:mod:`.macrostep`: washout, workspace
+check of the reference, N RK4 substeps, outputs); a reference outside the workspace (clamped by
+bisection here), the other integrators and a machine without a C compiler take the composed
+path (``pre``, :class:`.integrators.StepIntegrator`, ``post``) with the same arithmetic.
 """
 from __future__ import annotations
 
 import functools
 import logging
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import macrostep as ms
 from .control import CONTROLS, MODELS, ControlParams, prefiltered_loop
 from .codegen import FastFunction, compile_library
-from .cueing import Washout, WashoutParams
+from .cueing import WashoutParams, washout_matrices
 from .dynamics import functions
 from .integrators import IntegratorConfig, StepIntegrator
-from .kinematics import OutsideWorkspaceError, clamp_to_workspace, singular_flags, within_limits
+from .kinematics import OutsideWorkspaceError, clamp_to_workspace, within_limits
 from .params import PlatformParams
 
 log = logging.getLogger(__name__)
@@ -61,84 +66,135 @@ class StepInputs:
     force_cmd: np.ndarray = field(default_factory=lambda: np.zeros(6))  # N (control = direct)
 
     def is_zero(self) -> bool:
-        return not (self.jolt or self.f.any() or self.omega.any() or self.ref.any() or self.force_cmd.any())
+        return not self.packed().any()
+
+    def packed(self) -> np.ndarray:
+        """The packed input vector (19,) of :mod:`.macrostep`: f, omega, jolt, ref, force_cmd."""
+        return np.concatenate([np.asarray(self.f, float).ravel(), np.asarray(self.omega, float).ravel(),
+                               [float(self.jolt)], np.asarray(self.ref, float).ravel(),
+                               np.asarray(self.force_cmd, float).ravel()])
 
 
-@dataclass
+def _view(key):
+    return property(lambda self: self.packed[ms.OUT[key]], doc=f"{key} (view of the packed outputs)")
+
+
+def _flag(key):
+    i = ms.OUT[key]
+    return property(lambda self: bool(self.packed[i]), doc=f"{key} flag")
+
+
 class StepOutputs:
-    pose: np.ndarray
-    vel: np.ndarray
-    stroke: np.ndarray
-    force: np.ndarray
-    track_err: float
-    saturated: bool
-    near_singular: bool
-    outside_workspace: bool
-    at_rest: bool
+    """Outputs at the end of a macro step: pose (6, m and rad), vel (6), stroke (6, m), force (6, N,
+    clipped to F_max), track_err (m) and the flags; all read from one packed vector (:data:`.macrostep.OUT`)
+    that belongs to this object."""
+
+    __slots__ = ("packed",)
+
+    def __init__(self, packed: np.ndarray) -> None:
+        self.packed = packed
+
+    pose, vel, stroke, force = _view("pose"), _view("vel"), _view("stroke"), _view("force")
+    saturated, near_singular = _flag("saturated"), _flag("near_singular")
+    outside_workspace, at_rest = _flag("outside_workspace"), _flag("at_rest")
+
+    @property
+    def track_err(self) -> float:
+        return float(self.packed[ms.OUT["track_err"]])
 
 
 class PlatformSim:
-    """Stateful platform simulation advanced in macro steps."""
+    """Stateful platform simulation advanced in macro steps.
 
-    REST_TOL = 1e-9
+    The state (closed loop, washout filters, last inputs, references) is one packed vector
+    (:data:`.macrostep.NSTATE`); a step that raises leaves it as it was before the step.
+    """
+
+    REST_TOL = ms.REST_TOL
 
     def __init__(self, cfg: SimConfig = SimConfig()) -> None:
         self.cfg = cfg
         self.p = cfg.params.vector()
         self.c = cfg.control.vector()
-        self.integ = StepIntegrator(prefiltered_loop(cfg.control_mode, cfg.model), cfg.integrator)
-        self.washout = Washout(cfg.washout)
+        rhs = prefiltered_loop(cfg.control_mode, cfg.model)
+        self.integ = StepIntegrator(rhs, cfg.integrator)
+        ic = cfg.integrator
+        self.macro = m = ms.MacroStep(rhs, compiled=ic.compiled, driver=ic.method == "rk4")
+        m.p[:], m.c[:] = self.p, self.c
+        m.ctrl[:] = (cfg.cueing == "washout", 0.0, int(ic.substeps), cfg.cos_beta_min)
+        m.state[ms.REACH] = 1.0
+        self._h = None
         self._ik = FastFunction(functions()["ik"], _ik_library())
-        self.raw_ref = np.zeros(6)
-        self._ref_reach = np.ones(6)
-        self.x = np.zeros(24)
-        self.u = np.zeros(12)
-        self.clamped = False
         self.skipped_steps = 0
-        self.out = self._outputs()
+        m.next[:] = m.state
+        m.run_post(False)
+        self.out = StepOutputs(m.out.copy())
+        self._rest = self.out.at_rest
 
-    # -- state --------------------------------------------------------------------------
+    # -- state (views of the packed state) ----------------------------------------------
+    x = property(lambda self: self.macro.state[ms.X], doc="closed-loop state (q, q', r, r') (24,)")
+    u = property(lambda self: self.macro.state[ms.U], doc="inputs of the last step: clamped reference, force command (12,)")
+    raw_ref = property(lambda self: self.macro.state[ms.RAW], doc="pose reference before clamping (6,)")
+    clamped = property(lambda self: self.out.outside_workspace, doc="the last reference was clamped")
+
     def get_state(self):
-        return {"x": self.x.copy(), "u": self.u.copy(), "washout": self.washout.state(), "clamped": self.clamped,
-                "raw_ref": self.raw_ref.copy(), "ref_reach": self._ref_reach.copy(), "out": self.out}
+        return {"state": self.macro.state.copy(), "out": self.out}
 
     def set_state(self, s) -> None:
-        self.x, self.u = s["x"].copy(), s["u"].copy()
-        self.washout.set_state(s["washout"])
-        self.clamped = s["clamped"]
-        self.raw_ref = s["raw_ref"].copy()
-        self._ref_reach = s["ref_reach"].copy()
+        self.macro.state[:] = s["state"]
         self.out = s["out"]
+        self._rest = self.out.at_rest
 
     def at_rest(self) -> bool:
         """Home pose, no motion, zero reference and force command, washout filters empty."""
-        return bool(np.all(np.abs(self.x) < self.REST_TOL) and not np.any(self.u) and self.washout.at_rest())
+        return self._rest
 
     # -- stepping -----------------------------------------------------------------------
     def step(self, inp: StepInputs, h: float, t: float = 0.0) -> StepOutputs:
         """Advance from t to t + h (s) with ``inp`` held; returns the outputs at t + h."""
-        if inp.is_zero() and self.at_rest():
+        return self.step_packed(inp.packed(), h, t)
+
+    def step_packed(self, s, h: float, t: float = 0.0) -> StepOutputs:
+        """:meth:`step` with the packed inputs (19,) of :mod:`.macrostep` (any float sequence)."""
+        m = self.macro
+        m.s[:] = s
+        if self._rest and not m.s.any():
             self.skipped_steps += 1  # lazy: nothing moves, outputs stay as they are
             return self.out
-        cfg = self.cfg
-        if cfg.cueing == "washout":
-            ref = self.washout.step(inp.f, inp.omega, inp.jolt, h)
-        else:
-            ref = np.asarray(inp.ref, float)
-        self.raw_ref = ref
-        ref, self.clamped, self._ref_reach = self._limit(ref, t)
-        self.u = np.concatenate([ref, inp.force_cmd])
-        x = self.integ.step(self.x, self.u, self.p, self.c, h)
-        if not np.isfinite(x).all():
+        if h != self._h:
+            m.wm[:] = washout_matrices(self.cfg.washout, h)
+            m.ctrl[1] = h
+            self._h = h
+        rc = m.run()
+        if rc != 0:
+            self._composed_step(rc, h, t)
+        out = m.out
+        if not out[ms.OUT["x_finite"]]:
             raise ArithmeticError(f"platform state became non-finite in the step ending at t = {t + h:g} s "
-                                  f"(integrator {cfg.integrator.method}): a rod lost its slider (out of reach) "
+                                  f"(integrator {self.cfg.integrator.method}): a rod lost its slider (out of reach) "
                                   f"or the integration diverged")
-        self.x = x
-        self.out = self._outputs()
-        if not np.isfinite(self.out.stroke).all():
+        if not out[ms.OUT["stroke_finite"]]:
             raise OutsideWorkspaceError(
-                f"the platform left the rods' reach at t = {t + h:g} s: pose {np.array2string(x[:6], precision=4)}")
+                f"the platform left the rods' reach at t = {t + h:g} s: pose {np.array2string(m.next[:6], precision=4)}")
+        m.state[:] = m.next
+        self.out = StepOutputs(out.copy())
+        self._rest = bool(out[ms.OUT["at_rest"]])
         return self.out
+
+    def _composed_step(self, rc: int, h: float, t: float) -> None:
+        """The step in pieces: ``pre`` (unless the driver ran it), clamping, integrator, ``post``."""
+        m = self.macro
+        if rc < 0:
+            m.run_pre()
+        n = m.next
+        clamped = False
+        if not m.inside[0]:
+            ref, clamped, n[ms.REACH] = self._limit(n[ms.RAW].copy(), t)
+        else:
+            ref = n[ms.RAW]
+        n[ms.U] = np.concatenate([ref, m.s[13:19]])
+        n[ms.X] = self.integ.step(m.state[ms.X], n[ms.U].copy(), self.p, self.c, h)
+        m.run_post(clamped)
 
     def _inside(self, pose) -> tuple:
         """(inside, strokes, reach) of one pose with the compiled IK."""
@@ -147,29 +203,10 @@ class PlatformSim:
         return bool(reach_ok and stroke_ok), dl, reach
 
     def _limit(self, ref: np.ndarray, t: float):
-        """(reference inside the workspace, clamped?, its reach ratios)."""
-        inside, _, reach = self._inside(ref)
-        if inside:
-            return ref, False, reach
+        """(reference inside the workspace, clamped?, its reach ratios) of a reference found outside."""
         if self.cfg.on_workspace == "error":
             raise OutsideWorkspaceError(
                 f"pose reference {np.array2string(ref, precision=4)} at t = {t:g} s is outside the workspace "
                 f"(strokes {self.cfg.params.stroke_min:g}..{self.cfg.params.stroke_max:g} m, rod reach)")
-        ref = clamp_to_workspace(ref, self.cfg.params, inside=lambda pose: self._inside(pose)[0])[0]
-        return ref, True, self._inside(ref)[2]
-
-    def _outputs(self) -> StepOutputs:
-        q, dq, r = self.x[:6], self.x[6:12], self.x[12:18]
-        _, dl, reach = self._inside(q)
-        reach_ref = self._ref_reach
-        _, F = self.integ.rhs(self.x, self.u, self.p, self.c)
-        Fmax = self.cfg.control.F_max
-        sat = bool(np.abs(F).max() > Fmax)
-        # the pose and the clamped reference (beta and rods), the raw reference (beta only)
-        sing = bool(singular_flags(np.array([q[4], self.u[4], self.raw_ref[4]]),
-                                   np.array([reach, reach_ref, np.ones(6)]), self.cfg.params,
-                                   self.cfg.cos_beta_min).any())
-        return StepOutputs(pose=q.copy(), vel=dq.copy(), stroke=dl,
-                           force=np.minimum(np.maximum(F, -Fmax), Fmax),
-                           track_err=math.dist(q[:3], r[:3]), saturated=sat, near_singular=sing,
-                           outside_workspace=self.clamped, at_rest=self.at_rest())
+        ref, clamped = clamp_to_workspace(ref, self.cfg.params, inside=lambda pose: self._inside(pose)[0])
+        return ref, clamped, self._inside(ref)[2]
