@@ -141,7 +141,7 @@ class Execution:
             sources = [c.src_var for c in conns if c.src_unit == name]
             viewed = [r.split(".", 1)[1] for b in sc.foxglove for r in b.refs() if r.split(".", 1)[0] == name]
             reader = inst.reader(system.logged[name] + sources + viewed
-                                 + (["at_rest"] if _lazy_capable(inst, sc) else []))
+                                 + (["at_rest"] if _lazy_capable(inst, sc) else []), check_finite=True)
             slot = Slot(name, inst, reader.names)
             slot.reader = reader
             real_in = [c.dst_var for c in conns if c.dst_unit == name and inst.var(c.dst_var).family == "float"]
@@ -195,13 +195,15 @@ class Execution:
             "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
             "skipped_units": ",".join(system.skipped),
             "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})
-        self._log_plan = []  # ((channel id, encoder), slot, indices into slot.cur or None for all)
+        #: ((channel id, encoder), slot, picker of the logged values from slot.cur or None for all)
+        self._log_plan: List[tuple] = []
         for name, slot in master.slots.items():
             logged = system.logged[name]
             if logged:
                 channel = obs.add_channel(name, [slot.inst.var(n) for n in logged])
                 idx = [slot.index(n) for n in logged]
-                self._log_plan.append((channel, slot, None if idx == list(range(len(slot.read_names))) else idx))
+                pick = None if idx == list(range(len(slot.read_names))) else _picker(idx)
+                self._log_plan.append((channel, slot, pick))
             if sc.log.parameters:
                 pnames = [n for n, v in slot.inst.variables.items() if v.causality in ("parameter", "structuralParameter")]
                 if pnames:
@@ -219,17 +221,15 @@ class Execution:
             self.observers.append(FoxgloveObserver(obs, sc.foxglove, lookup))
 
     def _observe(self, master: Master, k: int, t_ns: int) -> None:
+        """Log step ``k`` (ending at ``t_ns``): one message per logged unit, then the observers."""
         t_start = time.perf_counter_ns()
-        self._observe_values(master, k, t_ns)
-        self._observe_ns += time.perf_counter_ns() - t_start
-
-    def _observe_values(self, master: Master, k: int, t_ns: int) -> None:
         obs = self.observer
         if obs is not None:
-            obs.write_step(t_ns, k, [(channel, slot.cur if idx is None else [slot.cur[i] for i in idx])
-                                     for channel, slot, idx in self._log_plan])
+            obs.write_step(t_ns, k, [(channel, slot.cur if pick is None else pick(slot.cur))
+                                     for channel, slot, pick in self._log_plan])
         for fn in self.observers:
             fn(k, t_ns)
+        self._observe_ns += time.perf_counter_ns() - t_start
 
     # -- the loop ------------------------------------------------------------------------
     def run(self) -> RunResult:
@@ -322,6 +322,16 @@ class Execution:
         finally:
             self.system.terminate()
             self._tmp.cleanup()
+
+
+def _picker(idx: List[int]) -> Callable[[List[Any]], tuple]:
+    """A function returning ``tuple(values[i] for i in idx)`` (itemgetter, always a tuple)."""
+    from operator import itemgetter
+
+    if len(idx) == 1:
+        i = idx[0]
+        return lambda values: (values[i],)
+    return itemgetter(*idx)
 
 
 def _lazy_capable(inst, scenario: Scenario) -> bool:

@@ -37,6 +37,16 @@ _FAMILY = {
 }
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
+_VRS = ctypes.POINTER(ctypes.c_uint)
+#: (restype, argtypes...) of the FMI 2.0 functions called every step
+_FAST_PROTOTYPES = {
+    "fmi2GetReal": (ctypes.c_int, ctypes.c_void_p, _VRS, ctypes.c_size_t, ctypes.POINTER(ctypes.c_double)),
+    "fmi2SetReal": (ctypes.c_int, ctypes.c_void_p, _VRS, ctypes.c_size_t, ctypes.POINTER(ctypes.c_double)),
+    "fmi2GetInteger": (ctypes.c_int, ctypes.c_void_p, _VRS, ctypes.c_size_t, ctypes.POINTER(ctypes.c_int)),
+    "fmi2GetBoolean": (ctypes.c_int, ctypes.c_void_p, _VRS, ctypes.c_size_t, ctypes.POINTER(ctypes.c_int)),
+    "fmi2DoStep": (ctypes.c_int, ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int),
+}
+
 
 @dataclass(frozen=True)
 class VarInfo:
@@ -204,13 +214,26 @@ class FmuInstance:
     def _setup_fast_path(self) -> None:
         self._fmi2 = self.fmi_version.startswith("2")
         self._component = self.fmu.component
+        gen = getattr(self.model_description, "generationTool", None) or ""
+        #: the FMU runs Python code in this interpreter (pythonfmu): its hot functions are
+        #: called without releasing the GIL, which the FMU would take back at once
+        self.in_process_python = gen.startswith("PythonFMU")
         if self._fmi2:
-            dll = self.fmu.dll  # fmpy has set argtypes/restype on these ctypes functions
-            self._do_step = dll.fmi2DoStep
-            self._do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
-            self._do_step.restype = ctypes.c_int
-            self._get_real = dll.fmi2GetReal
-            self._set_real = dll.fmi2SetReal
+            self._do_step = self._fast_function("fmi2DoStep")
+            self._set_real = self._fast_function("fmi2SetReal")
+
+    def _fast_function(self, name: str):
+        """A ctypes function for the FMI 2.0 function ``name`` with exact argument types.
+
+        It is built on the address FMPy loaded, so FMPy's own wrappers are untouched. For an
+        FMU that runs Python code in this interpreter (pythonfmu) the call keeps the GIL
+        (``PYFUNCTYPE``): releasing it only for the FMU to take it back costs more than the
+        call. Any other FMU is called with the GIL released (``CFUNCTYPE``), as FMPy does, so
+        its own threads may call back into Python.
+        """
+        factory = ctypes.PYFUNCTYPE if self.in_process_python else ctypes.CFUNCTYPE
+        address = ctypes.cast(getattr(self.fmu.dll, name), ctypes.c_void_p).value
+        return factory(*_FAST_PROTOTYPES[name])(address)
 
     # -- the one checked call ----------------------------------------------------------
     def _guard(self, function: str, thunk) -> Any:
@@ -328,9 +351,9 @@ class FmuInstance:
             out.append(val.decode() if isinstance(val, bytes) else val)
         return out
 
-    def reader(self, names: Sequence[str]) -> "ValueReader":
+    def reader(self, names: Sequence[str], check_finite: bool = False) -> "ValueReader":
         """A fast reader of a fixed list of variables (one FMI call per type family)."""
-        return ValueReader(self, list(names))
+        return ValueReader(self, list(names), check_finite)
 
     def real_setter(self, names: Sequence[str]) -> "RealSetter":
         return RealSetter(self, list(names))
@@ -341,55 +364,77 @@ class ValueReader:
 
     ``names`` is reordered by family (floats, integers, booleans, strings) and :meth:`read`
     returns the values in that order, so a step costs one ``fmi2GetReal`` (plus one
-    ``fmi2GetInteger``/``fmi2GetBoolean`` when such variables are read) into pre-built buffers.
+    ``fmi2GetInteger``/``fmi2GetBoolean`` when such variables are read) into pre-built buffers,
+    converted to Python values through NumPy views of those buffers.
+
+    Parameters
+    ----------
+    inst : FmuInstance
+    names : sequence of str
+    check_finite : bool
+        :meth:`read` raises :class:`~immersim.orchestrator.errors.NonFiniteOutputError` when
+        a Real read is NaN or infinite (the master's check before a value is used or logged).
     """
 
     _ORDER = {"float": 0, "int": 1, "bool": 2, "string": 3}
 
-    def __init__(self, inst: FmuInstance, names: Sequence[str]) -> None:
+    def __init__(self, inst: FmuInstance, names: Sequence[str], check_finite: bool = False) -> None:
         self.inst = inst
+        self.check_finite = check_finite
         infos = sorted((inst.var(n) for n in dict.fromkeys(names)), key=lambda v: self._ORDER.get(v.family, 3))
         self.names = [v.name for v in infos]
         self.fmi2 = inst.fmi_version.startswith("2")
         fam = [v.family for v in infos]
         self.n_real = fam.count("float")
         n_int, n_bool = fam.count("int"), fam.count("bool")
+        #: (FMI function, value references, count, buffer, NumPy view, function name, as Boolean?)
         self._groups = []
         start = 0
-        for family, n, getter, ctype in (("float", self.n_real, "fmi2GetReal", ctypes.c_double),
-                                         ("int", n_int, "fmi2GetInteger", ctypes.c_int),
-                                         ("bool", n_bool, "fmi2GetBoolean", ctypes.c_int)):
+        for n, getter, ctype, dtype, as_bool in ((self.n_real, "fmi2GetReal", ctypes.c_double, np.float64, False),
+                                                 (n_int, "fmi2GetInteger", ctypes.c_int, np.int32, False),
+                                                 (n_bool, "fmi2GetBoolean", ctypes.c_int, np.int32, True)):
             if n:
                 vrs = (ctypes.c_uint * n)(*[v.vr for v in infos[start:start + n]])
                 buf = (ctype * n)()
-                fn = getattr(inst.fmu.dll, getter) if self.fmi2 else None
-                self._groups.append((family, n, vrs, buf, fn, getter, infos[start:start + n]))
+                fn = inst._fast_function(getter) if self.fmi2 else None
+                self._groups.append((fn, vrs, n, buf, np.frombuffer(buf, dtype=dtype), getter, as_bool))
             start += n
         self._strings = [v.name for v in infos[start:]]
-        self._real_np = (np.frombuffer(self._groups[0][3], dtype=np.float64)
-                         if self.n_real else np.zeros(0))
 
     def read(self) -> List[Any]:
-        """Current values, in the order of ``self.names``."""
+        """Current values, in the order of ``self.names`` (Reals as float, Integers as int,
+        Booleans as bool)."""
         inst = self.inst
+        if not self.fmi2:
+            return self._read_fmi3()
         comp = inst._component
-        if self.fmi2:
-            out: List[Any] = []
-            for family, n, vrs, buf, fn, getter, _ in self._groups:
-                status = fn(comp, vrs, n, buf)
-                if status > 1:
-                    inst._check(getter, status)
-                if family == "float":
-                    out = self._real_np.tolist()
-                elif family == "int":
-                    out.extend(buf)
-                else:
-                    out.extend([v != 0 for v in buf])
-        else:
-            out = inst.get_values([n for g in self._groups for n in (v.name for v in g[6])])
+        out: List[Any] = []
+        for fn, vrs, n, buf, view, getter, as_bool in self._groups:
+            status = fn(comp, vrs, n, buf)
+            if status > 1:
+                inst._check(getter, status)
+            out += [v != 0 for v in view.tolist()] if as_bool else view.tolist()
+        if self.check_finite and self.n_real and not math.isfinite(sum(out[:self.n_real])):
+            self._raise_nonfinite(out)
         if self._strings:
             out.extend(inst.get_values(self._strings))
         return out
+
+    def _read_fmi3(self) -> List[Any]:
+        out = self.inst.get_values(self.names)
+        if self.check_finite:
+            self._raise_nonfinite(out)
+        return out
+
+    def _raise_nonfinite(self, values: Sequence[Any]) -> None:
+        bad = self.nonfinite(values)
+        if bad is not None:
+            from .errors import NonFiniteOutputError
+
+            inst = self.inst
+            raise NonFiniteOutputError(
+                f"unit {inst.name}: output {bad} = {values[self.names.index(bad)]} "
+                f"at t = {inst.t_ns / 1e9:.9g} s is not finite")
 
     def nonfinite(self, values: Sequence[Any]) -> Optional[str]:
         """Name of the first NaN/inf Real among ``values`` (as returned by :meth:`read`), or None.
@@ -414,13 +459,17 @@ class RealSetter:
         self.names = names
         self._vrs = (ctypes.c_uint * len(names))(*[inst.var(n).vr for n in names])
         self._buf = (ctypes.c_double * len(names))()
+        self._n = len(names)
         self._fmi2 = inst.fmi_version.startswith("2")
 
     def set(self, values: Sequence[float]) -> None:
+        """Set the values (in the order of ``names``) with one ``fmi2SetReal``."""
         inst = self.inst
         if self._fmi2:
             self._buf[:] = values
-            inst._check("fmi2SetReal", inst._set_real(inst.fmu.component, self._vrs, len(self.names), self._buf))
+            status = inst._set_real(inst._component, self._vrs, self._n, self._buf)
+            if status > 1:
+                inst._check("fmi2SetReal", status)
         else:
             inst._guard("fmi3SetFloat64", lambda: inst.fmu.setFloat64(list(self._vrs), list(values)))
 

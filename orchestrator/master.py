@@ -64,12 +64,15 @@ class Slot:
         return self.read_names.index(name)
 
     def read(self) -> None:
+        """Read the unit's values; a NaN/inf Real raises NonFiniteOutputError (naming unit,
+        variable and time) before it is used or logged."""
         values = self.reader.read()
-        bad = self.reader.nonfinite(values)
-        if bad is not None:
-            raise NonFiniteOutputError(
-                f"unit {self.name}: output {bad} = {values[self.read_names.index(bad)]} "
-                f"at t = {self.inst.t_ns / 1e9:.9g} s is not finite")
+        if not self.reader.check_finite:
+            bad = self.reader.nonfinite(values)
+            if bad is not None:
+                raise NonFiniteOutputError(
+                    f"unit {self.name}: output {bad} = {values[self.read_names.index(bad)]} "
+                    f"at t = {self.inst.t_ns / 1e9:.9g} s is not finite")
         self.prev, self.cur = self.cur, values
 
 
@@ -167,8 +170,10 @@ class Master:
             slot.skipped_steps += 1
             slot.prev = slot.cur
             return False
-        self.catch_up(slot)
-        self._apply(slot, inputs)
+        if slot.pending_ns:
+            self.catch_up(slot)
+        if inputs is not None:
+            self._apply(slot, inputs)
         slot.inst.do_step(t_ns, h_ns)
         return True
 
@@ -183,7 +188,8 @@ class Master:
         """Advance every slot from ``t_ns`` by ``h_ns``."""
         slots = self.slots
         if self.algorithm == "jacobi":
-            gathered = [(slots[name], self._gather(slots[name], t_ns)) for name in self.order]
+            gathered = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
+                        for slot in map(slots.__getitem__, self.order)]
             for slot, inputs in gathered:
                 t0 = perf_counter_ns()
                 if self._advance(slot, t_ns, h_ns, inputs):
@@ -195,7 +201,7 @@ class Master:
         for name in self.order:
             slot = slots[name]
             t0 = perf_counter_ns()
-            if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns)):
+            if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
                 slot.read()
             slot.busy_ns += perf_counter_ns() - t0
             slot.stepped = True

@@ -181,13 +181,19 @@ class McapObserver:
     """
 
     CHUNK_BYTES = 256 * 1024
+    #: LZ4: about a quarter of zstd's CPU time per chunk for files about twice as large
+    #: (benchmarks/bench_orchestrator.py --compression compares); both are standard MCAP
+    COMPRESSION = "lz4"
 
     def __init__(self, path: Path | str, flush_seconds: float = 1.0) -> None:
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._fh = open(self.path, "wb")
-            self.writer = _fast_writer_class()(self._fh, chunk_size=self.CHUNK_BYTES)
+            from mcap.writer import CompressionType
+
+            self.writer = _fast_writer_class()(self._fh, chunk_size=self.CHUNK_BYTES,
+                                               compression=CompressionType[self.COMPRESSION.upper()])
             self.writer.start(profile="", library="immersim")
         except OSError as exc:
             raise LogWriteError(f"cannot write the log {self.path}: {exc.strerror or exc}") from None
