@@ -101,7 +101,7 @@ network + collision + platform in the closed loop, full logging). Per-run MCAPs 
 
 Plots: {", ".join(f"`backends/{p}`" for p in pngs["backends"])}.
 
-`contact_p`: share of the steps in which pair p (`tank_X vs avatar_p`) reports contact; `missile_hit`:
+`contact_p`: share of the steps in which pair p (`avatar_p vs tank_X`) reports contact; `missile_hit`:
 the missile reached a field tank; `jolt_max`: player 1's largest bounce |dv| (m/s) = the jolt sent to
 the platform; `stroke_max`: largest actuator stroke (m); `coll_s`: wall time in the collision unit.
 

@@ -7,7 +7,7 @@ command, commit, machine and the measured figures to ``results/scenarios/``.
 
 Usage::
 
-    /tmp/venv/bin/python scripts/closed_loop_plots.py [--out results/scenarios] [--stop 10]
+    .venv/bin/python scripts/closed_loop_plots.py [--out results/scenarios] [--stop 10]
 """
 from __future__ import annotations
 
@@ -32,7 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SCEN = ROOT / "scenarios"
 log = logging.getLogger("closed_loop_plots")
 
-JOLT_CONNECTION = re.compile(r"\[\[connections\]\][^\n]*\nfrom = \"net\.avatar\[1\]\.jolt\"\nto = \"plat\.jolt\"\n")
+JOLT_CONNECTION = re.compile(r"\[\[connections\]\][^\n]*\nfrom = \"net\.avatar\[1\]\.jolt_acc\"[^\n]*\n"
+                             r"to = \"plat\.jolt\"\n(?:gain = [0-9.]+\n)?(?:extrapolation = [^\n]*\n)?")
 
 
 def series(path: Path, name: str):
@@ -43,7 +44,7 @@ def series(path: Path, name: str):
 
 
 def without_jolt(src: Path, dst: Path) -> Path:
-    """A copy of campus_drive with the net.avatar[1].jolt -> plat.jolt connection removed."""
+    """A copy of campus_drive with the net.avatar[1].jolt_acc -> plat.jolt connection removed."""
     text, n = JOLT_CONNECTION.subn("", src.read_text())
     if n != 1:
         raise RuntimeError(f"{src}: jolt connection not found exactly once ({n})")
@@ -75,14 +76,14 @@ def campus_plots(out: Path, tmp: Path, stop: float) -> dict:
     diff = strokes - strokes0
 
     fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True)
-    ax[0].plot(t, dist, label="coll.pair[1].distance (tank_a vs avatar_1) [m]")
+    ax[0].plot(t, dist, label="coll.pair[1].distance (avatar_1 vs tank_a) [m]")
     ax[0].step(t, contact, where="post", label="coll.pair[1].in_contact")
     ax[0].step(t, active, where="post", ls="--", label="net.contact[1].active (next step)")
     ax[0].set_ylim(-0.2, 5)
     ax[0].legend(fontsize=8)
     ax[1].plot(t, np.hypot(vx, vy), label="avatar 1 speed [m/s]")
     ax[1].step(t, jolt_net, where="post", label="net.avatar[1].jolt |dv| [m/s]")
-    ax[1].step(t, jolt_plat, where="post", ls="--", label="plat.jolt [m/s2]")
+    ax[1].step(t, jolt_plat, where="post", ls="--", label="plat.jolt = 0.03 jolt_acc [m/s2]")
     ax[1].legend(fontsize=8)
     for i in range(6):
         ax[2].plot(t, strokes[i] * 1e3, label=f"stroke[{i + 1}]")
@@ -101,7 +102,8 @@ def campus_plots(out: Path, tmp: Path, stop: float) -> dict:
     return {"t_hit": t_hit, "t_jolt": t_jolt, "jolt": float(jolt_plat.max()),
             "stroke_diff_max_mm": float(np.abs(diff[:, win]).max() * 1e3),
             "stroke_diff_before_mm": float(np.abs(diff[:, t < t_jolt]).max() * 1e3),
-            "stroke_absmax_mm": float(np.abs(strokes).max() * 1e3)}
+            "stroke_absmax_mm": float(np.abs(strokes).max() * 1e3),
+            "outside_steps": int(np.count_nonzero(series(a, "plat.flag.outside_workspace")[1]))}
 
 
 def burst_plot(out: Path, tmp: Path) -> dict:
@@ -205,7 +207,7 @@ def main() -> None:
 
 Regenerated from fresh runs by
 
-    /tmp/venv/bin/python scripts/closed_loop_plots.py --stop {args.stop:g}
+    .venv/bin/python scripts/closed_loop_plots.py --stop {args.stop:g}
 
 at commit `{commit}` on {machine()}. The benchmark (real-time factor, time per unit) is in
 [bench.md](bench.md).
@@ -213,19 +215,19 @@ at commit `{commit}` on {machine()}. The benchmark (real-time factor, time per u
 ## `collision_jolt_strokes.png` — a collision felt on the motion platform (campus_drive)
 
 The closed loop `net -> coll -> net` and `net -> plat` of `scenarios/campus_drive.toml`
-({args.stop:g} s). Top: distance and contact flag of pair 1 (`tank_a vs avatar_1`) and the
+({args.stop:g} s). Top: distance and contact flag of pair 1 (`avatar_1 vs tank_a`) and the
 network's contact input one step later (the Gauss-Seidel cycle is broken at coll -> net).
 Second: avatar 1's speed, the bounce's velocity change `net.avatar[1].jolt` and the platform's
 `plat.jolt` input. Third: the six actuator strokes. Bottom: strokes of this run minus those of
-the same run with the `net.avatar[1].jolt -> plat.jolt` connection removed: the jolt's own
+the same run with the `net.avatar[1].jolt_acc -> plat.jolt` connection removed: the jolt's own
 contribution to the strokes.
 
 Measured: avatar 1 touches tank_a at t = {c['t_hit']:.3f} s; the network bounces it
 (restitution 0.5) and `plat.jolt` = {c['jolt']:.2f} at t = {c['t_jolt']:.3f} s (one step later).
 The jolt changes the strokes by up to {c['stroke_diff_max_mm']:.1f} mm within 1.5 s
 (difference before the jolt: {c['stroke_diff_before_mm']:.2g} mm); the largest stroke of the run is
-{c['stroke_absmax_mm']:.1f} mm (limit 120 mm: the washout reference is clamped to the workspace
-and `plat.flag.outside_workspace` is set while the avatar accelerates hard).
+{c['stroke_absmax_mm']:.1f} mm (limit 120 mm); `plat.flag.outside_workspace` (the washout reference
+clamped to the workspace) is set in {c['outside_steps']} steps.
 
 ## `latency_burst_inconsistency.png` — inconsistency spike after a latency burst (network_stress)
 

@@ -64,6 +64,8 @@ def test_campus_drive_short_run(tmp_path):
         assert cue[1] == f[1] + offset
         np.testing.assert_allclose(cue[2:], 0.5 * (f[1:-1] + f[2:]) + offset, rtol=0, atol=1e-12)
     assert np.abs(series(out, "plat.stroke[1]")).max() > 1e-3
+    # the scenario's washout gains keep the full-throttle launch inside the workspace
+    assert not series(out, "plat.flag.outside_workspace").any()
 
 
 def _campus_variant(tmp_path: Path, name: str, drop_jolt: bool) -> Path:
