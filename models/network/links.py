@@ -54,45 +54,73 @@ def transmit(rng: np.random.Generator, links: Dict[str, LinkClass], send_t: np.n
     arrival : (n,) float, s
     lost : (n,) bool
     """
-    n = len(send_t)
-    arrival = np.empty(n)
-    lost = np.zeros(n, bool)
-    if n == 0:
+    return TransmitPlan(links, sender, link_class, nbytes).run(rng, send_t, busy_until, scale)
+
+
+class TransmitPlan:
+    """What :func:`transmit` derives from a batch's senders, link classes and sizes alone.
+
+    A frame whose messages have the same senders, classes and sizes as an earlier one (a
+    small scene, frame after frame) reuses the plan; :meth:`run` then only draws the
+    latencies and losses (the same draws, in the same order, as without a plan) and
+    serialises on the uplinks: message ``i`` of sender ``s`` leaves at
+    ``max(send, busy_s) + sum of the transmission times tx = 8 bytes / bandwidth`` of the
+    messages before it and itself.
+    """
+
+    def __init__(self, links: Dict[str, LinkClass], sender: np.ndarray, link_class: np.ndarray,
+                 nbytes: np.ndarray) -> None:
+        n = len(sender)
+        self.n = n
+        self.classes = []        # (link, selection, count) in CLASS_INDEX order
+        tx = np.zeros(n)
+        for name, k in CLASS_INDEX.items():
+            sel = link_class == k
+            m = int(np.count_nonzero(sel))
+            if not m:
+                continue
+            link = links[name]
+            if link.bandwidth_mbps > 0:
+                tx[sel] = nbytes[sel] * 8.0 / (link.bandwidth_mbps * 1e6)
+            self.classes.append((link, slice(None) if m == n else np.flatnonzero(sel), m))
+        self.serial = n > 0 and bool(tx.any())
+        if self.serial:
+            # serialise per sender in the given order: start_i = max(send_i, end of previous on that uplink)
+            order = np.lexsort((np.arange(n), sender))
+            s_sorted, tx_sorted = sender[order], tx[order]
+            # send times within one batch are equal per sender in our use, so a cumulative sum suffices
+            diff = s_sorted[1:] != s_sorted[:-1]
+            first = np.empty(n, bool)
+            first[0] = True
+            first[1:] = diff
+            last = np.empty(n, bool)
+            last[-1] = True
+            last[:-1] = diff
+            self.order, self.first, self.last = order, first, last
+            self.grp = np.cumsum(first) - 1
+            self.csum = np.cumsum(tx_sorted)
+            self.base = (self.csum - tx_sorted)[first][self.grp]
+            self.s_first, self.s_last = s_sorted[first], s_sorted[last]
+
+    def run(self, rng: np.random.Generator, send_t: np.ndarray, busy_until: np.ndarray, scale: float = 1.0):
+        """Arrival times (n,) s and loss flags (n,) of the batch sent at ``send_t`` (n,) s."""
+        n = self.n
+        arrival = np.empty(n)
+        lost = np.zeros(n, bool)
+        if n == 0:
+            return arrival, lost
+        for link, sel, m in self.classes:
+            arrival[sel] = scale * sample_latency(rng, link, m)
+            if link.loss > 0:
+                lost[sel] = rng.random(m) < link.loss
+        if self.serial:
+            t_sorted = send_t[self.order]
+            start0 = np.maximum(t_sorted[self.first], busy_until[self.s_first])
+            end = np.maximum(start0[self.grp], t_sorted) + self.csum - self.base
+            done = np.empty(n)
+            done[self.order] = end
+            arrival += done
+            busy_until[self.s_last] = end[self.last]
+        else:
+            arrival += send_t
         return arrival, lost
-    tx = np.zeros(n)
-    for name, k in CLASS_INDEX.items():
-        sel = link_class == k
-        if not sel.any():
-            continue
-        link = links[name]
-        m = int(sel.sum())
-        arrival[sel] = scale * sample_latency(rng, link, m)
-        if link.loss > 0:
-            lost[sel] = rng.random(m) < link.loss
-        if link.bandwidth_mbps > 0:
-            tx[sel] = nbytes[sel] * 8.0 / (link.bandwidth_mbps * 1e6)
-    if tx.any():
-        # serialise per sender in the given order: start_i = max(send_i, end of previous on that uplink)
-        order = np.lexsort((np.arange(n), sender))
-        s_sorted, t_sorted, tx_sorted = sender[order], send_t[order], tx[order]
-        end = np.empty(n)
-        # send times within one batch are equal per sender in our use, so a cumulative sum suffices
-        diff = s_sorted[1:] != s_sorted[:-1]
-        first = np.empty(n, bool)
-        first[0] = True
-        first[1:] = diff
-        start0 = np.maximum(t_sorted, busy_until[s_sorted])
-        grp = np.cumsum(first) - 1
-        csum = np.cumsum(tx_sorted)
-        base = (csum - tx_sorted)[first][grp]
-        end = np.maximum(start0[first][grp], t_sorted) + csum - base
-        done = np.empty(n)
-        done[order] = end
-        arrival += done
-        last = np.empty(n, bool)
-        last[-1] = True
-        last[:-1] = diff
-        busy_until[s_sorted[last]] = end[last]
-    else:
-        arrival += send_t
-    return arrival, lost

@@ -24,7 +24,7 @@ identity string, IPv4 address, port and a 128-bit ID (MD5 of ``ip:port``, §2.3.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -92,6 +92,33 @@ class Traffic:
     frame_msg: np.ndarray
     frame_slave: np.ndarray
     rec_hop1: np.ndarray
+    #: the :class:`TrafficPlan` of these messages, once built (shared by copies with other send times)
+    plan: Optional["TrafficPlan"] = None
+
+
+class TrafficPlan:
+    """What sending a :class:`Traffic` needs that does not depend on its send times or draws.
+
+    Totals (messages, bytes, bytes per PDU type), the first hops (``hop_of == -1``) and the
+    relayed second hops, and one :class:`links.TransmitPlan` for each.
+    """
+
+    def __init__(self, tr: Traffic, links) -> None:
+        self.n = len(tr.send_t)
+        self.nbytes = int(tr.nbytes.sum())
+        per_type = np.bincount(tr.ptype, weights=tr.nbytes, minlength=64)
+        self.by_type = [(PduType(int(p)).name, int(per_type[p])) for p in np.flatnonzero(per_type)]
+        first = tr.hop_of == -1
+        self.first = first
+        self.hop1 = lk.TransmitPlan(links, tr.sender[first], tr.link[first], tr.nbytes[first])
+        second = ~first
+        self.second = second if second.any() else None
+        if self.second is not None:
+            direct = second & (tr.hop_of >= 0)
+            self.direct, self.direct_src = direct, tr.hop_of[direct]
+            wait = tr.rec_hop1 >= 0
+            self.wait = (tr.rec_hop1[wait], tr.rec_msg[wait]) if wait.any() else None
+            self.hop2 = lk.TransmitPlan(links, tr.sender[second], tr.link[second], tr.nbytes[second])
 
 
 class _Builder:
