@@ -9,6 +9,8 @@ CasADi Functions
 
 ``pre(w, s, ctrl, wm, p) -> (w_next, raw_ref, inside, reach_ref)``
     washout (or the pose input when ``ctrl[0] = 0``) and the workspace check of the reference;
+``check(q, p) -> (inside, reach)``
+    the workspace check of one pose, for clamping a reference found outside;
 ``sub(x, u, p, c, hs) -> x_next``
     one RK4 substep of the closed loop (:func:`.integrators.rk4_substep`);
 ``post(x, u, p, c, raw_ref, reach_ref, clamped, ctrl, w) -> out``
@@ -16,9 +18,11 @@ CasADi Functions
 
 generated to C together with a small C driver that chains ``pre``, ``ctrl[2]`` substeps of
 ``sub`` and ``post`` over buffers that live for the whole simulation. A macro step is then a
-single ``ctypes`` call with four pointer arguments and no numpy<->CasADi conversion. When the
-reference is outside the workspace the driver stops after ``pre`` (return code 2) and the caller
-clamps in Python (rare). The library is compiled with the system C compiler and cached by the
+single ``ctypes`` call with four pointer arguments and no numpy<->CasADi conversion. A reference
+outside the workspace is clamped in the driver by the bisection of
+:func:`.kinematics.clamp_to_workspace` (24 halvings of the segment from home, with ``check``);
+with ``on_workspace = 'error'`` (``ctrl[4] = 0``) the driver stops after ``pre`` (return code 2)
+and the caller raises. The library is compiled with the system C compiler and cached by the
 hash of its source (:mod:`.codegen`); without a compiler, or for the other integrators, the
 same ``pre``/``post`` Functions are called one by one (CasADi VM or compiled) around
 :meth:`.integrators.StepIntegrator.step`, with the same arithmetic.
@@ -27,7 +31,8 @@ Packed layouts (all float64):
 
 * step inputs ``s`` (:data:`NIN`): specific force (3), angular rate (3), jolt, pose reference (6),
   actuator force command (6);
-* ``ctrl`` (:data:`NCTRL`): cueing is washout (1/0), macro step h (s), substeps, cos_beta_min;
+* ``ctrl`` (:data:`NCTRL`): cueing is washout (1/0), macro step h (s), substeps, cos_beta_min,
+  clamp a reference outside the workspace (1) or stop (0);
 * state (:data:`NSTATE`): closed-loop state x (24), washout state (21), inputs u (12) of the last
   step, raw reference (6), reach ratios of the (clamped) reference (6);
 * outputs (:data:`NOUT`): see :data:`OUT`.
@@ -53,7 +58,9 @@ log = logging.getLogger(__name__)
 NX = 24
 NU = 12
 NIN = 19
-NCTRL = 4
+NCTRL = 5
+#: bisection steps when clamping a reference (as :func:`.kinematics.clamp_to_workspace`)
+CLAMP_ITERS = 24
 #: slices of the packed state
 X, W, U, RAW, REACH = slice(0, 24), slice(24, 45), slice(45, 57), slice(57, 63), slice(63, 69)
 NSTATE = 69
@@ -110,6 +117,14 @@ def pre_function(name: str = "platform_pre") -> ca.Function:
 
 
 @functools.lru_cache(maxsize=None)
+def check_function(name: str = "platform_check") -> ca.Function:
+    """``check(q[6], p[NP]) -> (inside, reach[6])``: workspace check of one pose (IK eq. 6-14..6-19)."""
+    q, pv = ca.SX.sym("q", 6), ca.SX.sym("p", NP)
+    dl, reach = functions()["ik"](q, pv)
+    return ca.Function(name, [q, pv], [inside_sx(dl, reach, param_dict(pv)), reach], ["q", "p"], ["inside", "reach"])
+
+
+@functools.lru_cache(maxsize=None)
 def post_function(rhs: ca.Function) -> ca.Function:
     """``post(x, u, p, c, raw_ref, reach_ref, clamped, ctrl, w) -> out[NOUT]``: outputs at the end of a step.
 
@@ -150,15 +165,29 @@ DRIVER_C = r"""
 CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w) {{
   const casadi_real *st = arg[0], *s = arg[1], *ctrl = arg[2], *wm = arg[3], *p = arg[4], *c = arg[5];
   casadi_real *nx = res[0], *out = res[1], *inside = res[2];
-  casadi_real xin[{nx}], u[{nu}], hs, zero = 0;
+  casadi_real xin[{nx}], u[{nu}], hs, clamped = 0, lo, hi, mid, ok;
   const casadi_real* a[{sz_arg}];
   casadi_real* r[{sz_res}];
   casadi_int i, k, n = (casadi_int) ctrl[2];
   a[0] = st + {ow}; a[1] = s; a[2] = ctrl; a[3] = wm; a[4] = p;
   r[0] = nx + {ow}; r[1] = nx + {oraw}; r[2] = inside; r[3] = nx + {oreach};
   if ({pre}(a, r, iw, w, 0)) return 1;
-  if (inside[0] == 0) return 2;
   for (i = 0; i < 6; ++i) {{ u[i] = nx[{oraw} + i]; u[6 + i] = s[13 + i]; }}
+  if (inside[0] == 0) {{
+    if (ctrl[4] == 0) return 2;
+    /* bisection on the segment from home to the reference (kinematics.clamp_to_workspace) */
+    lo = 0; hi = 1;
+    a[0] = xin; a[1] = p; r[0] = &ok; r[1] = nx + {oreach};
+    for (k = 0; k < {iters}; ++k) {{
+      mid = 0.5 * (lo + hi);
+      for (i = 0; i < 6; ++i) xin[i] = 0.0 + mid * nx[{oraw} + i];
+      if ({check}(a, r, iw, w, 0)) return 1;
+      if (ok != 0) lo = mid; else hi = mid;
+    }}
+    for (i = 0; i < 6; ++i) u[i] = xin[i] = 0.0 + lo * nx[{oraw} + i];
+    if ({check}(a, r, iw, w, 0)) return 1;
+    clamped = 1;
+  }}
   for (i = 0; i < {nu}; ++i) nx[{ou} + i] = u[i];
   hs = ctrl[1] / n;
   for (i = 0; i < {nx}; ++i) nx[i] = st[i];
@@ -168,7 +197,7 @@ CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casa
     r[0] = nx;
     if ({sub}(a, r, iw, w, 0)) return 1;
   }}
-  a[0] = nx; a[1] = u; a[2] = p; a[3] = c; a[4] = nx + {oraw}; a[5] = nx + {oreach}; a[6] = &zero;
+  a[0] = nx; a[1] = u; a[2] = p; a[3] = c; a[4] = nx + {oraw}; a[5] = nx + {oreach}; a[6] = &clamped;
   a[7] = ctrl; a[8] = nx + {ow};
   r[0] = out;
   if ({post}(a, r, iw, w, 0)) return 1;
@@ -181,14 +210,16 @@ CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casa
 def _library(rhs: ca.Function):
     """(library or None, pre, sub, post, driver name) for the closed loop ``rhs``, compiled once per process."""
     pre = pre_function(f"{rhs.name()}_pre")
+    check = check_function(f"{rhs.name()}_check")
     sub = rk4_substep(rhs)
     post = post_function(rhs)
     name = f"{rhs.name()}_macro"
-    fns = (pre, sub, post)
-    c_src = DRIVER_C.format(name=name, pre=pre.name(), sub=sub.name(), post=post.name(), nx=NX, nu=NU,
+    fns = (pre, check, sub, post)
+    c_src = DRIVER_C.format(name=name, pre=pre.name(), check=check.name(), sub=sub.name(), post=post.name(),
+                            nx=NX, nu=NU, iters=CLAMP_ITERS,
                             sz_arg=max(max(f.sz_arg() for f in fns), 9), sz_res=max(max(f.sz_res() for f in fns), 4),
                             ow=W.start, ou=U.start, oraw=RAW.start, oreach=REACH.start)
-    return compile_library(name, list(fns), c_src), pre, sub, post, name
+    return compile_library(name, list(fns), c_src), fns, name
 
 
 class MacroStep:
@@ -218,9 +249,10 @@ class MacroStep:
 
     def __init__(self, rhs: ca.Function, compiled: bool = True, driver: bool = True) -> None:
         if compiled:
-            lib, pre, sub, post, name = _library(rhs)
+            lib, fns, name = _library(rhs)
         else:
-            lib, pre, post, name = None, pre_function(f"{rhs.name()}_pre"), post_function(rhs), None
+            lib, fns, name = None, (pre_function(f"{rhs.name()}_pre"), None, None, post_function(rhs)), None
+        pre, post = fns[0], fns[3]
         self.pre = FastFunction(pre, lib)
         self.post = FastFunction(post, lib)
         self.compiled = self.pre.compiled and self.post.compiled
@@ -233,7 +265,7 @@ class MacroStep:
             fn = getattr(lib, name)
             fn.restype = ctypes.c_int
             fn.argtypes = [ctypes.c_void_p] * 4
-            sizes = [_work_sizes(lib, f) for f in (pre, sub, post)]
+            sizes = [_work_sizes(lib, f) for f in fns]
             self._iw = np.zeros(max(max(s[2] for s in sizes), 1), np.int64)
             self._w = np.zeros(max(max(s[3] for s in sizes), 1))
             P = ctypes.c_void_p
@@ -247,7 +279,7 @@ class MacroStep:
 
     def run(self) -> int:
         """One macro step in native code: 0 done (``next``, ``out`` filled), 2 reference outside the
-        workspace (only the ``pre`` outputs in ``next`` are valid), -1 no driver."""
+        workspace and ``ctrl[4] = 0`` (only the ``pre`` outputs in ``next`` are valid), -1 no driver."""
         if self._call is None:
             return -1
         fn, arg, res, iw, w = self._call

@@ -121,7 +121,7 @@ class PlatformSim:
         ic = cfg.integrator
         self.macro = m = ms.MacroStep(rhs, compiled=ic.compiled, driver=ic.method == "rk4")
         m.p[:], m.c[:] = self.p, self.c
-        m.ctrl[:] = (cfg.cueing == "washout", 0.0, int(ic.substeps), cfg.cos_beta_min)
+        m.ctrl[:] = (cfg.cueing == "washout", 0.0, int(ic.substeps), cfg.cos_beta_min, cfg.on_workspace == "clamp")
         m.state[ms.REACH] = 1.0
         self._h = None
         self._ik = FastFunction(functions()["ik"], _ik_library())
