@@ -41,6 +41,8 @@ log = logging.getLogger(__name__)
 HIST = 16  # frames of displayed-avatar history kept for slaves that lag
 REC_W = 8  # cache row: t, px, py, vx, vy, ax, ay, subscription time
 T_COL, ENTER_COL = 0, 7
+#: queued events that change what the nodes show (heartbeats and time-out checks do not)
+PENDING = frozenset(("input", "impulse", "join", "leave"))
 MEMO_PAIRS = 4096  # at most this many view pairs: a frame's messages may be reused (see _messages)
 
 
@@ -85,6 +87,7 @@ class NetworkModel:
         self.k = 0
         self.latency_scale = 1.0
         self._heap: List[tuple] = []
+        self._pending = 0          # events of a kind in PENDING on the heap (see at_rest)
         self._seq = 0
         self.alive = np.zeros(self.reg.n, bool)       # node process running (sends heartbeats)
         self.online = np.zeros(self.reg.n, bool)      # listed in the supernode's table
@@ -131,6 +134,7 @@ class NetworkModel:
         self.join_hops: List[int] = []
         self._iv = [0, 0]                # messages, bytes since the last frame (heartbeats excluded)
         self._msg_memo: Optional[tuple] = None   # (inputs, Traffic, compose mask) of the last small frame
+        self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs) of the last frame
         self._frame_traffic = (0, 0)     # the same for the interval that ended at the last frame
         self._bootstrap()
         self._iv = [0, 0]                # the bootstrap JOINs belong to no frame interval
@@ -175,6 +179,7 @@ class NetworkModel:
 
     def _push(self, t: float, kind: str, *data) -> None:
         self._seq += 1
+        self._pending += kind in PENDING
         heapq.heappush(self._heap, (t, self._seq, kind, data))
 
     # -- membership -------------------------------------------------------------------------
@@ -294,6 +299,7 @@ class NetworkModel:
             self.t = max(self.t, t_next)
             if t_ev <= t_tick:
                 _, _, kind, data = heapq.heappop(self._heap)
+                self._pending -= kind in PENDING
                 self._handle(kind, data)
             else:
                 self.k += 1
@@ -434,11 +440,7 @@ class NetworkModel:
         self.metrics.published += len(pub_obj)
         # 4. messages by topology, link sampling
         cells = self.grid.cell(P)
-        viewers = np.flatnonzero(online_g)
-        vo, vg_local = self.grid.view_pairs(cells, cells[viewers])
-        vg = viewers[vg_local]
-        frame_size = np.bincount(vg, minlength=G)
-        fi = self.index(vg, vo)
+        vo, vg, fi, frame_size = self._view(cells, online_g)
         og = np.take(self.owner, vo)
         if cfg.topology == "full_mesh":  # a broadcast subscribes everyone to everything
             newly = np.zeros(len(vg), bool)
@@ -499,6 +501,21 @@ class NetworkModel:
         if key is not None:
             self._msg_memo = (key, tr, tr.send_t != t)
         return tr
+
+    def _view(self, cells: np.ndarray, online_g: np.ndarray):
+        """(viewer, object) pairs of the 9-cell neighbourhoods of the online groups (§3.3): object
+        (k,), viewer group (k,), flat cache index (k,), and the objects per viewer (G,).
+        The last frame's pairs are reused when no object changed cell and the same groups are
+        online (a scene at rest, or slow objects in large cells)."""
+        memo = self._view_memo
+        if memo is not None and np.array_equal(memo[0], cells) and np.array_equal(memo[1], online_g):
+            return memo[2]
+        viewers = np.flatnonzero(online_g)
+        vo, vg_local = self.grid.view_pairs(cells, cells[viewers])
+        vg = viewers[vg_local]
+        out = (vo, vg, self.index(vg, vo), np.bincount(vg, minlength=self.cfg.groups))
+        self._view_memo = (cells, online_g, out)
+        return out
 
     def _transmit(self, tr: Traffic):
         """Arrival times and losses of a frame's messages (first hops, then relayed hops)."""
@@ -717,8 +734,7 @@ class NetworkModel:
         STATE, FRAME, REPORT of a scene that does not move) is then the same every frame;
         heartbeats (and the supernode's time-out checks) go on but are not part of it.
         """
-        pending = any(kind in ("input", "impulse", "join", "leave") for _, _, kind, _ in self._heap)
-        return (not self.inputs_changed and not self.world.moving() and not pending
+        return (not self.inputs_changed and not self._pending and not self.world.moving()
                 and self.metrics.inconsistency_max == 0.0 and self.cfg.driven_groups == self.cfg.groups
                 and self.cfg.dis_threshold <= 0)
 

@@ -1,0 +1,131 @@
+"""The network model's shortcuts change no output: each is checked against the plain computation.
+
+* subscription (view entry) times from cell changes vs a dense per-pair "last frame in view" table;
+* messages reused from the last frame (small scenes) vs built every frame;
+* view pairs reused when no object changed cell vs recomputed;
+* per-object maxima of eq. 3-1/3-2 as segment reductions vs ``np.maximum.at``;
+* a transmit plan reused over batches vs a fresh one per batch;
+* the queued-event counter behind ``at_rest`` vs a scan of the event heap.
+"""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network import model as model_mod
+from immersim.models.network.links import TransmitPlan, transmit
+from immersim.models.network.metrics import inconsistency_sq
+
+T = 0.033
+LOSSY = {"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}
+
+
+def _trace(cfg, steps, drive=False):
+    m = NetworkModel(cfg)
+    out = []
+    for k in range(steps):
+        if drive:
+            for g in range(cfg.driven_groups):
+                m.set_input(g, 0.8 if k < steps // 2 else -0.6, 0.2 * (g - 1))
+        out.append(m.step(T).as_dict())
+    return m, out
+
+
+def _same(a, b):
+    (ma, oa), (mb, ob) = a, b
+    assert oa == ob
+    assert np.array_equal(ma.cache, mb.cache) and np.array_equal(ma.owner, mb.owner)
+    assert np.array_equal(ma.per_object_max, mb.per_object_max) and np.array_equal(ma.per_object_rms, mb.per_object_rms)
+    assert np.array_equal(ma.hist, mb.hist) and np.array_equal(ma.shown_frame, mb.shown_frame)
+    assert ma.totals.by_type == mb.totals.by_type
+
+
+@pytest.mark.parametrize("topology", ["hybrid_p2p", "client_server", "full_mesh"])
+def test_reused_messages_and_views_change_nothing(monkeypatch, topology):
+    cfg = NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=2, topology=topology,
+                        links=LOSSY)
+    fast = _trace(cfg, 50, drive=True)
+    monkeypatch.setattr(model_mod, "MEMO_PAIRS", -1)                      # never reuse messages
+    monkeypatch.setattr(NetworkModel, "_view_memo", None, raising=False)
+    orig = NetworkModel._view
+
+    def fresh_view(self, cells, online_g):
+        self._view_memo = None                                            # never reuse view pairs
+        return orig(self, cells, online_g)
+
+    monkeypatch.setattr(NetworkModel, "_view", fresh_view)
+    _same(fast, _trace(cfg, 50, drive=True))
+
+
+def test_subscription_times_match_a_dense_view_table():
+    """A pair's subscription time is the start of its current stay in the viewer's neighbourhood."""
+    cfg = NetworkConfig(groups=6, render_nodes=2, entities=150, scene_size=80.0, avatar_start="uniform",
+                        entity_speed=12.0, seed=7)
+    m = NetworkModel(cfg)
+    G, n = cfg.groups, m.n_obj
+    last_in_view = np.zeros((n, G), np.int64)       # the former per-pair table: frame 0 = scene file
+    enter = np.zeros((n, G))
+    entered = 0
+    for _ in range(60):
+        m.step(T)
+        cells = m.grid.cell(m.world.positions())
+        online = np.flatnonzero(m.master >= 0)
+        vo, vl = m.grid.view_pairs(cells, cells[online])
+        vg = online[vl]
+        new = last_in_view[vo, vg] != m.k - 1
+        enter[vo[new], vg[new]] = m.k * cfg.frame_s
+        last_in_view[vo, vg] = m.k
+        entered += int(new.sum())
+        assert np.array_equal(m.cache[m.index(vg, vo), model_mod.ENTER_COL], enter[vo, vg])
+        assert all(m.in_view(int(g), int(o)) for g, o in zip(vg[:50], vo[:50]))
+    assert entered > 50   # the check saw many entries
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sorted_segment_maxima_equal_scattered_maxima(seed):
+    rng = np.random.default_rng(seed)
+    obj = np.sort(rng.integers(0, 40, 500))
+    err2 = rng.exponential(1.0, 500)
+    mask = rng.random(500) < 0.7
+    for msk in (mask, None):
+        a = inconsistency_sq(obj, err2, 50, msk)
+        b = inconsistency_sq(obj, err2, 50, msk, sorted_obj=True)
+        assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_transmit_plan_reused_over_batches_equals_fresh_batches():
+    links = LOSSY
+    rng_a, rng_b = np.random.default_rng(3), np.random.default_rng(3)
+    sender = np.array([0, 2, 0, 1, 2, 2, 0])
+    link = np.array([1, 0, 1, 1, 0, 1, 0])
+    nbytes = np.array([100, 1500, 40, 9000, 64, 700, 3000])
+    busy_a, busy_b = np.zeros(3), np.zeros(3)
+    plan = TransmitPlan(links, sender, link, nbytes)
+    for k in range(5):
+        send = np.full(7, k * T) + np.where(np.arange(7) % 2, 0.002, 0.0)
+        a = plan.run(rng_a, send, busy_a, 1.5)
+        b = transmit(rng_b, links, send, sender, link, nbytes, busy_b, 1.5)
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and np.array_equal(busy_a, busy_b)
+
+
+def test_pending_event_counter_matches_the_heap():
+    m = NetworkModel(NetworkConfig(groups=3, render_nodes=2, entities=5, driven_groups=2, seed=1))
+    m.schedule_leave(0.2, 1)
+    m.schedule_join(0.5, 1)
+    for k in range(30):
+        m.set_input(k % 2, 0.1 * k, 0.0)
+        m.step(T)
+        assert m._pending == sum(kind in model_mod.PENDING for _, _, kind, _ in m._heap)
+
+
+def test_measure_off_changes_no_network_output_at_scale_like_density():
+    """Same network with and without the display metric, in a dense scene with DIS updates."""
+    base = NetworkConfig(groups=20, render_nodes=2, entities=400, scene_size=300.0, avatar_start="uniform",
+                         dis_threshold=0.1, seed=4)
+    a, oa = _trace(base, 25)
+    b, ob = _trace(replace(base, measure=False), 25)
+    keys = ("messages", "bytes", "dropped_frames", "handovers", "published", "rejected_updates")
+    assert [[s[k] for k in keys] for s in oa] == [[s[k] for k in keys] for s in ob]
+    assert np.array_equal(a.cache, b.cache)
+    assert max(s["inconsistency_max"] for s in oa) > 0.0 == max(s["inconsistency_max"] for s in ob)
