@@ -5,10 +5,9 @@ scene in scene order; unused inputs are ignored) and 8 monitored pairs (outputs
 ``pair[k].*``, the k-th pair of the ``pairs`` spec; unused outputs stay 0 / -1). The model is
 :func:`immersim.models.collision.make_backend`; this file only maps variables.
 """
-import math
 from operator import itemgetter
 
-from immersim.fmus.common import TableSlave, Var
+from immersim.fmus.common import OUTPUTS_UNCHANGED, TableSlave, Var
 from immersim.models.collision import BACKENDS, BackendConfig, make_backend, parse_scene
 
 BODY_CAPACITY = 8
@@ -93,34 +92,22 @@ class collision(TableSlave):
         self._pose_names = [[f"body[{i + 1}].{axis}" for axis, _ in POSE] for i in range(n_dyn)]
         flat = [n for names in self._pose_names for n in names]
         self._inputs = itemgetter(*flat) if len(flat) > 1 else (lambda v, _n=flat: tuple(v[n] for n in _n))
+        self._pair_names = [[f"pair[{k}].{name}" for name in ("in_contact",) + tuple(r[0] for r in PAIR_REALS)]
+                            for k in range(1, len(self.model.pairs) + 1)]
         self._rest_values = [(f"pair[{k}].{name}", value) for k in range(1, len(self.model.pairs) + 1)
                              for name, value in (("toi", -1.0), ("closing_speed", 0.0))]
         self._rest_values += [("n_candidates", 0), ("n_narrow", 0), ("at_rest", True)]
-        self._publish(self.model.query(self._poses(0.0), 0.033))
+        # the base class has checked every input (finite) before initialization and each step
         self._last_inputs = self._inputs(val)
+        self._publish(self.model.query(self._last_inputs, 0.033))
         self._rested = True
         val["at_rest"] = True
 
-    def _poses(self, t):
-        val = self.values
-        poses = [[val[n] for n in names] for names in self._pose_names]
-        for names, row in zip(self._pose_names, poses):
-            for n, x in zip(names, row):
-                if not math.isfinite(x):
-                    raise ValueError(f"{self.instance_name}: input {n} = {x} at t = {t:g} s is not finite")
-        return poses
-
     def _publish(self, res):
         val = self.values
-        for k, r in enumerate(res.pairs, start=1):
-            p = f"pair[{k}]."
-            val[p + "in_contact"] = bool(r.in_contact)
-            val[p + "distance"] = float(r.distance)
-            val[p + "depth"] = float(r.depth)
-            val[p + "px"], val[p + "py"], val[p + "pz"] = (float(x) for x in r.point)
-            val[p + "nx"], val[p + "ny"], val[p + "nz"] = (float(x) for x in r.normal)
-            val[p + "toi"] = float(r.toi)
-            val[p + "closing_speed"] = float(r.closing_speed)
+        for names, r in zip(self._pair_names, res.pairs):
+            val.update(zip(names, (bool(r.in_contact), float(r.distance), float(r.depth),
+                                   *r.point.tolist(), *r.normal.tolist(), float(r.toi), float(r.closing_speed))))
         val["n_bodies"] = int(res.n_bodies)
         val["n_pairs"] = len(res.pairs)
         val["n_candidates"] = int(res.n_candidates)
@@ -132,15 +119,18 @@ class collision(TableSlave):
         if inputs == self._last_inputs:
             # nothing moved (the base class has rejected non-finite inputs): the model's cached
             # answer holds; only the per-step outputs change, once (README "Skip rules")
-            if not self._rested:
-                val = self.values
-                for name, value in self._rest_values:
-                    val[name] = value
-                self._rested = True
-            return
-        self._publish(self.model.query(self._poses(t), h))
+            if self._rested:
+                return OUTPUTS_UNCHANGED
+            val = self.values
+            for name, value in self._rest_values:
+                val[name] = value
+            self._rested = True
+            return None
+        # poses (n_dynamic x 6, flat in scene order): the model reshapes them
+        self._publish(self.model.query(inputs, h))
         self._last_inputs = inputs
         self._rested = False
+        return None
 
     def get_model_state(self):
         return {"model": self.model.get_state(), "inputs": self._last_inputs, "rested": self._rested}

@@ -8,7 +8,13 @@ and is driven through ``query(poses, dt) -> QueryResult``. The base class owns w
   pairs are evaluated once, at the first query, and never again); a step where no pose
   changed returns the previous result at once (``at_rest``);
 * world AABBs and bounding spheres of the bodies (exact, from the transformed vertices);
-* the closing speed of a pair from the pose change over the step.
+* the closing speed of a pair from the pose change over the step;
+* the far-pair skip of backends that declare ``FAR_SKIP`` (fcl): a pair whose last
+  evaluation found every member's AABB at least ``max_distance`` away keeps its far result
+  without any work while the AABB gaps cannot have closed to ``max_distance`` since (the
+  gap bound of :meth:`CollisionBackend._far_holds`), unless its first body is a fast mover
+  that needs time of impact. The reported result and counters are exactly those of a full
+  evaluation (which would find no candidate and no member within ``max_distance``).
 
 Monitored pairs spec
 --------------------
@@ -234,6 +240,12 @@ class CollisionBackend(ABC):
     """
 
     name = "abstract"
+    #: the backend reports a pair whose members' AABB gaps are all >= ``max_distance`` as far
+    #: (distance = max_distance, no candidate, no narrow-phase test) and sets ``_last_gap``
+    #: in ``_evaluate`` (the smallest member AABB gap, or None), enabling the far-pair skip
+    FAR_SKIP = False
+    #: m of slack in the far-pair skip (covers the rounding of computed AABBs)
+    FAR_MARGIN = 1e-9
 
     def __init__(self, scene: Scene, pairs, config: Optional[BackendConfig] = None) -> None:
         self.scene = scene
@@ -273,6 +285,15 @@ class CollisionBackend(ABC):
         self._cache: List[Optional[PairResult]] = [None] * len(self.pairs)
         self._previous: Optional[PairResult] = None
         self._last: Optional[QueryResult] = None
+        # far-pair skip (FAR_SKIP backends): per body the largest distance of a hull vertex
+        # from the body origin, and the running sum of per-step bounds on how far any face of
+        # its AABB moved; per pair (smallest member gap, that sum over its bodies) when far
+        self._rmax = [float(np.linalg.norm(self._local[b.mesh_key][0], axis=1).max()) if len(self._local[b.mesh_key][0])
+                      else 0.0 for b in scene.bodies]
+        self._shift = [0.0] * self.n
+        self._pair_bodies = [sorted(d) for d in self._pair_dyn]
+        self._far: List[Optional[Tuple[float, float]]] = [None] * len(self.pairs)
+        self._last_gap: Optional[float] = None
         self._setup()
 
     # -- to implement -------------------------------------------------------------------
@@ -350,15 +371,18 @@ class CollisionBackend(ABC):
         if self._last is not None and not moved:
             # nothing moved: the last contacts hold, nothing was tested, nothing is closing
             self.prev_T[self.dyn] = self.T[self.dyn]
-            rest = [replace(r, toi=-1.0, closing_speed=0.0) for r in self._last.pairs]
+            rest = [_at_rest(r) for r in self._last.pairs]
             self._last = QueryResult(rest, self.n, 0, 0, True)
             return self._last
+        self.prev_T[self.dyn] = self.T[self.dyn]  # static rows never change
+        shift = self._shift
         for i, row in zip(self._dyn_list, rows):
-            self.prev_T[i] = self.T[i]  # static rows never change
             if row != self._dyn_poses[i]:
                 self._dyn_poses[i] = row
                 self.poses[i] = row
-                self.T[i] = pose_matrix(row)
+                T = pose_matrix(row)
+                shift[i] += self._face_shift(self.T[i], T, self._rmax[i])
+                self.T[i] = T
         if self._last is None:
             # the first query's poses are the initial poses: the move from the scene spec's
             # pose to them is no motion (no time of impact, closing speed or honeycomb threshold)
@@ -369,12 +393,17 @@ class CollisionBackend(ABC):
             self._moved(moved_arr)
         moved_set = set(moved)
         out, n_cand, n_narrow = [], 0, 0
+        far_skip = self.FAR_SKIP and math.isfinite(self.config.max_distance)
         for k, pair in enumerate(self.pairs):
             cached = self._cache[k]
             self._previous = cached  # the pair's result at the start of the step (for _evaluate)
             if cached is not None and moved_set.isdisjoint(self._pair_dyn[k]):
-                out.append(replace(cached, toi=-1.0, closing_speed=0.0))
+                out.append(_at_rest(cached))
                 continue
+            if far_skip and self._far[k] is not None and self._far_holds(k, pair, moved_set):
+                out.append(cached)  # the far result: no candidate, no test (class docstring)
+                continue
+            self._last_gap = None
             if len(pair.members) == 0:
                 res, c, m = PairResult(), 0, 0
             else:
@@ -382,11 +411,54 @@ class CollisionBackend(ABC):
                 self._report_normal(pair, res, cached)
             res.closing_speed = self._closing_speed(pair.a, res, dt)
             self._cache[k] = res
+            if far_skip:
+                self._far[k] = self._far_record(k, res, c, m)
             out.append(res)
             n_cand += c
             n_narrow += m
         self._last = QueryResult(out, self.n, n_cand, n_narrow, False)
         return self._last
+
+    # -- far-pair skip ------------------------------------------------------------------
+    @staticmethod
+    def _face_shift(T0: np.ndarray, T1: np.ndarray, rmax: float) -> float:
+        """Bound (m) on how far any face of a body's world AABB moves from pose ``T0`` to
+        ``T1``: ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is
+        ``max_v (R v)_k + t_k`` over the hull vertices ``v`` (``|v| <= rmax``), and
+        ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <= ||R1 - R0||_F rmax``."""
+        m = (T1 - T0).ravel().tolist()
+        t2 = m[3] * m[3] + m[7] * m[7] + m[11] * m[11]
+        r2 = (m[0] * m[0] + m[1] * m[1] + m[2] * m[2] + m[4] * m[4] + m[5] * m[5] + m[6] * m[6]
+              + m[8] * m[8] + m[9] * m[9] + m[10] * m[10])
+        return math.sqrt(t2) + math.sqrt(r2) * rmax
+
+    def _far_record(self, k: int, res: PairResult, n_cand: int, n_narrow: int) -> Optional[Tuple[float, float]]:
+        """What the far-pair skip of pair ``k`` needs after a full evaluation: (smallest member
+        AABB gap, sum of the face-shift bounds of the pair's bodies), or None when the result
+        is not the plain far one (a contact, a partner, a time of impact, any candidate)."""
+        gap = self._last_gap
+        if (gap is None or n_cand or n_narrow or res.in_contact or res.partner >= 0 or res.toi >= 0
+                or not gap >= self.config.max_distance):
+            return None
+        shift = self._shift
+        return float(gap), sum(shift[i] for i in self._pair_bodies[k])
+
+    def _far_holds(self, k: int, pair: PairSpec, moved: set) -> bool:
+        """The far result of pair ``k`` still holds: every member's AABB gap is still at least
+        ``max_distance`` (it shrinks by at most ``sqrt(3)`` times the sum of the face shifts of
+        both boxes: each axis' separation moves by at most that sum), and the first body does
+        not need a time of impact (:meth:`_needs_toi`)."""
+        gap, shift0 = self._far[k]
+        shift = self._shift
+        moved_by = sum(shift[i] for i in self._pair_bodies[k]) - shift0
+        if gap - _SQRT3 * moved_by < self.config.max_distance + self.FAR_MARGIN:
+            return False
+        return not (pair.a in moved and self._needs_toi(pair.a))
+
+    def _needs_toi(self, a: int) -> bool:
+        """Whether ``a``'s motion over the step calls for a time of impact with no contact at
+        either end (backends with continuous collision override it)."""
+        return False
 
     def _report_normal(self, pair: PairSpec, res: PairResult, prev: Optional[PairResult]) -> None:
         """Turn a backend result into the reported one (module docstring): cap the distance
@@ -443,7 +515,19 @@ class CollisionBackend(ABC):
         self._stale[self.dyn] = True
         self._cache, self._last = state["cache"], state["last"]
         self._dyn_poses = {i: self.poses[i].tolist() for i in self._dyn_list}
+        self._far = [None] * len(self.pairs)
         self._moved(self.dyn)
+
+
+_SQRT3 = math.sqrt(3.0)
+
+
+def _at_rest(r: PairResult) -> PairResult:
+    """``r`` with no time of impact and no closing speed (``r`` itself when it has neither:
+    stored results are never modified, so they can be shared)."""
+    if r.toi == -1.0 and r.closing_speed == 0.0 and math.copysign(1.0, r.closing_speed) > 0:
+        return r
+    return replace(r, toi=-1.0, closing_speed=0.0)
 
 
 def aggregate(results: List[Tuple[int, PairResult]], lower_bound: float) -> PairResult:

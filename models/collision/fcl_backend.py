@@ -22,6 +22,9 @@
   point (translation + angle x radius), until ``d <= toi_tol`` (contact at ``s``) or ``s > 1``.
   fcl's own ``continuousCollide`` is not used: its conservative-advancement solver rejects
   mesh-mesh requests in python-fcl 0.7 and the naive solver only samples 10 poses.
+* Far pairs (every member's AABB at least ``max_distance`` away, no time of impact needed)
+  are skipped by the base class's far-pair skip (``FAR_SKIP``); the fcl transform of a moved
+  body is set only when a pair that involves it is evaluated.
 """
 from __future__ import annotations
 
@@ -57,6 +60,7 @@ class FclBackend(CollisionBackend):
     """Exact collision, distance, penetration depth and time of impact with python-fcl."""
 
     name = "fcl"
+    FAR_SKIP = True
     #: distance (m) below which conservative advancement reports contact
     toi_tol = 1e-4
 
@@ -75,6 +79,8 @@ class FclBackend(CollisionBackend):
         for i in self.static_idx:
             self._by_pose.setdefault(self._key(self.objs[i]), []).append(int(i))
         self._member_mask = np.zeros(self.n, bool)
+        self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
+        self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
         for k, pair in enumerate(self.pairs):
@@ -89,6 +95,8 @@ class FclBackend(CollisionBackend):
             dyn = members[self.is_dynamic[members]]
             self._pair_parts[id(pair)] = (mask, stat, dyn, use_tree)
             self._small[id(pair)] = np.concatenate([dyn, [] if use_tree else stat]).astype(int)
+            # dynamic bodies whose fcl transform must be current when the pair is evaluated
+            self._pair_sync[id(pair)] = ([int(pair.a)] if self.is_dynamic[pair.a] else []) + dyn.tolist()
         self._creq = fcl.CollisionRequest(num_max_contacts=self.config.max_contacts, enable_contact=True)
         self._dreq = fcl.DistanceRequest(enable_nearest_points=True)
         self._faces = np.array([len(self.scene.meshes[b.mesh_key].faces) for b in self.scene.bodies])
@@ -115,8 +123,45 @@ class FclBackend(CollisionBackend):
         return on_overlap
 
     def _moved(self, idx: np.ndarray) -> None:
-        for i in idx:
-            self.objs[i].setTransform(fcl_transform(self.T[i]))
+        stale = self._fcl_stale
+        for i in idx.tolist():
+            stale[i] = True
+
+    def _sync(self, bodies: List[int]) -> None:
+        """Set the fcl transforms of ``bodies`` that moved since theirs was last set."""
+        stale = self._fcl_stale
+        for i in bodies:
+            if stale[i]:
+                self.objs[i].setTransform(fcl_transform(self.T[i]))
+                stale[i] = False
+
+    def _travel(self, a: int) -> float:
+        """Bound (m) on the travel of any surface point of ``a`` over the step (translation +
+        rotation angle x radius about the origin): what decides a fast mover."""
+        T0, T1 = self.prev_T[a], self.T[a]
+        return (np.linalg.norm(T1[:3, 3] - T0[:3, 3])
+                + rotation_angle(T1[:3, :3] @ T0[:3, :3].T) * self._radius[a])
+
+    def _needs_toi(self, a: int) -> bool:
+        """A fast mover gets conservative advancement even without contact at either end.
+
+        Decided as in :meth:`_evaluate` (``_travel(a) > ccd_fast * thin``); a scalar estimate
+        of the travel settles the clear cases and only one within 1e-9 (relative) of the
+        threshold is decided by :meth:`_travel` itself."""
+        if not self.config.ccd:
+            return False
+        T0, T1 = self.prev_T[a].tolist(), self.T[a].tolist()
+        if T0 == T1:
+            return False
+        threshold = self.config.ccd_fast * self._thin[a]
+        dx, dy, dz = T1[0][3] - T0[0][3], T1[1][3] - T0[1][3], T1[2][3] - T0[2][3]
+        # trace(R1 R0^T) = sum of the element-wise products (rotation_angle's formula)
+        c = sum(T1[i][j] * T0[i][j] for i in range(3) for j in range(3))
+        angle = math.acos(min(1.0, max(-1.0, (c - 1.0) / 2.0)))
+        estimate = math.sqrt(dx * dx + dy * dy + dz * dz) + angle * self._radius[a]
+        if abs(estimate - threshold) > 1e-9 * max(threshold, 1e-300) + 1e-12:
+            return estimate > threshold
+        return bool(self._travel(a) > threshold)
 
     # -- narrow phase -------------------------------------------------------------------
     def _collide(self, a: int, b: int, obj_b=None) -> PairResult | None:
@@ -202,6 +247,7 @@ class FclBackend(CollisionBackend):
     def _evaluate(self, pair: PairSpec, dt: float) -> Tuple[PairResult, int, int]:
         a = pair.a
         mask, stat, dyn, use_tree = self._pair_parts[id(pair)]
+        self._sync(self._pair_sync[id(pair)])
         self._member_mask = mask
         self._use_tree = use_tree
         counts = [0, 0]  # candidates, narrow-phase tests
@@ -217,6 +263,8 @@ class FclBackend(CollisionBackend):
         gaps = self.aabb_gap(a, small) if len(small) else None
         if gaps is not None:
             cands += small[gaps <= 0].tolist()
+            if not use_tree:  # every member's gap is known: what the far-pair skip needs
+                self._last_gap = float(gaps.min())
         seen = set()
         for b in cands:
             if b in seen:
@@ -232,9 +280,7 @@ class FclBackend(CollisionBackend):
         # no member within max_distance: the base class reports distance = max_distance
         res = aggregate(results, self.config.max_distance)
         if self.config.ccd and (self.prev_T[a] != self.T[a]).any():
-            T0, T1 = self.prev_T[a], self.T[a]
-            travel = (np.linalg.norm(T1[:3, 3] - T0[:3, 3])
-                      + rotation_angle(T1[:3, :3] @ T0[:3, :3].T) * self._radius[a])
+            travel = self._travel(a)
             prev = self._previous
             held = res.in_contact and prev is not None and prev.in_contact
             if held:  # the contact held from the start of the step

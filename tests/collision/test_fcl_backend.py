@@ -271,3 +271,51 @@ def test_cached_dynamic_boxes_equal_fresh_ones():
         for i in (0, 1):
             v = posed(scene, i, pose[i]).vertices
             np.testing.assert_allclose(be.aabb[i], [v.min(0), v.max(0)], atol=1e-12)
+
+
+def test_far_pair_skip_changes_no_output_and_skips_evaluations():
+    """The far-pair skip (a pair whose members' AABBs were all >= max_distance away keeps its
+    far result while the gap bound holds) is a pure speed-up: a trajectory that drives a
+    turning box from far away into a tank and back, two balls that close in on it, and a
+    fast missile diving onto a second tank (time of impact) gives the same results and
+    counters with and without it, and the skip does save evaluations."""
+    from immersim.models.collision import fcl_backend
+
+    spec = ("tank:name=t,tris=5.4k,x=20,yaw=0.7;tank:name=u,tris=5.4k,x=-40;box:name=av,sx=4,sy=2,sz=4.4,dynamic=1;"
+            "sphere:name=b1,r=1,dynamic=1;sphere:name=b2,r=1,dynamic=1;missile:name=m,dynamic=1,x=-40,z=30")
+    pairs = "av vs t; av vs any b*; m vs scene; b1 vs b2"
+    fast = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0))
+    plain = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0))
+    plain.FAR_SKIP = False
+    evaluations = {"fast": 0, "plain": 0}
+    real = fcl_backend.FclBackend._evaluate
+    seen = {"contact": 0, "toi": 0, "near": 0}
+    for k in range(150):
+        x = -20 + 0.4 * k if k < 100 else 20 - 0.4 * (k - 100)  # into the tank (x ~ 13 m) and back
+        yb = 30 - 0.25 * k  # the balls close in on the box's path
+        poses = [[x, 0.5 * np.sin(k / 7), 2.5, 0, 0, 0.01 * k],
+                 [x + 3, yb, 1, 0, 0, 0],
+                 [x + 3, yb + 2.2 + 0.3 * np.sin(k / 3), 1, 0, 0, 0],
+                 [-40 + 0.1 * k, 0, max(30 - 3.0 * k, 4.2), 0, 0.5, 0]]  # dives onto u at ~3 m/step
+        out = {}
+        for name, be in (("fast", fast), ("plain", plain)):
+            def counted(self, pair, dt, _n=name):
+                evaluations[_n] += 1
+                return real(self, pair, dt)
+            fcl_backend.FclBackend._evaluate = counted
+            try:
+                out[name] = be.query(poses, 0.033)
+            finally:
+                fcl_backend.FclBackend._evaluate = real
+        f, p = out["fast"], out["plain"]
+        assert (f.n_candidates, f.n_narrow, f.at_rest) == (p.n_candidates, p.n_narrow, p.at_rest)
+        for rf, rp in zip(f.pairs, p.pairs):
+            assert (rf.in_contact, rf.distance, rf.depth, rf.toi, rf.closing_speed, rf.partner) == \
+                (rp.in_contact, rp.distance, rp.depth, rp.toi, rp.closing_speed, rp.partner)
+            np.testing.assert_array_equal(rf.point, rp.point)
+            np.testing.assert_array_equal(rf.normal, rp.normal)
+            seen["contact"] += rp.in_contact
+            seen["toi"] += rp.toi >= 0
+            seen["near"] += 0 < rp.distance < 2.0
+    assert evaluations["fast"] < 0.8 * evaluations["plain"]
+    assert all(seen.values()), seen  # contacts, times of impact and near misses were all compared
