@@ -5,12 +5,24 @@ import pytest
 
 from immersim.models.platform import codegen, macrostep
 from immersim.models.platform.control import prefiltered_loop
-from immersim.models.platform.cueing import NWM, NWS, Washout, WashoutParams, washout_matrices, washout_sx
+from immersim.models.platform.cueing import (NWM, NWS, Washout, WashoutParams, continuous_system, expm_small,
+                                             washout_matrices, washout_sx)
 from immersim.models.platform.integrators import IntegratorConfig
 from immersim.models.platform.kinematics import OutsideWorkspaceError, clamp_to_workspace, workspace_check
 from immersim.models.platform.simulator import PlatformSim, SimConfig, StepInputs
 
 H = 0.033
+
+
+@pytest.mark.parametrize("h", [1e-3, 0.033, 0.5, 4.0])
+def test_numpy_expm_of_the_washout_system_is_scipys(h):
+    from scipy.linalg import expm
+
+    A, B, *_ = continuous_system(WashoutParams())
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n], M[:n, n:] = A, B
+    np.testing.assert_allclose(expm_small(M * h), expm(M * h), rtol=0, atol=1e-14)
 
 
 def test_symbolic_washout_is_the_numpy_washout():
