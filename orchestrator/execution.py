@@ -6,6 +6,7 @@ properly and holds every completed step, and a :class:`RunFailed` says where and
 """
 from __future__ import annotations
 
+import functools
 import logging
 import tempfile
 import time
@@ -184,14 +185,12 @@ class Execution:
             done.add(name)
 
     def _open_log(self, master: Master) -> None:
-        from importlib.metadata import version
-
         sc, system = self.scenario, self.system
         obs = self.observer = McapObserver(self.output)
         obs.add_metadata("scenario", {"file": str(sc.file), "text": sc.text})
         obs.add_metadata("fmus", {u: f"{system.paths[u]} sha256={h}" for u, h in fmu_hashes(system).items()})
         obs.add_metadata("immersim", {
-            "version": version("immersim"), "algorithm": sc.algorithm, "extrapolation": sc.extrapolation,
+            "version": _version(), "algorithm": sc.algorithm, "extrapolation": sc.extrapolation,
             "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
             "skipped_units": ",".join(system.skipped),
             "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})
@@ -322,6 +321,14 @@ class Execution:
         finally:
             self.system.terminate()
             self._tmp.cleanup()
+
+
+@functools.lru_cache(maxsize=1)
+def _version() -> str:
+    """The installed immersim version (importlib.metadata takes milliseconds per call)."""
+    from importlib.metadata import version
+
+    return version("immersim")
 
 
 def _picker(idx: List[int]) -> Callable[[List[Any]], tuple]:

@@ -37,15 +37,10 @@ _FAMILY = {
 }
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
-_VRS = ctypes.POINTER(ctypes.c_uint)
-#: (restype, argtypes...) of the FMI 2.0 functions called every step
-_FAST_PROTOTYPES = {
-    "fmi2GetReal": (ctypes.c_int, ctypes.c_void_p, _VRS, ctypes.c_size_t, ctypes.POINTER(ctypes.c_double)),
-    "fmi2SetReal": (ctypes.c_int, ctypes.c_void_p, _VRS, ctypes.c_size_t, ctypes.POINTER(ctypes.c_double)),
-    "fmi2GetInteger": (ctypes.c_int, ctypes.c_void_p, _VRS, ctypes.c_size_t, ctypes.POINTER(ctypes.c_int)),
-    "fmi2GetBoolean": (ctypes.c_int, ctypes.c_void_p, _VRS, ctypes.c_size_t, ctypes.POINTER(ctypes.c_int)),
-    "fmi2DoStep": (ctypes.c_int, ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int),
-}
+#: the FMI 2.0 functions called every step; they are called through prototypes without
+#: ``argtypes`` and with pre-built ctypes arguments (component pointer, counts, buffers, the
+#: time as a reused c_double), which skips ctypes' per-argument ``from_param`` conversions
+_FAST_FUNCTIONS = ("fmi2GetReal", "fmi2SetReal", "fmi2GetInteger", "fmi2GetBoolean", "fmi2DoStep")
 
 
 @dataclass(frozen=True)
@@ -75,13 +70,37 @@ def ns_to_s(t_ns: int) -> float:
     return t_ns / 1e9
 
 
+#: parsed model descriptions by (path, mtime, size): a scenario reads each FMU at check time
+#: and again when it instantiates it, often several instances of one FMU
+_MODELS: Dict[tuple, tuple] = {}
+
+
 def read_model(path: Path, unit: str):
     """Read and validate an FMU's model description without instantiating it.
+
+    A file read before (same path, modification time and size) is not parsed again.
 
     Returns
     -------
     (fmpy ModelDescription, dict of name -> VarInfo)
     """
+    try:
+        st = os.stat(path)
+        key = (os.path.abspath(path), st.st_mtime_ns, st.st_size)
+    except OSError:
+        key = None
+    if key in _MODELS:
+        md, variables = _MODELS[key]
+        return md, dict(variables)
+    md, variables = _read_model(path, unit)
+    if key is not None:
+        if len(_MODELS) >= 64:
+            _MODELS.clear()
+        _MODELS[key] = md, variables
+    return md, dict(variables)
+
+
+def _read_model(path: Path, unit: str):
     import fmpy
     from fmpy.model_description import ValidationError
 
@@ -219,11 +238,15 @@ class FmuInstance:
         #: called without releasing the GIL, which the FMU would take back at once
         self.in_process_python = gen.startswith("PythonFMU")
         if self._fmi2:
+            self._c_component = ctypes.c_void_p(self._component)
+            self._c_t, self._c_h, self._h_ns = ctypes.c_double(), ctypes.c_double(), None
+            self._c_true = ctypes.c_int(1)  # noSetFMUStatePriorToCurrentPoint
             self._do_step = self._fast_function("fmi2DoStep")
             self._set_real = self._fast_function("fmi2SetReal")
 
     def _fast_function(self, name: str):
-        """A ctypes function for the FMI 2.0 function ``name`` with exact argument types.
+        """A ctypes function for the FMI 2.0 function ``name`` (one of ``_FAST_FUNCTIONS``),
+        returning the status as int; it takes ctypes arguments only (no ``argtypes``).
 
         It is built on the address FMPy loaded, so FMPy's own wrappers are untouched. For an
         FMU that runs Python code in this interpreter (pythonfmu) the call keeps the GIL
@@ -231,9 +254,11 @@ class FmuInstance:
         call. Any other FMU is called with the GIL released (``CFUNCTYPE``), as FMPy does, so
         its own threads may call back into Python.
         """
+        if name not in _FAST_FUNCTIONS:
+            raise ValueError(f"{name} has no fast prototype")
         factory = ctypes.PYFUNCTYPE if self.in_process_python else ctypes.CFUNCTYPE
         address = ctypes.cast(getattr(self.fmu.dll, name), ctypes.c_void_p).value
-        return factory(*_FAST_PROTOTYPES[name])(address)
+        return factory(ctypes.c_int)(address)
 
     # -- the one checked call ----------------------------------------------------------
     def _guard(self, function: str, thunk) -> Any:
@@ -283,7 +308,10 @@ class FmuInstance:
             raise FmuCallError(self.name, "doStep", t_ns, 3,
                                f"master time {t_ns} ns differs from the instance time {self.t_ns} ns")
         if self._fmi2:
-            status = self._do_step(self._component, t_ns / 1e9, h_ns / 1e9, 1)  # ns_to_s, inlined
+            if h_ns != self._h_ns:
+                self._c_h.value, self._h_ns = h_ns / 1e9, h_ns
+            self._c_t.value = t_ns / 1e9  # ns_to_s, inlined
+            status = self._do_step(self._c_component, self._c_t, self._c_h, self._c_true)
             if status > 1:
                 self._check("fmi2DoStep", status)
         else:
@@ -387,7 +415,8 @@ class ValueReader:
         fam = [v.family for v in infos]
         self.n_real = fam.count("float")
         n_int, n_bool = fam.count("int"), fam.count("bool")
-        #: (FMI function, value references, count, buffer, NumPy view, function name, as Boolean?)
+        #: (FMI function, value references, count as c_size_t, buffer, NumPy view, function name,
+        #: as Boolean?)
         self._groups = []
         start = 0
         for n, getter, ctype, dtype, as_bool in ((self.n_real, "fmi2GetReal", ctypes.c_double, np.float64, False),
@@ -397,7 +426,8 @@ class ValueReader:
                 vrs = (ctypes.c_uint * n)(*[v.vr for v in infos[start:start + n]])
                 buf = (ctype * n)()
                 fn = inst._fast_function(getter) if self.fmi2 else None
-                self._groups.append((fn, vrs, n, buf, np.frombuffer(buf, dtype=dtype), getter, as_bool))
+                self._groups.append((fn, vrs, ctypes.c_size_t(n), buf, np.frombuffer(buf, dtype=dtype), getter,
+                                     as_bool))
             start += n
         self._strings = [v.name for v in infos[start:]]
 
@@ -407,7 +437,7 @@ class ValueReader:
         inst = self.inst
         if not self.fmi2:
             return self._read_fmi3()
-        comp = inst._component
+        comp = inst._c_component
         out: List[Any] = []
         for fn, vrs, n, buf, view, getter, as_bool in self._groups:
             status = fn(comp, vrs, n, buf)
@@ -459,7 +489,7 @@ class RealSetter:
         self.names = names
         self._vrs = (ctypes.c_uint * len(names))(*[inst.var(n).vr for n in names])
         self._buf = (ctypes.c_double * len(names))()
-        self._n = len(names)
+        self._n = ctypes.c_size_t(len(names))
         self._fmi2 = inst.fmi_version.startswith("2")
 
     def set(self, values: Sequence[float]) -> None:
@@ -467,7 +497,7 @@ class RealSetter:
         inst = self.inst
         if self._fmi2:
             self._buf[:] = values
-            status = inst._set_real(inst._component, self._vrs, self._n, self._buf)
+            status = inst._set_real(inst._c_component, self._vrs, self._n, self._buf)
             if status > 1:
                 inst._check("fmi2SetReal", status)
         else:

@@ -92,6 +92,15 @@ def _fast_writer_class():
 
     header = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log, publish time
 
+    class FastMessageIndex(MessageIndex):
+        """A chunk's message index written with one ``struct.pack`` (the library packs each
+        timestamp and offset separately: half a microsecond per message)."""
+
+        def write(self, stream) -> None:
+            n = len(self.records)
+            stream.write(struct.pack(f"<BQHI{2 * n}Q", 0x07, 6 + 16 * n, self.channel_id, 16 * n,
+                                     *[x for record in self.records for x in record]))
+
     class FastWriter(Writer):
         def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
                         sequence: int = 0) -> None:
@@ -113,7 +122,7 @@ def _fast_writer_class():
                 cb.message_end_time = log_time
             index = cb.message_indices.get(channel_id)
             if not index:
-                index = cb.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+                index = cb.message_indices[channel_id] = FastMessageIndex(channel_id=channel_id, records=[])
             index.records.append((log_time, buf.tell()))
             cb.num_messages += 1
             buf.write(header.pack(0x05, 22 + len(data), channel_id, sequence, log_time, publish_time))
@@ -151,7 +160,7 @@ def _fast_writer_class():
                 counts[cid] += 1
                 index = indices.get(cid)
                 if not index:
-                    index = indices[cid] = MessageIndex(channel_id=cid, records=[])
+                    index = indices[cid] = FastMessageIndex(channel_id=cid, records=[])
                 index.records.append((log_time, pos))
                 n = len(data)
                 pos += 31 + n  # 9 bytes record header + 22 bytes message fields + data
