@@ -126,6 +126,9 @@ class PlatformSim:
         self._h = None
         self._ik = FastFunction(functions()["ik"], _ik_library())
         self.skipped_steps = 0
+        # home at rest is an equilibrium only under a controller (gravity compensated); with direct
+        # actuator forces zero inputs let the platform fall, so no step may be skipped
+        self._lazy = cfg.control_mode != "direct"
         m.next[:] = m.state
         m.run_post(False)
         self.out = StepOutputs(m.out.copy())
@@ -158,7 +161,7 @@ class PlatformSim:
         """:meth:`step` with the packed inputs (19,) of :mod:`.macrostep` (any float sequence)."""
         m = self.macro
         m.s[:] = s
-        if self._rest and not m.s.any():
+        if self._rest and self._lazy and not m.s.any():
             self.skipped_steps += 1  # lazy: nothing moves, outputs stay as they are
             return self.out
         if h != self._h:

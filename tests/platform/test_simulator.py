@@ -45,6 +45,15 @@ def test_lazy_rest_skips_steps_and_wakes_up():
     assert not out.at_rest and sim.skipped_steps == 5 and out.pose[0] > 0
 
 
+def test_with_direct_forces_zero_inputs_do_not_skip_gravity():
+    sim = PlatformSim(SimConfig(control_mode="direct", cueing="pose"))
+    for k in range(3):
+        out = sim.step(StepInputs(), H, k * H)
+    assert sim.skipped_steps == 0 and not out.at_rest
+    # free fall for 0.099 s, the rods' hinges hardly resist yet: z = -g t^2 / 2
+    np.testing.assert_allclose(out.pose[2], -0.5 * 9.81 * (3 * H) ** 2, rtol=0.05)
+
+
 def test_washout_returns_to_centre_and_tilts_for_sustained_surge():
     w = Washout(WashoutParams())
     for _ in range(int(30 / H)):
