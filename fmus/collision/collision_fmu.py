@@ -97,6 +97,7 @@ class collision(TableSlave):
         self._rest_values = [(f"pair[{k}].{name}", value) for k in range(1, len(self.model.pairs) + 1)
                              for name, value in (("toi", -1.0), ("closing_speed", 0.0))]
         self._rest_values += [("n_candidates", 0), ("n_narrow", 0), ("at_rest", True)]
+        self._shown = [None] * len(self.model.pairs)  # the result object last written per pair
         # the base class has checked every input (finite) before initialization and each step
         self._last_inputs = self._inputs(val)
         self._publish(self.model.query(self._last_inputs, 0.033))
@@ -104,8 +105,14 @@ class collision(TableSlave):
         val["at_rest"] = True
 
     def _publish(self, res):
-        val = self.values
-        for names, r in zip(self._pair_names, res.pairs):
+        val, shown = self.values, self._shown
+        for k, (names, r) in enumerate(zip(self._pair_names, res.pairs)):
+            # the model never modifies a result it has handed out: the same object again (a
+            # cached pair) holds the values already written (the rest path only writes the
+            # toi = -1 and closing_speed = 0 such a result has)
+            if r is shown[k]:
+                continue
+            shown[k] = r
             val.update(zip(names, (bool(r.in_contact), float(r.distance), float(r.depth),
                                    *r.point.tolist(), *r.normal.tolist(), float(r.toi), float(r.closing_speed))))
         val["n_bodies"] = int(res.n_bodies)
@@ -137,4 +144,5 @@ class collision(TableSlave):
 
     def set_model_state(self, state):
         self.model.set_state(state["model"])
+        self._shown = [None] * len(self.model.pairs)
         self._last_inputs, self._rested = state["inputs"], state["rested"]

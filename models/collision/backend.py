@@ -48,7 +48,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .geometry import pose_matrix
+from .geometry import pose_rows
 from .scene import Scene, SceneError
 
 log = logging.getLogger(__name__)
@@ -291,6 +291,10 @@ class CollisionBackend(ABC):
         self._rmax = [float(np.linalg.norm(self._local[b.mesh_key][0], axis=1).max()) if len(self._local[b.mesh_key][0])
                       else 0.0 for b in scene.bodies]
         self._shift = [0.0] * self.n
+        # the transforms of the dynamic bodies as nested lists (current, and before this
+        # query's move for the bodies that moved in it): scalar code for the per-step bounds
+        self._T_rows: Dict[int, list] = {i: self.T[i].tolist() for i in self._dyn_list}
+        self._prev_rows: Dict[int, list] = {}
         self._pair_bodies = [sorted(d) for d in self._pair_dyn]
         self._far: List[Optional[Tuple[float, float]]] = [None] * len(self.pairs)
         self._last_gap: Optional[float] = None
@@ -375,14 +379,17 @@ class CollisionBackend(ABC):
             self._last = QueryResult(rest, self.n, 0, 0, True)
             return self._last
         self.prev_T[self.dyn] = self.T[self.dyn]  # static rows never change
-        shift = self._shift
+        shift, rmax, T_rows = self._shift, self._rmax, self._T_rows
+        prev_rows = self._prev_rows = {}
         for i, row in zip(self._dyn_list, rows):
             if row != self._dyn_poses[i]:
                 self._dyn_poses[i] = row
                 self.poses[i] = row
-                T = pose_matrix(row)
-                shift[i] += self._face_shift(self.T[i], T, self._rmax[i])
-                self.T[i] = T
+                M = pose_rows(row)
+                old = prev_rows[i] = T_rows[i]
+                shift[i] += _face_shift(old, M, rmax[i])
+                T_rows[i] = M
+                self.T[i] = M
         if self._last is None:
             # the first query's poses are the initial poses: the move from the scene spec's
             # pose to them is no motion (no time of impact, closing speed or honeycomb threshold)
@@ -420,18 +427,6 @@ class CollisionBackend(ABC):
         return self._last
 
     # -- far-pair skip ------------------------------------------------------------------
-    @staticmethod
-    def _face_shift(T0: np.ndarray, T1: np.ndarray, rmax: float) -> float:
-        """Bound (m) on how far any face of a body's world AABB moves from pose ``T0`` to
-        ``T1``: ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is
-        ``max_v (R v)_k + t_k`` over the hull vertices ``v`` (``|v| <= rmax``), and
-        ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <= ||R1 - R0||_F rmax``."""
-        m = (T1 - T0).ravel().tolist()
-        t2 = m[3] * m[3] + m[7] * m[7] + m[11] * m[11]
-        r2 = (m[0] * m[0] + m[1] * m[1] + m[2] * m[2] + m[4] * m[4] + m[5] * m[5] + m[6] * m[6]
-              + m[8] * m[8] + m[9] * m[9] + m[10] * m[10])
-        return math.sqrt(t2) + math.sqrt(r2) * rmax
-
     def _far_record(self, k: int, res: PairResult, n_cand: int, n_narrow: int) -> Optional[Tuple[float, float]]:
         """What the far-pair skip of pair ``k`` needs after a full evaluation: (smallest member
         AABB gap, sum of the face-shift bounds of the pair's bodies), or None when the result
@@ -515,11 +510,26 @@ class CollisionBackend(ABC):
         self._stale[self.dyn] = True
         self._cache, self._last = state["cache"], state["last"]
         self._dyn_poses = {i: self.poses[i].tolist() for i in self._dyn_list}
+        self._T_rows = {i: self.T[i].tolist() for i in self._dyn_list}
+        self._prev_rows = {}
         self._far = [None] * len(self.pairs)
         self._moved(self.dyn)
 
 
 _SQRT3 = math.sqrt(3.0)
+
+
+def _face_shift(T0: list, T1: list, rmax: float) -> float:
+    """Bound (m) on how far any face of a body's world AABB moves from pose ``T0`` to ``T1``
+    (4x4 nested lists): ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is
+    ``max_v (R v)_k + t_k`` over the hull vertices ``v`` (``|v| <= rmax``), and
+    ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <= ||R1 - R0||_F rmax``."""
+    t2 = r2 = 0.0
+    for a, b in zip(T0[:3], T1[:3]):
+        d0, d1, d2, d3 = b[0] - a[0], b[1] - a[1], b[2] - a[2], b[3] - a[3]
+        r2 += d0 * d0 + d1 * d1 + d2 * d2
+        t2 += d3 * d3
+    return math.sqrt(t2) + math.sqrt(r2) * rmax
 
 
 def _at_rest(r: PairResult) -> PairResult:

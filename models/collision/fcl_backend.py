@@ -150,7 +150,11 @@ class FclBackend(CollisionBackend):
         threshold is decided by :meth:`_travel` itself."""
         if not self.config.ccd:
             return False
-        T0, T1 = self.prev_T[a].tolist(), self.T[a].tolist()
+        T0 = self._prev_rows.get(a)  # the body's transform before this query's move
+        if T0 is None:
+            return bool((self.prev_T[a] != self.T[a]).any()
+                        and self._travel(a) > self.config.ccd_fast * self._thin[a])
+        T1 = self._T_rows[a]
         if T0 == T1:
             return False
         threshold = self.config.ccd_fast * self._thin[a]

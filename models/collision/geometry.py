@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-__all__ = ["rotation", "pose_matrix", "transform_points", "point_triangle_distance",
+__all__ = ["rotation", "pose_rows", "pose_matrix", "transform_points", "point_triangle_distance",
            "rotation_angle", "slerp_pose"]
 
 
@@ -27,18 +27,24 @@ def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
     ])
 
 
-def pose_matrix(pose) -> np.ndarray:
-    """Homogeneous 4x4 transform of a pose ``(x, y, z, roll, pitch, yaw)`` (eq. 4-6)."""
-    x, y, z, roll, pitch, yaw = (float(v) for v in pose)
+def pose_rows(pose) -> list:
+    """The 4x4 transform of a pose ``(x, y, z, roll, pitch, yaw)`` (eq. 4-6) as nested lists
+    of floats (what :func:`pose_matrix` wraps in an array; scalar code for the per-step path)."""
+    x, y, z, roll, pitch, yaw = map(float, pose)
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array([
+    return [
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr, x],
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr, y],
         [-sp, cp * sr, cp * cr, z],
         [0.0, 0.0, 0.0, 1.0],
-    ])
+    ]
+
+
+def pose_matrix(pose) -> np.ndarray:
+    """Homogeneous 4x4 transform of a pose ``(x, y, z, roll, pitch, yaw)`` (eq. 4-6)."""
+    return np.array(pose_rows(pose))
 
 
 def transform_points(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
