@@ -70,6 +70,41 @@ class SceneGrid:
 BRUTE_FORCE_PAIRS = 4096
 
 
+class PointIndex:
+    """Points (n, 2) sorted by x, for box queries around a few query points each frame.
+
+    Sorting ``n`` values costs less than building a k-d tree; the tree (:attr:`tree`, for
+    the exact pair order of :meth:`scipy.spatial.cKDTree.sparse_distance_matrix`) is built
+    only when a caller needs it, e.g. on the rare frames with a contact.
+    """
+
+    def __init__(self, pts: np.ndarray) -> None:
+        self.pts = pts
+        self.order = np.argsort(pts[:, 0], kind="stable")
+        self.xs = pts[self.order, 0]
+        self._tree = None
+
+    @property
+    def tree(self):
+        """k-d tree of the points (built on first use)."""
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(self.pts)
+        return self._tree
+
+    def near(self, q: np.ndarray, rad: np.ndarray):
+        """Candidate pairs (query index, point index) with ``|x_p - x_q| <= rad_q`` and
+        ``|y_p - y_q| <= rad_q``: a superset of the points within distance ``rad_q``."""
+        lo = np.searchsorted(self.xs, q[:, 0] - rad, side="left")
+        hi = np.searchsorted(self.xs, q[:, 0] + rad, side="right")
+        n = hi - lo
+        qi = np.repeat(np.arange(len(q)), n)
+        pi = self.order[np.arange(int(n.sum())) + np.repeat(lo - (np.cumsum(n) - n), n)]
+        ok = np.abs(self.pts[pi, 1] - q[qi, 1]) <= rad[qi]
+        return qi[ok], pi[ok]
+
+
 # -- ownership §3.6.2 ----------------------------------------------------------------------------
 def ellipsoid_axes(vel: np.ndarray, frame_s: float, scale: float, min_axis: float, foci: str = "frame"):
     """Control ellipsoid of each avatar, eq. 3-11/3-12.
@@ -131,7 +166,10 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
     the smallest Mahalanobis distance. ``'euclidean'``: the nearest avatar (eq. 3-3) among those
     within a sphere of radius ``a`` (the same reach, no direction). ``'none'``: no change.
-    Ties go to the lower index. Candidate pairs come from a k-d tree, so the cost is linear.
+    Ties go to the lower index. Candidate pairs come from a k-d tree (``etree``: a
+    ``cKDTree`` or a :class:`PointIndex` of ``entity_pos``), so the cost is linear; with a
+    :class:`PointIndex` the Mahalanobis candidates are the entities in the box of half-width
+    ``a`` around each centre (``d <= 1`` implies ``|x - c| <= a``: the same owners).
     """
     if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
         return current
@@ -145,9 +183,12 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
         if rule == "euclidean":
             r = entity_pos[ei] - centre[gi]
             sd = {"v": np.sqrt(np.einsum("ij,ij->i", r, r))}
+    elif rule == "mahalanobis" and isinstance(etree, PointIndex):
+        gi, ei = etree.near(centre, a)
     else:
         from scipy.spatial import cKDTree
 
+        etree = etree.tree if isinstance(etree, PointIndex) else etree
         etree = etree if etree is not None else cKDTree(entity_pos)
         sd = cKDTree(centre).sparse_distance_matrix(etree, float(a.max()), output_type="ndarray")
         gi, ei = sd["i"].astype(np.int64), sd["j"].astype(np.int64)

@@ -397,7 +397,7 @@ class NetworkModel:
         # 1. collision responses between avatars and entities (the owner responds)
         # one k-d tree of the entities shared by contacts and ownership (large scenes only:
         # small ones use brute force, cheaper than a tree built every frame)
-        etree = w.entity_tree() if cfg.entities and cfg.groups * cfg.entities > 4096 else None
+        etree = w.entity_index() if cfg.entities and cfg.groups * cfg.entities > 4096 else None
         ai, ei, dv = w.contacts(etree)
         if len(ai):
             ai, ei, dv = ai[online_g[ai]], ei[online_g[ai]], dv[online_g[ai]]

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .config import NetworkConfig
+from .consistency import PointIndex
 
 G_ACC = 9.81
 
@@ -214,6 +215,11 @@ class World:
 
         return cKDTree(self.epos)
 
+    def entity_index(self) -> PointIndex:
+        """x-sorted entity positions (once per frame, shared by contacts and ownership); its
+        k-d tree is built only on a frame with a contact candidate."""
+        return PointIndex(self.epos)
+
     def contacts(self, etree=None):
         """Approaching avatar-entity pairs in contact: (avatar, entity, dv of entity (k, 2))."""
         from scipy.spatial import cKDTree
@@ -222,7 +228,14 @@ class World:
         if G == 0 or E == 0:
             return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
         r = self.cfg.avatar_radius + self.cfg.entity_radius
-        if etree is None and G * E <= 4096:
+        if isinstance(etree, PointIndex):
+            # candidates in a box around each avatar; none within r: no contact, no tree needed
+            ai, ei = etree.near(self.apos, np.full(G, r * (1.0 + 1e-9)))
+            d = self.epos[ei] - self.apos[ai]
+            if not (np.einsum("ij,ij->i", d, d) <= r * r * (1.0 + 1e-9)).any():
+                return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
+            etree = etree.tree
+        elif etree is None and G * E <= 4096:
             # small scenes: a brute-force distance check finds the (rare) frames with a contact;
             # the exact k-d tree path below (its pair order) only runs then
             dx = self.epos[:, 0] - self.apos[:, 0, None]

@@ -129,3 +129,40 @@ def test_measure_off_changes_no_network_output_at_scale_like_density():
     assert [[s[k] for k in keys] for s in oa] == [[s[k] for k in keys] for s in ob]
     assert np.array_equal(a.cache, b.cache)
     assert max(s["inconsistency_max"] for s in oa) > 0.0 == max(s["inconsistency_max"] for s in ob)
+
+
+@pytest.mark.parametrize("foci", ["frame", "reach"])
+def test_point_index_owners_equal_kd_tree_and_brute_force(foci):
+    from scipy.spatial import cKDTree
+
+    from immersim.models.network.consistency import PointIndex, assign_owners
+
+    rng = np.random.default_rng(5)
+    apos, avel = rng.uniform(0, 200, (30, 2)), rng.normal(0, 10, (30, 2))
+    epos = rng.uniform(0, 200, (2000, 2))
+    cur = rng.integers(0, 30, 2000)
+    args = ("mahalanobis", apos, avel, epos, cur, 0.033, 30.0, 4.0, foci)
+    via_index = assign_owners(*args, etree=PointIndex(epos))
+    via_tree = assign_owners(*args, etree=cKDTree(epos))
+    brute = cur.copy()
+    from immersim.models.network.consistency import ellipsoid_axes, mahalanobis_ellipsoid
+    a, b, u, shift = ellipsoid_axes(avel, 0.033, 30.0, 4.0, foci)
+    d = mahalanobis_ellipsoid(epos[:, None, :], (apos + shift)[None], u[None], a[None], b[None])   # (E, G)
+    inside = d <= 1.0
+    brute[inside.any(1)] = np.where(inside, d, np.inf).argmin(1)[inside.any(1)]
+    assert np.array_equal(via_index, via_tree) and np.array_equal(via_index, brute)
+    assert (via_index != cur).sum() > 20
+
+
+def test_point_index_contacts_equal_kd_tree_contacts():
+    cfg = NetworkConfig(groups=40, render_nodes=1, entities=600, scene_size=60.0, seed=8)
+    m = NetworkModel(cfg)
+    w = m.world
+    w.speed[:] = 5.0
+    a = w.contacts(w.entity_index())
+    b = w.contacts(w.entity_tree())
+    assert len(a[0]) > 5
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    w.epos[:] = 1e4                     # nobody near: the index answers without a tree
+    idx = w.entity_index()
+    assert len(w.contacts(idx)[0]) == 0 and idx._tree is None
