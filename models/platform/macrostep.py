@@ -208,18 +208,19 @@ CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casa
 
 @functools.lru_cache(maxsize=None)
 def _library(rhs: ca.Function):
-    """(library or None, pre, sub, post, driver name) for the closed loop ``rhs``, compiled once per process."""
+    """(library or None, (pre, check, sub, post), (driver name, its sz_arg, sz_res)) for the closed loop
+    ``rhs``, compiled once per process."""
     pre = pre_function(f"{rhs.name()}_pre")
     check = check_function(f"{rhs.name()}_check")
     sub = rk4_substep(rhs)
     post = post_function(rhs)
     name = f"{rhs.name()}_macro"
     fns = (pre, check, sub, post)
+    sz_arg, sz_res = max(max(f.sz_arg() for f in fns), 9), max(max(f.sz_res() for f in fns), 4)
     c_src = DRIVER_C.format(name=name, pre=pre.name(), check=check.name(), sub=sub.name(), post=post.name(),
-                            nx=NX, nu=NU, iters=CLAMP_ITERS,
-                            sz_arg=max(max(f.sz_arg() for f in fns), 9), sz_res=max(max(f.sz_res() for f in fns), 4),
+                            nx=NX, nu=NU, iters=CLAMP_ITERS, sz_arg=sz_arg, sz_res=sz_res,
                             ow=W.start, ou=U.start, oraw=RAW.start, oreach=REACH.start)
-    return compile_library(name, list(fns), c_src), fns, name
+    return compile_library(name, list(fns), c_src), fns, (name, sz_arg, sz_res)
 
 
 class MacroStep:
@@ -249,9 +250,9 @@ class MacroStep:
 
     def __init__(self, rhs: ca.Function, compiled: bool = True, driver: bool = True) -> None:
         if compiled:
-            lib, fns, name = _library(rhs)
+            lib, fns, driver_c = _library(rhs)
         else:
-            lib, fns, name = None, (pre_function(f"{rhs.name()}_pre"), None, None, post_function(rhs)), None
+            lib, fns, driver_c = None, (pre_function(f"{rhs.name()}_pre"), None, None, post_function(rhs)), None
         pre, post = fns[0], fns[3]
         self.pre = FastFunction(pre, lib)
         self.post = FastFunction(post, lib)
@@ -261,11 +262,15 @@ class MacroStep:
         self.wm, self.p, self.c = np.zeros(NWM), np.zeros(NP), np.zeros(NC)
         self.out, self.inside = np.zeros(NOUT), np.zeros(1)
         self._call: Optional[tuple] = None
+        sizes = [_work_sizes(lib, f) for f in fns] if lib is not None else []
+        if sizes and any(sz[0] > driver_c[1] or sz[1] > driver_c[2] for sz in sizes):
+            log.warning("generated code of %s needs larger argument arrays than its driver: composed path",
+                        driver_c[0])
+            driver = False
         if lib is not None and driver and self.compiled:
-            fn = getattr(lib, name)
+            fn = getattr(lib, driver_c[0])
             fn.restype = ctypes.c_int
             fn.argtypes = [ctypes.c_void_p] * 4
-            sizes = [_work_sizes(lib, f) for f in fns]
             self._iw = np.zeros(max(max(s[2] for s in sizes), 1), np.int64)
             self._w = np.zeros(max(max(s[3] for s in sizes), 1))
             P = ctypes.c_void_p
