@@ -5,6 +5,7 @@ variables onto it. Parameter variables are generated from the parameter dataclas
 defaults, units and descriptions have a single source.
 """
 from dataclasses import fields
+from operator import itemgetter
 
 from immersim.fmus.common import TableSlave, Var, vector
 from immersim.models.platform.control import ControlParams
@@ -23,6 +24,7 @@ PACKED_INPUTS = (("cue.f_x", "cue.f_y", "cue.f_z", "cue.w_x", "cue.w_y", "cue.w_
 PACKED_REAL_OUTPUTS = (tuple(f"pose.{a}" for a in AXES) + tuple(f"vel.{a}" for a in AXES)
                        + tuple(f"stroke[{i}]" for i in range(1, 7)) + tuple(f"force[{i}]" for i in range(1, 7))
                        + ("track_err",))
+_packed_inputs = itemgetter(*PACKED_INPUTS)
 FLAG_OUTPUTS = (("flag.saturated", OUT["saturated"]), ("flag.near_singular", OUT["near_singular"]),
                 ("flag.outside_workspace", OUT["outside_workspace"]), ("at_rest", OUT["at_rest"]))
 
@@ -100,9 +102,8 @@ class platform(TableSlave):
         self._write(self.sim.out)
 
     def step_model(self, t, h):
-        v = self.values
         try:
-            out = self.sim.step_packed([v[n] for n in PACKED_INPUTS], h, t)
+            out = self.sim.step_packed(_packed_inputs(self.values), h, t)
         except (ValueError, ArithmeticError, RuntimeError) as exc:
             raise type(exc)(f"{self.instance_name}: {exc}") from exc
         self._write(out)

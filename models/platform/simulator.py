@@ -30,6 +30,7 @@ log = logging.getLogger(__name__)
 def _ik_library():
     return compile_library("platform_ik", [functions()["ik"]])
 
+_X_FINITE, _STROKE_FINITE, _AT_REST = ms.OUT["x_finite"], ms.OUT["stroke_finite"], ms.OUT["at_rest"]
 CUEING = ("washout", "pose")
 ON_WORKSPACE = ("clamp", "error")
 
@@ -172,16 +173,16 @@ class PlatformSim:
         if rc != 0:
             self._composed_step(rc, h, t)
         out = m.out
-        if not out[ms.OUT["x_finite"]]:
+        if not out[_X_FINITE]:
             raise ArithmeticError(f"platform state became non-finite in the step ending at t = {t + h:g} s "
                                   f"(integrator {self.cfg.integrator.method}): a rod lost its slider (out of reach) "
                                   f"or the integration diverged")
-        if not out[ms.OUT["stroke_finite"]]:
+        if not out[_STROKE_FINITE]:
             raise OutsideWorkspaceError(
                 f"the platform left the rods' reach at t = {t + h:g} s: pose {np.array2string(m.next[:6], precision=4)}")
         m.state[:] = m.next
         self.out = StepOutputs(out.copy())
-        self._rest = bool(out[ms.OUT["at_rest"]])
+        self._rest = bool(out[_AT_REST])
         return self.out
 
     def _composed_step(self, rc: int, h: float, t: float) -> None:
