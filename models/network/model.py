@@ -39,8 +39,7 @@ from .world import World
 log = logging.getLogger(__name__)
 
 HIST = 16  # frames of displayed-avatar history kept for slaves that lag
-REC_W = 8  # cache row: t, px, py, vx, vy, ax, ay, subscription time
-T_COL, ENTER_COL = 0, 7
+T_COL = 0  # cache row: record time, then p, v, a as the prediction order uses them (see NetworkModel)
 #: queued events that change what the nodes show (heartbeats and time-out checks do not)
 PENDING = frozenset(("input", "impulse", "join", "leave"))
 MEMO_PAIRS = 4096  # at most this many view pairs: a frame's messages may be reused (see _messages)
@@ -100,14 +99,22 @@ class NetworkModel:
         # ownership: avatars by their group; entities initially by the nearest avatar
         self.owner = np.r_[np.arange(G), self._initial_entity_owners()]
         self.pending_contact = np.zeros(E, bool)
-        # receivers' caches (viewer group x object): one row of REC_W floats per (object, viewer),
+        # receivers' caches (viewer group x object): one row of floats per (object, viewer),
         # flat index object * G + viewer (object-major: the pairs of a frame are sorted by
         # object, so gathers and scatters walk memory forward). Row: record time t, position
-        # p (2), velocity v (2), acceleration a (2), and the time the pair last entered the
-        # viewer's neighbourhood (subscription). One 64-byte row per pair: the display error
-        # of a pair reads one cache line instead of one per column.
-        self.cache = _aligned_rows(G * self.n_obj, REC_W)
+        # p (2), velocity v (2, orders >= 1), acceleration a (2, order 2), the record's id
+        # (``rid_col``: records with the same id have the same content), and the time the
+        # pair last entered the viewer's neighbourhood (``enter_col``, subscription). One
+        # 64-byte row per pair (128 for order 2): the display error of a pair reads one cache
+        # line instead of one per column.
+        self._ncol = 1 + 2 * (1 + min(cfg.prediction_order, 2))   # record columns the order uses
+        self.rid_col = self._ncol
+        width = 8 if self._ncol + 2 <= 8 else 16
+        self.enter_col = width - 1
+        self.cache = _aligned_rows(G * self.n_obj, width)
         self.cache[:, T_COL] = -np.inf
+        self._obj_ids = np.arange(self.n_obj)
+        self._uid = 1              # next record-table id (0: the scene file); rid = uid * n_obj + object
         # owner's knowledge of what it last published (DIS)
         self.pub_t = np.full(self.n_obj, -np.inf)
         self.pub_p = np.zeros((self.n_obj, 2))
@@ -115,7 +122,6 @@ class NetworkModel:
         self.pub_a = np.zeros((self.n_obj, 2))
         # records in flight, bucketed by the frame at which they are due: k -> chunks in send order
         self._inflight: Dict[int, List[tuple]] = {}
-        self._ncol = 1 + 2 * (1 + min(cfg.prediction_order, 2))   # cache columns the order uses
         self._epoch = 0            # bumped at every ownership change: older chunks are re-checked
         self._newest = -np.inf     # newest record time written into the cache so far
         self._frames: Dict[str, np.ndarray] = {k: np.zeros(0, t) for k, t in
@@ -172,10 +178,26 @@ class NetworkModel:
     def _publish_initial(self) -> None:
         """Frame 0: every node starts from the same scene file (the shared initial state)."""
         P, V, A = self.world.positions(), self.world.velocities(), self.world.accelerations()
-        rec = np.c_[np.zeros(self.n_obj), P, V, A]
-        self.cache[:, :ENTER_COL] = np.repeat(rec, self.cfg.groups, axis=0)
+        self._uid = 0
+        rec = self._table(np.arange(self.n_obj), 0.0, P, V, A)
+        n = self.rid_col + 1
+        self.cache[:, :n] = np.repeat(rec[:, :n], self.cfg.groups, axis=0)
         self.pub_t[:] = 0.0
         self.pub_p, self.pub_v, self.pub_a = P.copy(), V.copy(), A.copy()
+
+    def _table(self, objs: np.ndarray, t, P: np.ndarray, V: np.ndarray, A: np.ndarray) -> np.ndarray:
+        """A new record table (len(objs), cache width): rows ``t, p, v, a`` (the columns the
+        prediction order uses) of objects ``objs`` and their record ids under a fresh table id."""
+        tab = np.empty((len(objs), self.cache.shape[1]))
+        tab[:, T_COL] = t
+        tab[:, 1:3] = P
+        if self._ncol >= 5:
+            tab[:, 3:5] = V
+        if self._ncol >= 7:
+            tab[:, 5:7] = A
+        tab[:, self.rid_col] = objs + self._uid * self.n_obj
+        self._uid += 1
+        return tab
 
     def _push(self, t: float, kind: str, *data) -> None:
         self._seq += 1
@@ -275,8 +297,8 @@ class NetworkModel:
                       arrival: Optional[float] = None) -> None:
         """Put a STATE record from ``sender_group`` for ``obj`` in flight (e.g. a forged one)."""
         t = self.t if arrival is None else arrival
-        rec = np.zeros((1, REC_W))
-        rec[0, :7] = np.r_[self.t, np.asarray(pos, float), np.asarray(vel, float), 0.0, 0.0]
+        rec = self._table(np.array([obj]), self.t, np.asarray(pos, float)[None], np.asarray(vel, float)[None],
+                          np.zeros((1, 2)))
         self._add_inflight(np.array([t]), np.array([self.index(viewer_group, obj)]), np.array([sender_group]),
                            rec, np.zeros(1, np.int64), epoch=-1)
 
@@ -378,8 +400,7 @@ class NetworkModel:
             # the old owner knew the exact state when it let go: its cache starts from it
             w = self.world
             P, V, A = w.positions()[o], w.velocities()[o], w.accelerations()[o]
-            rec = np.zeros((len(o), REC_W))
-            rec[:, :7] = np.c_[np.full(len(o), self.t), P, V, A]
+            rec = self._table(o, self.t, P, V, A)
             self._scatter(self.index(old, o), rec, np.arange(len(o)))
             self._newest = max(self._newest, self.t)
             self._epoch += 1
@@ -447,7 +468,7 @@ class NetworkModel:
         else:
             newly = self._entered(cells, online_g, vg, vo)
             if newly.any():
-                self.cache[fi[newly], ENTER_COL] = t
+                self.cache[fi[newly], self.enter_col] = t
             self._view_prev = (cells, online_g)
         send_pair = pub[vo] | newly
         tr = self._messages(t, pub_obj, vg, vo, frame_size, send_pair, og)
@@ -456,11 +477,9 @@ class NetworkModel:
             r_arr, r_lost = arrival[tr.rec_msg], lost[tr.rec_msg]
             if (tr.rec_hop1 >= 0).any():
                 r_lost = r_lost | np.where(tr.rec_hop1 >= 0, lost[np.maximum(tr.rec_hop1, 0)], False)
-            # one record table per frame (objects x REC_W, rows like the cache's); pairs refer
-            # to it by object
-            table = np.empty((self.n_obj, REC_W))
-            table[:, T_COL] = t
-            table[:, 1:3], table[:, 3:5], table[:, 5:7] = P, V, A
+            # one record table per frame (objects x cache width, rows like the cache's); pairs
+            # refer to it by object
+            table = self._table(self._obj_ids, t, P, V, A)
             if r_lost.any():
                 ok = ~r_lost
                 o, viewer, r_arr = tr.rec_obj[ok], tr.rec_viewer[ok], r_arr[ok]
@@ -605,13 +624,15 @@ class NetworkModel:
 
     def _scatter(self, fi: np.ndarray, table: np.ndarray, ridx: np.ndarray) -> None:
         """Write records ``table[ridx]`` into the cache rows ``fi`` (the columns the prediction
-        order uses, as one block per row; the subscription time is left alone)."""
-        n = self._ncol
+        order uses and the record id, as one block per row; the subscription time is left alone)."""
+        n = self.rid_col + 1
         _row_prefix(self.cache, n)[fi] = _row_prefix(table, n)[ridx]
 
     def record(self, viewer: int, obj: int) -> np.ndarray:
         """Cached record (7,) of ``obj`` at group ``viewer``: t (s), p (2, m), v (2, m/s), a (2, m/s^2)."""
-        return self.cache[int(self.index(viewer, obj)), :ENTER_COL].copy()
+        out = np.zeros(7)
+        out[:self._ncol] = self.cache[int(self.index(viewer, obj)), :self._ncol]
+        return out
 
     def in_view(self, viewer: int, obj: int) -> bool:
         """``obj`` was in the 9-cell neighbourhood of online group ``viewer`` at the last frame."""
@@ -690,7 +711,7 @@ class NetworkModel:
         order = cfg.prediction_order
         c = np.take(self.cache, fi, axis=0)       # one row (cache line) per copy
         ct = c[:, T_COL]
-        remote = (og != vg) & (ct >= c[:, ENTER_COL] - 1e-12)
+        remote = (og != vg) & (ct >= c[:, self.enter_col] - 1e-12)
         ex = c[:, 1] - np.take(P[:, 0], vo)
         ey = c[:, 2] - np.take(P[:, 1], vo)
         if order >= 1:

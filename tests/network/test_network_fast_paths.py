@@ -77,7 +77,7 @@ def test_subscription_times_match_a_dense_view_table():
         enter[vo[new], vg[new]] = m.k * cfg.frame_s
         last_in_view[vo, vg] = m.k
         entered += int(new.sum())
-        assert np.array_equal(m.cache[m.index(vg, vo), model_mod.ENTER_COL], enter[vo, vg])
+        assert np.array_equal(m.cache[m.index(vg, vo), m.enter_col], enter[vo, vg])
         assert all(m.in_view(int(g), int(o)) for g, o in zip(vg[:50], vo[:50]))
     assert entered > 50   # the check saw many entries
 
