@@ -299,6 +299,8 @@ class CollisionBackend(ABC):
         self._far: List[Optional[Tuple[float, float]]] = [None] * len(self.pairs)
         self._last_gap: Optional[float] = None
         self._setup()
+        #: the far-pair skip is on (set after ``_setup``: a backend may decide FAR_SKIP there)
+        self._far_skip = bool(self.FAR_SKIP and math.isfinite(self.config.max_distance))
 
     # -- to implement -------------------------------------------------------------------
     def _setup(self) -> None:
@@ -379,6 +381,7 @@ class CollisionBackend(ABC):
             self._last = QueryResult(rest, self.n, 0, 0, True)
             return self._last
         self.prev_T[self.dyn] = self.T[self.dyn]  # static rows never change
+        far_skip = self._far_skip
         shift, rmax, T_rows = self._shift, self._rmax, self._T_rows
         prev_rows = self._prev_rows = {}
         for i, row in zip(self._dyn_list, rows):
@@ -386,9 +389,10 @@ class CollisionBackend(ABC):
                 self._dyn_poses[i] = row
                 self.poses[i] = row
                 M = pose_rows(row)
-                old = prev_rows[i] = T_rows[i]
-                shift[i] += _face_shift(old, M, rmax[i])
-                T_rows[i] = M
+                if far_skip:  # the far-pair skip's bookkeeping
+                    old = prev_rows[i] = T_rows[i]
+                    shift[i] += _face_shift(old, M, rmax[i])
+                    T_rows[i] = M
                 self.T[i] = M
         if self._last is None:
             # the first query's poses are the initial poses: the move from the scene spec's
@@ -400,7 +404,6 @@ class CollisionBackend(ABC):
             self._moved(moved_arr)
         moved_set = set(moved)
         out, n_cand, n_narrow = [], 0, 0
-        far_skip = self.FAR_SKIP and math.isfinite(self.config.max_distance)
         for k, pair in enumerate(self.pairs):
             cached = self._cache[k]
             self._previous = cached  # the pair's result at the start of the step (for _evaluate)

@@ -286,7 +286,7 @@ def test_far_pair_skip_changes_no_output_and_skips_evaluations():
     pairs = "av vs t; av vs any b*; m vs scene; b1 vs b2"
     fast = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0))
     plain = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0))
-    plain.FAR_SKIP = False
+    plain._far_skip = False  # the same backend without the far-pair skip
     evaluations = {"fast": 0, "plain": 0}
     real = fcl_backend.FclBackend._evaluate
     seen = {"contact": 0, "toi": 0, "near": 0}
