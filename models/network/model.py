@@ -29,6 +29,7 @@ import numpy as np
 from . import links as lk
 from .config import NetworkConfig
 from .consistency import SceneGrid, assign_owners, dead_reckon
+from .display import DisplayGroups
 from .ids import PastryOverlay
 from .metrics import StepMetrics, Totals, inconsistency_sq
 from .nodes import H, NodeRegistry, Traffic, TrafficPlan, build_messages, control_bytes
@@ -43,6 +44,7 @@ T_COL = 0  # cache row: record time, then p, v, a as the prediction order uses t
 #: queued events that change what the nodes show (heartbeats and time-out checks do not)
 PENDING = frozenset(("input", "impulse", "join", "leave"))
 MEMO_PAIRS = 4096  # at most this many view pairs: a frame's messages may be reused (see _messages)
+GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
 
 
 def _aligned_rows(n: int, w: int) -> np.ndarray:
@@ -141,6 +143,7 @@ class NetworkModel:
         self._iv = [0, 0]                # messages, bytes since the last frame (heartbeats excluded)
         self._msg_memo: Optional[tuple] = None   # (inputs, Traffic, compose mask) of the last small frame
         self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs) of the last frame
+        self._groups: Optional[DisplayGroups] = None  # record groups of the display metric (large views)
         self._frame_traffic = (0, 0)     # the same for the interval that ended at the last frame
         self._bootstrap()
         self._iv = [0, 0]                # the bootstrap JOINs belong to no frame interval
@@ -405,6 +408,8 @@ class NetworkModel:
             self._newest = max(self._newest, self.t)
             self._epoch += 1
             self.owner[o] = new[changed]
+            if self._groups is not None:          # the new owner's copy is no longer a remote one
+                self._groups.touch(self.index(self.owner[o], o))
             self.metrics.handovers += n
             self._count(n, n * (H + record_bytes(self.cfg.prediction_order)), PduType.HANDOVER)
 
@@ -494,7 +499,7 @@ class NetworkModel:
         self._deliver(t)
         self._flip_frames(t)
         # 6. display and metrics (eq. 3-1/3-2)
-        self._display(vg, vo, fi, og)
+        self._display(vg, vo, fi, og, cells, online_g)
         self._frame_traffic = (self._iv[0], self._iv[1])
         self._iv = [0, 0]
 
@@ -627,6 +632,8 @@ class NetworkModel:
         order uses and the record id, as one block per row; the subscription time is left alone)."""
         n = self.rid_col + 1
         _row_prefix(self.cache, n)[fi] = _row_prefix(table, n)[ridx]
+        if self._groups is not None:
+            self._groups.touch(fi)
 
     def record(self, viewer: int, obj: int) -> np.ndarray:
         """Cached record (7,) of ``obj`` at group ``viewer``: t (s), p (2, m), v (2, m/s), a (2, m/s^2)."""
@@ -678,17 +685,19 @@ class NetworkModel:
 
     # -- display ----------------------------------------------------------------------------------
     def _display(self, vg: Optional[np.ndarray] = None, vo: Optional[np.ndarray] = None,
-                 fi: Optional[np.ndarray] = None, og: Optional[np.ndarray] = None) -> None:
+                 fi: Optional[np.ndarray] = None, og: Optional[np.ndarray] = None,
+                 cells: Optional[np.ndarray] = None, online_g: Optional[np.ndarray] = None) -> None:
         cfg, G = self.cfg, self.cfg.groups
         t = self.k * cfg.frame_s
         P = self.world.positions()
         if vg is None:
-            online = np.flatnonzero(self.master >= 0)
+            online_g = self.master >= 0
+            online = np.flatnonzero(online_g)
             cells = self.grid.cell(P)
             vo, vl = self.grid.view_pairs(cells, cells[online])
             vg = online[vl]
         if cfg.measure:
-            self._measure(t, P, vg, vo, fi, og)
+            self._measure(t, P, vg, vo, fi, og, cells, online_g)
         # displayed avatars at every master (for slaves showing an older frame)
         blk = self.cache[:G * G]                  # avatars are objects 0..G-1: object-major block
         av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL],
@@ -699,16 +708,33 @@ class NetworkModel:
         if len(sl):
             self.metrics.desync_frames = max(self.metrics.desync_frames, int((self.k - self.shown_frame[sl]).max()))
 
-    def _measure(self, t, P, vg, vo, fi, og) -> None:
-        """Display error of every remote copy at frame time ``t`` (eq. 3-1/3-2)."""
+    def _measure(self, t, P, vg, vo, fi, og, cells, online_g) -> None:
+        """Display error of every remote copy at frame time ``t`` (eq. 3-1/3-2).
+
+        Views of more than ``GROUPS_MIN_PAIRS`` copies keep :class:`display.DisplayGroups` (one
+        evaluation per distinct record instead of per copy: the same maxima, RMS equal up to
+        round-off) unless the frame rewrote a large share of the copies; else every copy is
+        evaluated here.
+        """
         cfg = self.cfg
-        # copies shown by non-owners that have a record of the object; dead reckoning (§3.6.3)
-        # evaluated column by column: e = p + v dt (+ a dt^2 / 2) - truth
+        order = cfg.prediction_order
         if fi is None:
             fi = self.index(vg, vo)
+        if len(fi) > GROUPS_MIN_PAIRS:
+            if self._groups is None:
+                self._groups = DisplayGroups(len(self.cache), self.n_obj, cfg.groups)
+            if self._groups.update(self, cells, online_g, vo, vg, fi):
+                pm, pr, mx, rms = self._groups.errors(t, P, order)
+                self.per_object_max, self.per_object_rms = pm, pr
+                self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
+                self.metrics.inconsistency_rms = rms
+                return
+        elif self._groups is not None:
+            self._groups.invalidate()
+        # copies shown by non-owners that have a record of the object; dead reckoning (§3.6.3)
+        # evaluated column by column: e = p + v dt (+ a dt^2 / 2) - truth
         if og is None:
             og = np.take(self.owner, vo)
-        order = cfg.prediction_order
         c = np.take(self.cache, fi, axis=0)       # one row (cache line) per copy
         ct = c[:, T_COL]
         remote = (og != vg) & (ct >= c[:, self.enter_col] - 1e-12)

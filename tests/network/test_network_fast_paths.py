@@ -166,3 +166,58 @@ def test_point_index_contacts_equal_kd_tree_contacts():
     w.epos[:] = 1e4                     # nobody near: the index answers without a tree
     idx = w.entity_index()
     assert len(w.contacts(idx)[0]) == 0 and idx._tree is None
+
+
+def _display_trace(cfg, steps, events=False):
+    m = NetworkModel(cfg)
+    out, per = [], []
+    for k in range(steps):
+        if events and k == 10:
+            m.schedule_leave(m.t + 0.01, 2 * cfg.render_nodes)           # group 2's master leaves
+            m.schedule_leave(m.t + 0.02, 5 * cfg.render_nodes, graceful=False)
+        if events and k == 25:
+            m.schedule_join(m.t + 0.005, 2 * cfg.render_nodes)
+        out.append(m.step(T).as_dict())
+        per.append((m.per_object_max.copy(), m.per_object_rms.copy()))
+    return m, out, per
+
+
+@pytest.mark.parametrize("kw", [
+    dict(dis_threshold=0.05),
+    dict(dis_threshold=0.05, prediction_order=2, ownership="euclidean"),
+    dict(dis_threshold=0.2, prediction_order=0, links=LOSSY),
+    dict(dis_threshold=0.05, grid=False, entities=150),
+    dict(dis_threshold=0.05, topology="full_mesh", entities=150),
+    dict(dis_threshold=0.05, topology="client_server", links=LOSSY),
+    dict(dis_threshold=0.0),
+])
+def test_record_groups_equal_the_per_copy_display_error(monkeypatch, kw):
+    """eq. 3-1/3-2 from record groups == per copy: maxima exact, RMS to round-off; the groups
+    path really ran (contacts, hand-overs, masters leaving and joining, cells changing)."""
+    from immersim.models.network import display
+
+    cfg = NetworkConfig(**{**dict(groups=16, render_nodes=2, entities=700, scene_size=90.0, avatar_start="uniform",
+                                  entity_speed=6.0, seed=12), **kw})
+    calls = {"groups": 0}
+    orig = display.DisplayGroups.errors
+
+    def counting(self, *a):
+        calls["groups"] += 1
+        return orig(self, *a)
+
+    monkeypatch.setattr(display.DisplayGroups, "errors", counting)
+    monkeypatch.setattr(model_mod, "GROUPS_MIN_PAIRS", 0)          # record groups whenever they pay
+    mg, og, pg = _display_trace(cfg, 45, events=True)
+    monkeypatch.setattr(model_mod, "GROUPS_MIN_PAIRS", 10 ** 12)   # every frame per copy
+    mc, oc, pc = _display_trace(cfg, 45, events=True)
+    for a, b in zip(og, oc):
+        assert a["inconsistency_max"] == b["inconsistency_max"]
+        assert a["inconsistency_rms"] == pytest.approx(b["inconsistency_rms"], rel=1e-12, abs=1e-15)
+        assert {k: v for k, v in a.items() if not k.startswith("inconsistency")} == \
+               {k: v for k, v in b.items() if not k.startswith("inconsistency")}
+    for (amax, arms), (bmax, brms) in zip(pg, pc):
+        assert np.array_equal(amax, bmax)
+        np.testing.assert_allclose(arms, brms, rtol=1e-12, atol=1e-15)
+    assert sum(s["handovers"] for s in og) > 0 and sum(s["contacts"] for s in og) > 0
+    assert max(s["inconsistency_max"] for s in og) > 0
+    assert calls["groups"] >= (5 if cfg.dis_threshold > 0 else 0)

@@ -1,0 +1,199 @@
+"""Display error of eq. 3-1/3-2 kept up to date by record groups (large scenes).
+
+Every remote copy shown at frame time ``t`` is the viewer's cached record of the object,
+dead-reckoned to ``t`` (§3.6.3): ``A_B(t) = p + v (t - t_r) (+ a (t - t_r)^2 / 2)``, and its
+error is ``|A_B(t) - A(t)|`` against the owner's (true) state ``A(t)`` (eq. 3-1/3-2). Copies
+of one object that hold the same record (same record id) show the same position, hence have
+the same error. In a large scene most viewers of an object hold the same record (the owner's
+last publication reached all of them), so the per-frame work is one evaluation per *record
+group* ``(object, record id, number of counted copies)`` instead of one per copy.
+
+A copy is *counted* when it is in view (the object is in the 9-cell neighbourhood of the
+online viewer, §3.3), the viewer is not the owner, and its record is not older than its
+subscription (``t_r >= t_enter``): exactly the copies of the plain per-copy evaluation. The
+groups only change where a copy changed: a record written into it, the pair entering or
+leaving the view, its object changing owner. The model reports written and re-owned pairs
+(:meth:`DisplayGroups.touch`); entries and exits come from the cells that changed. A frame
+that touched a large share of the copies (every object published every frame) is evaluated
+per copy instead and the groups are rebuilt when they pay again.
+
+The maxima (per object and overall) equal the per-copy ones exactly; the RMS values are
+``sqrt(sum_g n_g e_g^2 / sum_g n_g)``, equal to the per-copy sums up to float round-off.
+"""
+from __future__ import annotations
+
+from typing import List, Optional
+
+import numpy as np
+
+#: a frame that touched more than this share of the copies is evaluated per copy
+TOUCHED_SHARE = 0.25
+
+
+class DisplayGroups:
+    """Record groups of the counted copies and the bookkeeping to update them.
+
+    Parameters
+    ----------
+    n_pairs : int, number of (object, viewer) cache rows (``n_obj * G``)
+    n_obj, groups : int
+    """
+
+    def __init__(self, n_pairs: int, n_obj: int, groups: int) -> None:
+        self.n_obj, self.G = n_obj, groups
+        self.crid = np.full(n_pairs, -1, np.int64)   # record id each copy is counted under, -1: not counted
+        self.valid = False                           # groups reflect ``prev``'s frame
+        self.key = np.zeros(0, np.int64)             # sorted record ids of the groups
+        self.cnt = np.zeros(0, np.int64)             # counted copies per group
+        self.rows = np.zeros((0, 0))                 # the groups' records (cache rows)
+        self.prev: Optional[tuple] = None            # (cells, online, vo, vg, fi) of the last frame measured
+        self.touched: List[np.ndarray] = []          # pairs written / re-owned since then
+        self.n_touched = 0                           # their number (kept while invalid too)
+
+    def touch(self, fi: np.ndarray) -> None:
+        """Pairs ``fi`` (flat cache indices) whose record or owner changed."""
+        self.n_touched += len(fi)
+        if self.valid:
+            self.touched.append(np.asarray(fi, np.int64))
+
+    def invalidate(self) -> None:
+        self.valid = False
+        self.touched = []
+        self.n_touched = 0
+
+    # -- the frame ------------------------------------------------------------------------
+    def update(self, model, cells: np.ndarray, online: np.ndarray, vo: np.ndarray, vg: np.ndarray,
+               fi: np.ndarray) -> bool:
+        """Bring the groups to this frame's view (``vo``, ``vg``, ``fi``; ``cells`` (n_obj,),
+        ``online`` (G,) bool). Returns False (groups invalid) when the frame touched too many
+        copies: the caller then evaluates per copy."""
+        prev, self.prev = self.prev, (cells, online, vo, vg, fi)
+        limit = TOUCHED_SHARE * max(len(fi), 1)
+        n_touched, self.n_touched = self.n_touched, 0
+        if not self.valid or prev is None:
+            if n_touched > limit:     # records changed almost everywhere: stay per copy
+                return False
+            return self._rebuild(model, cells, online, fi)
+        parts = self.touched
+        self.touched = []
+        pc, pon, pvo, pvg, pfi = prev
+        if pvo is not vo:   # the view changed: pairs that entered or left it
+            parts = parts + self._view_changes(model.grid, pc, pon, pvo, pvg, pfi, cells, online, vo, vg, fi)
+        n = sum(len(p) for p in parts)
+        if n > limit:
+            self.invalidate()
+            return False
+        if n:
+            self._apply(model, np.unique(np.concatenate(parts)), cells, online)
+        return True
+
+    def _rebuild(self, model, cells, online, fi) -> bool:
+        """Groups from scratch: every copy of this frame's view is (re)counted."""
+        self.crid.fill(-1)
+        self.key = np.zeros(0, np.int64)
+        self.cnt = np.zeros(0, np.int64)
+        self.rows = np.zeros((0, model.cache.shape[1]))
+        self.valid = True
+        self.touched = []
+        self._apply(model, fi, cells, online)
+        return True
+
+    def _view_changes(self, grid, pc, pon, pvo, pvg, pfi, cells, online, vo, vg, fi) -> List[np.ndarray]:
+        """Flat indices of the pairs that entered the view (in ``fi``) and left it (in ``pfi``)."""
+        G = self.G
+        if not grid.enabled:   # everyone sees everything: only viewers going on- or offline matter
+            return [fi[~np.take(pon, vg)], pfi[~np.take(online, pvg)]]
+        moved = cells != pc
+        out = []
+        came = moved[:G] | ~pon
+        cand = np.flatnonzero(np.take(moved, vo) | np.take(came, vg))
+        if len(cand):
+            g, o = vg[cand], vo[cand]
+            was = np.take(pon, g) & grid.adjacent(np.take(pc, o), np.take(pc, g))
+            out.append(fi[cand[~was]])
+        went = moved[:G] | ~online
+        cand = np.flatnonzero(np.take(moved, pvo) | np.take(went, pvg))
+        if len(cand):
+            g, o = pvg[cand], pvo[cand]
+            still = np.take(online, g) & grid.adjacent(np.take(cells, o), np.take(cells, g))
+            out.append(pfi[cand[~still]])
+        return out
+
+    def _apply(self, model, T: np.ndarray, cells: np.ndarray, online: np.ndarray) -> None:
+        """Recount the copies ``T`` (unique flat indices) and move them between groups."""
+        G = self.G
+        o, g = np.divmod(T, G)
+        rows = np.take(model.cache, T, axis=0)
+        inview = np.take(online, g)
+        if model.grid.enabled:
+            inview &= model.grid.adjacent(np.take(cells, o), np.take(cells, g))
+        counted = inview & (np.take(model.owner, o) != g) & (rows[:, 0] >= rows[:, model.enter_col] - 1e-12)
+        new = np.where(counted, rows[:, model.rid_col].astype(np.int64), -1)
+        old = self.crid[T]
+        chg = old != new
+        if not chg.any():
+            return
+        self.crid[T] = new
+        dec = old[chg & (old >= 0)]
+        inc_sel = np.flatnonzero(chg & (new >= 0))
+        keys = np.concatenate([dec, new[inc_sel]])
+        if not len(keys):
+            return
+        w = np.concatenate([np.full(len(dec), -1, np.int64), np.ones(len(inc_sel), np.int64)])
+        uk, first, inv = np.unique(keys, return_index=True, return_inverse=True)
+        dw = np.bincount(inv.ravel(), weights=w, minlength=len(uk)).astype(np.int64)
+        pos = np.searchsorted(self.key, uk)
+        found = pos < len(self.key)
+        found[found] = self.key[pos[found]] == uk[found]
+        np.add.at(self.cnt, pos[found], dw[found])
+        fresh = np.flatnonzero(~found)
+        if (dw[fresh] <= 0).any() or (self.cnt < 0).any():
+            raise RuntimeError("network display groups: a copy left a group it was not counted in")
+        if len(fresh):
+            # a new group's record: the row of one of its copies (all of them hold the same record)
+            rep = inc_sel[first[fresh] - len(dec)]
+            self.key = np.insert(self.key, pos[fresh], uk[fresh])
+            self.cnt = np.insert(self.cnt, pos[fresh], dw[fresh])
+            self.rows = np.insert(self.rows, pos[fresh], rows[rep], axis=0)
+        empty = self.cnt == 0
+        if empty.any():
+            keep = ~empty
+            self.key, self.cnt, self.rows = self.key[keep], self.cnt[keep], self.rows[keep]
+
+    # -- the metric ------------------------------------------------------------------------
+    def errors(self, t: float, P: np.ndarray, order: int):
+        """Eq. 3-1/3-2 at frame time ``t`` from the groups, truth ``P`` (n_obj, 2).
+
+        Returns per-object max and RMS (n_obj,) m and the overall max and RMS (m), as
+        :func:`metrics.inconsistency_sq` does over the copies.
+        """
+        n_obj = self.n_obj
+        w = self.cnt
+        n_valid = int(w.sum())
+        if n_valid == 0:
+            z = np.zeros(n_obj)
+            return z, z.copy(), 0.0, 0.0
+        o = self.key % n_obj
+        c = self.rows
+        ct = c[:, 0]
+        # the same arithmetic as the per-copy evaluation, so each group's error is bit-identical
+        ex = c[:, 1] - np.take(P[:, 0], o)
+        ey = c[:, 2] - np.take(P[:, 1], o)
+        if order >= 1:
+            dt = t - ct
+            ex += c[:, 3] * dt
+            ey += c[:, 4] * dt
+            if order >= 2:
+                h = 0.5 * dt * dt
+                ex += c[:, 5] * h
+                ey += c[:, 6] * h
+        ex *= ex
+        ey *= ey
+        ex += ey
+        per_max = np.zeros(n_obj)
+        np.maximum.at(per_max, o, ex)
+        wf = w.astype(float)
+        s2 = np.bincount(o, weights=ex * wf, minlength=n_obj)
+        cnt = np.bincount(o, weights=wf, minlength=n_obj)
+        per_rms = np.sqrt(np.divide(s2, cnt, out=np.zeros(n_obj), where=cnt > 0))
+        return np.sqrt(per_max), per_rms, float(np.sqrt(ex.max())), float(np.sqrt(s2.sum() / n_valid))
