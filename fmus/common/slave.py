@@ -110,7 +110,7 @@ class TableSlave(Fmi2Slave):
         types = {v.name: v.type for v in self._vars}
         self._vr_name: List[str] = [self.vars[vr].name for vr in range(len(self.vars))]
         self._vr_type: List[str] = [types.get(name, "") for name in self._vr_name]
-        self._get_cache: Dict[Tuple[str, tuple], Callable] = {}
+        self._get_cache: Dict[str, Dict[tuple, Callable]] = {"Real": {}, "Integer": {}, "Boolean": {}}
         self._set_cache: Dict[Tuple[str, tuple], List[str]] = {}
         self._inputs_getter = _tuple_getter(self._real_inputs)
         self._outputs_getter = _tuple_getter(self._real_outputs)
@@ -237,26 +237,17 @@ class TableSlave(Fmi2Slave):
         return _first_nonfinite(names, self.values)
 
     # -- fast bulk access (pythonfmu calls these once per fmi2Get/Set call) -------------
-    def _getter(self, kind: str, vrs: List[int]) -> Callable[[Dict[str, Any]], Any]:
-        """The cached reader of ``vrs`` (variables of type ``kind``) -> list of values."""
-        key = (kind, tuple(vrs))
-        fn = self._get_cache.get(key)
-        if fn is None:
-            names = self._names_of(kind, key[1])
-            get = _tuple_getter(names)
-            cast = _CAST[kind]
-            if kind == "Real":
-                # pythonfmu converts each item with PyFloat_AsDouble (ints, bools and numpy
-                # scalars included); the output check has made sure each output is a number
-                def fn(values, get=get):
-                    return list(get(values))
-            else:
-                def fn(values, get=get, cast=cast):
-                    return [cast(v) for v in get(values)]
-            if len(self._get_cache) >= _CACHE_LIMIT:
-                self._get_cache.clear()
-            self._get_cache[key] = fn
-        return fn
+    def _getter(self, kind: str, vrs: Sequence[int]) -> Callable[[Dict[str, Any]], tuple]:
+        """The cached ``values -> tuple`` reader of ``vrs`` (variables of type ``kind``)."""
+        key = tuple(vrs)
+        cache = self._get_cache[kind]
+        get = cache.get(key)
+        if get is None:
+            get = _tuple_getter(self._names_of(kind, key))
+            if len(cache) >= _CACHE_LIMIT:
+                cache.clear()
+            cache[key] = get
+        return get
 
     def _names_of(self, kind: str, vrs: Sequence[int]) -> List[str]:
         names, types = self._vr_name, self._vr_type
@@ -270,13 +261,18 @@ class TableSlave(Fmi2Slave):
         return out
 
     def get_real(self, vrs: List[int]) -> List[float]:
-        return self._getter("Real", vrs)(self.values)
+        # pythonfmu converts each item with PyFloat_AsDouble (ints, bools and numpy scalars
+        # included); the output check has made sure each output is a number
+        get = self._get_cache["Real"].get(tuple(vrs)) or self._getter("Real", vrs)
+        return list(get(self.values))
 
     def get_integer(self, vrs: List[int]) -> List[int]:
-        return self._getter("Integer", vrs)(self.values)
+        get = self._get_cache["Integer"].get(tuple(vrs)) or self._getter("Integer", vrs)
+        return list(map(int, get(self.values)))
 
     def get_boolean(self, vrs: List[int]) -> List[bool]:
-        return self._getter("Boolean", vrs)(self.values)
+        get = self._get_cache["Boolean"].get(tuple(vrs)) or self._getter("Boolean", vrs)
+        return list(map(bool, get(self.values)))
 
     def set_real(self, vrs: List[int], values_in: List[float]) -> None:
         key = ("Real", tuple(vrs))
