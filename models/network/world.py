@@ -229,10 +229,18 @@ class World:
             return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
         r = self.cfg.avatar_radius + self.cfg.entity_radius
         if isinstance(etree, PointIndex):
-            # candidates in a box around each avatar; none within r: no contact, no tree needed
+            # candidates in a box around each avatar; none within r and approaching (up to a
+            # relative 1e-9, a superset of the exact test below): no contact, no tree needed
             ai, ei = etree.near(self.apos, np.full(G, r * (1.0 + 1e-9)))
             d = self.epos[ei] - self.apos[ai]
-            if not (np.einsum("ij,ij->i", d, d) <= r * r * (1.0 + 1e-9)).any():
+            d2 = np.einsum("ij,ij->i", d, d)
+            close = np.flatnonzero(d2 <= r * r * (1.0 + 1e-9))
+            if len(close):
+                rv = self.avel[ai[close]] - self.evel[ei[close]]
+                dot = np.einsum("ij,ij->i", rv, d[close])
+                tol = 1e-9 * np.sqrt(np.einsum("ij,ij->i", rv, rv) * d2[close]) + 1e-300
+                close = close[dot > -tol]
+            if not len(close):
                 return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
             etree = etree.tree
         elif etree is None and G * E <= 4096:
