@@ -20,7 +20,7 @@ import zipfile
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Deque, Dict, List, Optional, Sequence
+from typing import Any, Callable, Deque, Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -430,6 +430,43 @@ class ValueReader:
                                      as_bool))
             start += n
         self._strings = [v.name for v in infos[start:]]
+        if self.fmi2 and not n_int and not self._strings and self._groups:
+            self.read = self._reals_and_booleans_reader()  # the common layout, straight-line code
+
+    def _reals_and_booleans_reader(self) -> Callable[[], List[Any]]:
+        """:meth:`read` for Reals and/or Booleans only: one or two calls, no loop."""
+        inst, comp, check = self.inst, self.inst._c_component, self.check_finite
+        isfinite = math.isfinite
+        groups = self._groups
+        if len(groups) == 2:
+            (f1, v1, n1, b1, view1, name1, _), (f2, v2, n2, b2, view2, name2, _) = groups
+
+            def read() -> List[Any]:
+                status = f1(comp, v1, n1, b1)
+                if status > 1:
+                    inst._check(name1, status)
+                status = f2(comp, v2, n2, b2)
+                if status > 1:
+                    inst._check(name2, status)
+                out = view1.tolist()
+                if check and not isfinite(sum(out)):
+                    self._raise_nonfinite(out)
+                out += map(bool, view2.tolist())
+                return out
+            return read
+        (f1, v1, n1, b1, view1, name1, as_bool), = groups
+
+        def read_one() -> List[Any]:
+            status = f1(comp, v1, n1, b1)
+            if status > 1:
+                inst._check(name1, status)
+            if as_bool:
+                return list(map(bool, view1.tolist()))
+            out = view1.tolist()
+            if check and not isfinite(sum(out)):
+                self._raise_nonfinite(out)
+            return out
+        return read_one
 
     def read(self) -> List[Any]:
         """Current values, in the order of ``self.names`` (Reals as float, Integers as int,
@@ -491,6 +528,18 @@ class RealSetter:
         self._buf = (ctypes.c_double * len(names))()
         self._n = ctypes.c_size_t(len(names))
         self._fmi2 = inst.fmi_version.startswith("2")
+        if self._fmi2:
+            self.set = self._fmi2_setter()  # a closure: no attribute look-ups per call
+
+    def _fmi2_setter(self) -> Callable[[Sequence[float]], None]:
+        inst, fn, comp, vrs, n, buf = self.inst, self.inst._set_real, self.inst._c_component, self._vrs, self._n, self._buf
+
+        def set_values(values: Sequence[float]) -> None:
+            buf[:] = values
+            status = fn(comp, vrs, n, buf)
+            if status > 1:
+                inst._check("fmi2SetReal", status)
+        return set_values
 
     def set(self, values: Sequence[float]) -> None:
         """Set the values (in the order of ``names``) with one ``fmi2SetReal``."""
