@@ -102,6 +102,10 @@ class FclBackend(CollisionBackend):
         self._faces = np.array([len(self.scene.meshes[b.mesh_key].faces) for b in self.scene.bodies])
         self._a_first = False
         self._exact: Dict[Tuple[int, int], tuple] = {}  # (a, b) -> last distance, T_a, T_b
+        # each body's local AABB (its mesh's, in the body frame) for _frame_gap
+        self._frame_box = [(np.asarray(self.scene.meshes[b.mesh_key].vertices, float).min(0),
+                            np.asarray(self.scene.meshes[b.mesh_key].vertices, float).max(0))
+                           for b in self.scene.bodies]
         self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
         self._radius = self.sphere_r + np.linalg.norm(
             np.array([self._local[b.mesh_key][1] for b in self.scene.bodies]), axis=1)
@@ -190,7 +194,8 @@ class FclBackend(CollisionBackend):
         does not prune with the result's current minimum: it always returns the exact
         distance, checked with python-fcl 0.7.)"""
         before = res.min_distance
-        if self._gap(a, b) >= before or self._bound(a, b) >= before:
+        if (self._gap(a, b) >= before or self._bound(a, b) >= before
+                or self._frame_gap(a, b) >= before + self.FRAME_GAP_MARGIN):
             return False
         if self._faces[a] > self._faces[b]:  # the larger BVH first: fcl's traversal is cheaper
             d = fcl.distance(self.objs[a], self.objs[b], self._dreq, res)
@@ -227,6 +232,27 @@ class FclBackend(CollisionBackend):
             if t2 or r2:
                 mu += math.sqrt(t2) + math.sqrt(r2) * r
         return d - mu
+
+    #: m; the body-frame gap must beat the best distance by this much to skip a query (it can
+    #: equal the exact distance, e.g. a box face parallel to a face that bounds the other mesh)
+    FRAME_GAP_MARGIN = 1e-9
+
+    def _frame_gap(self, a: int, b: int) -> float:
+        """Lower bound (m) of the distance of ``a`` and ``b``: the gap between the local AABB
+        of the body with more hull vertices and the box, in that body's frame, of the other
+        body's hull vertices. Both boxes contain their body, so the gap cannot exceed the
+        distance; unlike the world-AABB gap it does not grow loose when the larger body is
+        rotated (a tank at yaw 2.2 rad). Only asked for when the cheaper bounds failed and an
+        exact query would follow."""
+        ha, hb = self._local[self.scene.bodies[a].mesh_key][0], self._local[self.scene.bodies[b].mesh_key][0]
+        big, small, hs = (a, b, hb) if len(ha) >= len(hb) else (b, a, ha)
+        Tb, Ts = self.T[big], self.T[small]
+        R = Tb[:3, :3]
+        # small's hull vertices in big's frame: R_b^T (R_s v + t_s - t_b)
+        pts = (hs @ (R.T @ Ts[:3, :3]).T) + R.T @ (Ts[:3, 3] - Tb[:3, 3])
+        lo, hi = self._frame_box[big]
+        sep = np.maximum(np.maximum(lo - pts.max(0), pts.min(0) - hi), 0.0)
+        return float(math.sqrt(float(sep @ sep)))
 
     def _gap(self, a: int, b: int) -> float:
         """AABB gap of two bodies (m, 0 if overlapping), scalar code for the per-candidate path."""
