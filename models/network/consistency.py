@@ -5,6 +5,7 @@ timing); here are the pure, vectorised pieces.
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Tuple
 
 import numpy as np
@@ -158,6 +159,14 @@ def covariance(u: np.ndarray, a: float, b: float) -> np.ndarray:
     return b ** 2 * np.eye(3) + (a ** 2 - b ** 2) * np.outer(u, u)
 
 
+@lru_cache(maxsize=16)
+def _all_pairs(n: int, m: int):
+    """Every (i, j) for i < n, j < m, i-major (read-only index arrays, shared)."""
+    gi, ei = np.divmod(np.arange(n * m), m)
+    gi.flags.writeable = ei.flags.writeable = False
+    return gi, ei
+
+
 def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, entity_pos: np.ndarray,
                   current: np.ndarray, frame_s: float, scale: float, min_axis: float,
                   foci: str = "frame", etree=None) -> np.ndarray:
@@ -178,8 +187,7 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     if etree is None and len(centre) * len(entity_pos) <= BRUTE_FORCE_PAIRS:
         # small scenes: every (avatar, entity) pair, no k-d tree (same result: the winner is
         # chosen by (entity, distance, avatar) below, whatever order the candidates come in)
-        gi = np.repeat(np.arange(len(centre)), len(entity_pos))
-        ei = np.tile(np.arange(len(entity_pos)), len(centre))
+        gi, ei = _all_pairs(len(centre), len(entity_pos))
         if rule == "euclidean":
             r = entity_pos[ei] - centre[gi]
             sd = {"v": np.sqrt(np.einsum("ij,ij->i", r, r))}

@@ -118,7 +118,11 @@ class World:
         cfg = self.cfg
         n, h = self._substeps(dt)
         k_steer = np.tan(self.steer * cfg.max_steer_rad) / cfg.wheelbase
+        # no throttle and no speed: a sub-step leaves speed and position as they are; once it
+        # also leaves the (normalised) heading unchanged, every further one repeats it exactly
+        still = not self.throttle.any() and not self.speed.any()
         for _ in range(n):
+            yaw0 = self.yaw
             v0 = self.speed
             a = cfg.max_accel * self.throttle - cfg.drag * v0
             v1 = np.minimum(np.maximum(v0 + a * h, -cfg.max_speed), cfg.max_speed)
@@ -135,6 +139,8 @@ class World:
             self.yaw = np.mod(self.yaw + self.yaw_rate * h + np.pi, 2 * np.pi) - np.pi
             self.speed = v1
             self._avatar_walls()
+            if still and np.array_equal(self.yaw, yaw0):
+                break
 
     def _advance_entities(self, dt: float) -> None:
         """Exact rotation of the velocity by ``w h`` with decay; trapezoidal positions."""

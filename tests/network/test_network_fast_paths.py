@@ -221,3 +221,22 @@ def test_record_groups_equal_the_per_copy_display_error(monkeypatch, kw):
     assert sum(s["handovers"] for s in og) > 0 and sum(s["contacts"] for s in og) > 0
     assert max(s["inconsistency_max"] for s in og) > 0
     assert calls["groups"] >= (5 if cfg.dis_threshold > 0 else 0)
+
+
+def test_resting_avatars_skip_repeated_substeps_exactly():
+    """A resting fleet stops sub-stepping once a sub-step changes nothing: the same state as
+    sub-stepping one by one (headings near +-pi and below -pi/2 included)."""
+    from immersim.models.network.world import World
+
+    cfg = NetworkConfig(groups=6, render_nodes=1, entities=0)
+    a, b = World(cfg, np.random.default_rng(1)), World(cfg, np.random.default_rng(1))
+    for w in (a, b):
+        w.yaw[:] = [-3.14159, -2.0, -1.6, 0.3, 3.1415926, 1e-17]
+        w.steer[:] = [0.2, -0.4, 0.0, 0.1, -0.1, 0.3]
+    h = cfg.frame_s / cfg.substeps
+    for k in range(1, 4):
+        a.advance_to(k * cfg.frame_s)                  # one call, 4 sub-steps (shortcut)
+        for j in range(cfg.substeps):                  # one sub-step per call
+            b.advance_to((k - 1) * cfg.frame_s + (j + 1) * h if j < cfg.substeps - 1 else k * cfg.frame_s)
+        for name in ("apos", "yaw", "speed", "accel", "yaw_rate"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
