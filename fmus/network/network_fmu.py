@@ -11,6 +11,7 @@ import numpy as np
 from immersim.fmus.common import TableSlave, Var
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.config import OWNERSHIP_RULES, TOPOLOGIES
+from immersim.models.network.world import G_ACC
 
 CAPACITY = 4
 N_ENTITY_OUT = 16
@@ -155,8 +156,11 @@ class network(TableSlave):
         blk[:, 0:2] = w.apos
         blk[:, 3] = w.yaw
         blk[:, 4:6] = w.avel
-        blk[:, 6:9] = w.specific_force()
-        blk[:, 9:12] = w.angular_rate()
+        # specific force (accel, v * yaw rate, g) and angular rate (0, 0, yaw rate), written in place
+        blk[:, 6] = w.accel
+        np.multiply(w.speed, w.yaw_rate, out=blk[:, 7])
+        blk[:, 8] = G_ACC
+        blk[:, 11] = w.yaw_rate
         blk[:, 12] = w.jolt
         if h:
             blk[:, 13] = w.jolt / h

@@ -499,7 +499,7 @@ class NetworkModel:
         self._deliver(t)
         self._flip_frames(t)
         # 6. display and metrics (eq. 3-1/3-2)
-        self._display(vg, vo, fi, og, cells, online_g)
+        self._display(vg, vo, fi, og, cells, online_g, P)
         self._frame_traffic = (self._iv[0], self._iv[1])
         self._iv = [0, 0]
 
@@ -686,10 +686,12 @@ class NetworkModel:
     # -- display ----------------------------------------------------------------------------------
     def _display(self, vg: Optional[np.ndarray] = None, vo: Optional[np.ndarray] = None,
                  fi: Optional[np.ndarray] = None, og: Optional[np.ndarray] = None,
-                 cells: Optional[np.ndarray] = None, online_g: Optional[np.ndarray] = None) -> None:
+                 cells: Optional[np.ndarray] = None, online_g: Optional[np.ndarray] = None,
+                 P: Optional[np.ndarray] = None) -> None:
         cfg, G = self.cfg, self.cfg.groups
         t = self.k * cfg.frame_s
-        P = self.world.positions()
+        if P is None:
+            P = self.world.positions()
         if vg is None:
             online_g = self.master >= 0
             online = np.flatnonzero(online_g)
