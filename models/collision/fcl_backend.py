@@ -106,6 +106,8 @@ class FclBackend(CollisionBackend):
         self._frame_box = [(np.asarray(self.scene.meshes[b.mesh_key].vertices, float).min(0),
                             np.asarray(self.scene.meshes[b.mesh_key].vertices, float).max(0))
                            for b in self.scene.bodies]
+        self._unrotated = [not self.is_dynamic[i] and bool((self.T[i, :3, :3] == np.eye(3)).all())
+                           for i in range(self.n)]
         self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
         self._radius = self.sphere_r + np.linalg.norm(
             np.array([self._local[b.mesh_key][1] for b in self.scene.bodies]), axis=1)
@@ -246,6 +248,8 @@ class FclBackend(CollisionBackend):
         exact query would follow."""
         ha, hb = self._local[self.scene.bodies[a].mesh_key][0], self._local[self.scene.bodies[b].mesh_key][0]
         big, small, hs = (a, b, hb) if len(ha) >= len(hb) else (b, a, ha)
+        if self._unrotated[big]:  # a static body in the world axes: its frame box is its AABB
+            return -math.inf
         Tb, Ts = self.T[big], self.T[small]
         R = Tb[:3, :3]
         # small's hull vertices in big's frame: R_b^T (R_s v + t_s - t_b)
