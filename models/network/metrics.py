@@ -29,13 +29,15 @@ def inconsistency(obj: np.ndarray, shown: np.ndarray, truth: np.ndarray, n_obj: 
     return inconsistency_sq(obj, dx * dx + dy * dy, n_obj, mask)
 
 
-def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None, sorted_obj: bool = False):
+def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None, sorted_obj: bool = False,
+                     segments=None):
     """As :func:`inconsistency`, from squared errors ``err2`` (k,) m^2 of the copies.
 
     ``sorted_obj``: ``obj`` is non-decreasing (the copies come grouped by object, as the
     grid's view pairs do), so the per-object maxima are segment reductions. The result is
     the same either way (a maximum does not depend on the order; the sums are the same
-    sequential ``bincount`` sums).
+    sequential ``bincount`` sums). ``segments``: ``(bincount(obj), objects present, start of
+    each present object's run)`` when the caller keeps them (sorted ``obj`` only).
     """
     n_valid = len(obj) if mask is None else int(np.count_nonzero(mask))
     if n_valid == 0:
@@ -45,9 +47,13 @@ def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None, s
         err2 = np.where(mask, err2, 0.0)
     per_max = np.zeros(n_obj)
     if sorted_obj:
-        seen = np.bincount(obj, minlength=n_obj)
-        present = np.flatnonzero(seen)
-        per_max[present] = np.maximum.reduceat(err2, (np.cumsum(seen) - seen)[present])
+        if segments is None:
+            seen = np.bincount(obj, minlength=n_obj)
+            present = np.flatnonzero(seen)
+            starts = (np.cumsum(seen) - seen)[present]
+        else:
+            seen, present, starts = segments
+        per_max[present] = np.maximum.reduceat(err2, starts)
         cnt = seen if mask is None else np.bincount(obj[mask], minlength=n_obj)
     else:
         np.maximum.at(per_max, obj, err2)

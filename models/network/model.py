@@ -143,6 +143,7 @@ class NetworkModel:
         self._iv = [0, 0]                # messages, bytes since the last frame (heartbeats excluded)
         self._msg_memo: Optional[tuple] = None   # (inputs, Traffic, compose mask) of the last small frame
         self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs) of the last frame
+        self._segments: Optional[tuple] = None   # (vo, per-object runs of vo)
         self._groups: Optional[DisplayGroups] = None  # record groups of the display metric (large views)
         self._frame_traffic = (0, 0)     # the same for the interval that ended at the last frame
         self._bootstrap()
@@ -539,7 +540,18 @@ class NetworkModel:
         vg = viewers[vg_local]
         out = (vo, vg, self.index(vg, vo), np.bincount(vg, minlength=self.cfg.groups))
         self._view_memo = (cells, online_g, out)
+        self._segments = None
         return out
+
+    def _object_segments(self, vo: np.ndarray):
+        """Copies per object (n_obj,), objects with copies, and where their runs start in the
+        object-sorted view pairs ``vo`` (kept with the view; :func:`metrics.inconsistency_sq`)."""
+        seg = self._segments
+        if seg is None or seg[0] is not vo:
+            seen = np.bincount(vo, minlength=self.n_obj)
+            present = np.flatnonzero(seen)
+            seg = self._segments = (vo, (seen, present, (np.cumsum(seen) - seen)[present]))
+        return seg[1]
 
     def _transmit(self, tr: Traffic):
         """Arrival times and losses of a frame's messages (first hops, then relayed hops)."""
@@ -753,7 +765,8 @@ class NetworkModel:
         ex *= ex
         ey *= ey
         ex += ey
-        pm, pr, mx, rms = inconsistency_sq(vo, ex, self.n_obj, remote, sorted_obj=True)
+        pm, pr, mx, rms = inconsistency_sq(vo, ex, self.n_obj, remote, sorted_obj=True,
+                                          segments=self._object_segments(vo))
         self.per_object_max, self.per_object_rms = pm, pr
         self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
         self.metrics.inconsistency_rms = rms

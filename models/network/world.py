@@ -144,6 +144,8 @@ class World:
 
     def _advance_entities(self, dt: float) -> None:
         """Exact rotation of the velocity by ``w h`` with decay; trapezoidal positions."""
+        if not len(self.epos):
+            return
         cfg = self.cfg
         n, h = self._substeps(dt)
         decay = np.exp(-cfg.entity_drag * h)
