@@ -123,6 +123,9 @@ def _read_model(path: Path, unit: str):
     return md, variables
 
 
+#: extracted FMUs by (FMU path, mtime, size, parent of the unzip folder): see FmuInstance._extract
+_EXTRACTED: Dict[tuple, str] = {}
+
 #: FMI 2.0 log messages are routed by instance name: FMPy's native proxy that formats the
 #: variadic message keeps one Python callback per process, so one callback serves all.
 _BY_NAME: "weakref.WeakValueDictionary[str, FmuInstance]" = weakref.WeakValueDictionary()
@@ -166,7 +169,9 @@ class FmuInstance:
     path : Path
         The ``.fmu`` file.
     unzip_dir : Path, optional
-        Where to extract; a temporary folder by default.
+        Where to extract; a temporary folder by default. Instances of one FMU file given
+        folders with the same parent share the first one's extraction when the FMU allows
+        several instances per process.
     """
 
     def __init__(self, name: str, path: Path | str, unzip_dir: Optional[Path] = None) -> None:
@@ -182,11 +187,36 @@ class FmuInstance:
         md, self.variables = read_model(self.path, name)
         self.model_description = md
         self.fmi_version = md.fmiVersion
-        try:
-            self.unzip_dir = fmpy.extract(str(self.path), unzipdir=str(unzip_dir) if unzip_dir else None)
-        except Exception as exc:
-            raise FmuLoadError(f"unit {name}: cannot extract {self.path}: {exc}") from exc
+        self.unzip_dir = self._extract(md, unzip_dir)
         self._instantiate(md)
+
+    def _extract(self, md: Any, unzip_dir: Optional[Path]) -> str:
+        """Extract the FMU, or reuse the folder a sibling instance of the same file extracted.
+
+        Instances whose ``unzip_dir`` share a parent folder (one run) load one extraction of
+        an FMU that may be instantiated several times per process (FMI 2.0
+        ``canBeInstantiatedOnlyOncePerProcess = false``, FMI 3.0 likewise), as other masters
+        do; an FMU that may not gets its own copy (a library loaded from another path).
+        """
+        import fmpy
+
+        once = bool(getattr(md.coSimulation, "canBeInstantiatedOnlyOncePerProcess", False))
+        key = None
+        if unzip_dir is not None and not once:
+            st = os.stat(self.path)
+            key = (os.path.abspath(self.path), st.st_mtime_ns, st.st_size, os.path.abspath(Path(unzip_dir).parent))
+            done = _EXTRACTED.get(key)
+            if done is not None and os.path.isfile(os.path.join(done, "modelDescription.xml")):
+                return done
+        try:
+            folder = fmpy.extract(str(self.path), unzipdir=str(unzip_dir) if unzip_dir else None)
+        except Exception as exc:
+            raise FmuLoadError(f"unit {self.name}: cannot extract {self.path}: {exc}") from exc
+        if key is not None:
+            if len(_EXTRACTED) >= 256:
+                _EXTRACTED.clear()
+            _EXTRACTED[key] = folder
+        return folder
 
     # -- loading -----------------------------------------------------------------------
     def _instantiate(self, md: Any) -> None:

@@ -83,3 +83,28 @@ def test_fmu_state_round_trip(test_fmus):
         assert inst.get_values(["x", "v"]) == after
     finally:
         inst.terminate()
+
+
+def test_instances_of_one_fmu_share_one_extraction(test_fmus, tmp_path):
+    """Instances in one run load one extracted copy (the FMU allows several per process) and
+    stay independent: each follows its own closed-form trajectory."""
+    from immersim.orchestrator.fmu import FmuInstance
+
+    a = FmuInstance("a", test_fmus["oscillator"], tmp_path / "a")
+    b = FmuInstance("b", test_fmus["oscillator"], tmp_path / "b")
+    c = FmuInstance("c", test_fmus["oscillator"], tmp_path / "elsewhere" / "c")
+    try:
+        assert not a.model_description.coSimulation.canBeInstantiatedOnlyOncePerProcess
+        assert str(a.unzip_dir) == str(b.unzip_dir) == str(tmp_path / "a") != str(c.unzip_dir)
+        a.initialize(0, None, {"x0": 1.0})
+        b.initialize(0, None, {"x0": -0.5})
+        for k in range(30):
+            a.do_step(k * 33_000_000, 33_000_000)
+            b.do_step(k * 33_000_000, 33_000_000)
+        t = 30 * 0.033
+        w = np.sqrt(2.0)  # m = k = kc = 1, x_other = 0
+        np.testing.assert_allclose(a.get_values(["x"])[0], np.cos(w * t), atol=1e-12)
+        np.testing.assert_allclose(b.get_values(["x"])[0], -0.5 * np.cos(w * t), atol=1e-12)
+    finally:
+        for inst in (a, b, c):
+            inst.terminate()
