@@ -75,6 +75,12 @@ def ns_to_s(t_ns: int) -> float:
 _MODELS: Dict[tuple, tuple] = {}
 
 
+def clear_caches() -> None:
+    """Forget parsed model descriptions and shared extractions (as in a fresh process)."""
+    _MODELS.clear()
+    _EXTRACTED.clear()
+
+
 def read_model(path: Path, unit: str):
     """Read and validate an FMU's model description without instantiating it.
 
