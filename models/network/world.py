@@ -18,12 +18,16 @@ reflects off the scene's walls. Collision responses (inputs) bounce or stop an a
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .config import NetworkConfig
 from .consistency import PointIndex
 
 G_ACC = 9.81
+#: up to this many avatars the kinematics run in Python floats (cheaper than numpy calls on tiny arrays)
+SCALAR_AVATARS = 8
 
 
 class World:
@@ -118,6 +122,8 @@ class World:
         cfg = self.cfg
         n, h = self._substeps(dt)
         k_steer = np.tan(self.steer * cfg.max_steer_rad) / cfg.wheelbase
+        if len(self.speed) <= SCALAR_AVATARS:
+            return self._advance_avatars_scalar(n, h, k_steer)
         # no throttle and no speed: a sub-step leaves speed and position as they are; once it
         # also leaves the (normalised) heading unchanged, every further one repeats it exactly
         still = not self.throttle.any() and not self.speed.any()
@@ -141,6 +147,45 @@ class World:
             self._avatar_walls()
             if still and np.array_equal(self.yaw, yaw0):
                 break
+
+    def _advance_avatars_scalar(self, n: int, h: float, k_steer: np.ndarray) -> None:
+        """:meth:`_advance_avatars` for a few avatars in Python floats: the same operations in
+        the same order (IEEE double either way), without ~30 numpy calls per sub-step."""
+        cfg = self.cfg
+        G = len(self.speed)
+        S, ms, acc, drag = cfg.scene_size, cfg.max_speed, cfg.max_accel, cfg.drag
+        pi, two_pi = np.pi, 2 * np.pi
+        thr, ks = self.throttle.tolist(), k_steer.tolist()
+        sp, yaw = self.speed.tolist(), self.yaw.tolist()
+        x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
+        accel, yaw_rate = self.accel.tolist(), self.yaw_rate.tolist()
+        still = not any(thr) and not any(sp)
+        for _ in range(n):
+            yaw0 = list(yaw)
+            for i in range(G):
+                v0 = sp[i]
+                a = acc * thr[i] - drag * v0
+                v1 = min(max(v0 + a * h, -ms), ms)
+                accel[i] = (v1 - v0) / h
+                vm = 0.5 * (v0 + v1)
+                yr = vm * ks[i]
+                yaw_rate[i] = yr
+                yaw_m = yaw[i] + 0.5 * yr * h
+                step = vm * h
+                x[i] = step * math.cos(yaw_m) + x[i]
+                y[i] = step * math.sin(yaw_m) + y[i]
+                yaw[i] = (yaw[i] + yr * h + pi) % two_pi - pi
+                sp[i] = v1
+            if min(min(x), min(y)) < 0.0 or max(max(x), max(y)) > S:   # a wall: the array code
+                self.apos, self.yaw, self.speed = np.array([x, y]).T.copy(), np.array(yaw), np.array(sp)
+                self._avatar_walls()
+                x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
+                yaw, sp = self.yaw.tolist(), self.speed.tolist()
+            if still and yaw == yaw0:
+                break
+        self.apos = np.array([x, y]).T.copy()
+        self.yaw, self.speed = np.array(yaw), np.array(sp)
+        self.accel, self.yaw_rate = np.array(accel), np.array(yaw_rate)
 
     def _advance_entities(self, dt: float) -> None:
         """Exact rotation of the velocity by ``w h`` with decay; trapezoidal positions."""

@@ -240,3 +240,39 @@ def test_resting_avatars_skip_repeated_substeps_exactly():
             b.advance_to((k - 1) * cfg.frame_s + (j + 1) * h if j < cfg.substeps - 1 else k * cfg.frame_s)
         for name in ("apos", "yaw", "speed", "accel", "yaw_rate"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_scalar_avatar_kinematics_equal_the_array_code(monkeypatch):
+    """Few avatars run in Python floats: the same trajectories (walls, reversing, steering) as numpy."""
+    from immersim.models.network import world as world_mod
+
+    cfg = NetworkConfig(groups=4, render_nodes=2, entities=6, driven_groups=4, scene_size=12.0, seed=3,
+                        avatar_start="uniform")
+
+    def trace():
+        m = NetworkModel(cfg)
+        out = []
+        for k in range(120):
+            for g in range(4):
+                m.set_input(g, 1.0 if k < 70 else -1.0, 0.3 * np.sin(0.05 * k + g))
+            m.step(T)
+            w = m.world
+            out.append(np.r_[w.apos.ravel(), w.yaw, w.speed, w.accel, w.yaw_rate])
+        return np.array(out), m
+
+    fast, mf = trace()
+    monkeypatch.setattr(world_mod, "SCALAR_AVATARS", 0)
+    ref, mr = trace()
+    assert np.array_equal(fast, ref)
+    S = cfg.scene_size
+    hits = {"n": 0}
+    orig = world_mod.World._avatar_walls
+
+    def counting(self):
+        hits["n"] += bool(((self.apos < 0.0) | (self.apos > S)).any())
+        return orig(self)
+
+    monkeypatch.setattr(world_mod.World, "_avatar_walls", counting)
+    trace()
+    assert hits["n"] > 3                                                     # walls were hit
+    assert ref[:, :8].min() >= 0.0 and ref[:, :8].max() <= S
