@@ -129,15 +129,15 @@ def ellipsoid_axes(vel: np.ndarray, frame_s: float, scale: float, min_axis: floa
     a, b : (n,) m;  u : (n, d) unit long-axis direction (x axis for a resting avatar);
     shift : (n, d) m, centre minus position.
     """
-    speed = np.linalg.norm(vel, axis=1)
+    speed = np.sqrt(np.add.reduce(vel * vel, axis=1))     # np.linalg.norm(vel, axis=1), without its checks
     D = speed * frame_s
     a = np.maximum(D * scale, min_axis)
     focal = D * scale if foci == "reach" else D
     b = np.sqrt(a ** 2 - (0.5 * focal) ** 2)
-    u = np.zeros_like(vel)
     moving = speed > 0
-    u[moving] = vel[moving] / speed[moving, None]
-    u[~moving, 0] = 1.0
+    u = np.divide(vel, speed[:, None], out=np.zeros_like(vel), where=moving[:, None])
+    if not moving.all():
+        u[~moving, 0] = 1.0
     return a, b, u, 0.5 * focal[:, None] * u
 
 
