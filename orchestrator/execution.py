@@ -196,15 +196,15 @@ class Execution:
             "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
             "skipped_units": ",".join(system.skipped),
             "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})
-        #: ((channel id, encoder), slot, picker of the logged values from slot.cur or None for all)
+        #: (channel id, encoder, slot, picker of the logged values from slot.cur or None for all)
         self._log_plan: List[tuple] = []
         for name, slot in master.slots.items():
             logged = system.logged[name]
             if logged:
-                channel = obs.add_channel(name, [slot.inst.var(n) for n in logged])
+                cid, encode = obs.add_channel(name, [slot.inst.var(n) for n in logged])
                 idx = [slot.index(n) for n in logged]
                 pick = None if idx == list(range(len(slot.read_names))) else _picker(idx)
-                self._log_plan.append((channel, slot, pick))
+                self._log_plan.append((cid, encode, slot, pick))
             if sc.log.parameters:
                 pnames = [n for n, v in slot.inst.variables.items() if v.causality in ("parameter", "structuralParameter")]
                 if pnames:
@@ -226,8 +226,8 @@ class Execution:
         t_start = time.perf_counter_ns()
         obs = self.observer
         if obs is not None:
-            obs.write_step(t_ns, k, [(channel, slot.cur if pick is None else pick(slot.cur))
-                                     for channel, slot, pick in self._log_plan])
+            obs.write_step(t_ns, k, [(cid, encode(slot.cur if pick is None else pick(slot.cur)))
+                                     for cid, encode, slot, pick in self._log_plan])
         for fn in self.observers:
             fn(k, t_ns)
         self._observe_ns += time.perf_counter_ns() - t_start

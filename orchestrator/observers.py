@@ -93,13 +93,18 @@ def _fast_writer_class():
     header = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log, publish time
 
     class FastMessageIndex(MessageIndex):
-        """A chunk's message index written with one ``struct.pack`` (the library packs each
-        timestamp and offset separately: half a microsecond per message)."""
+        """A chunk's message index kept as a flat list of ints (``flat``: log time, offset,
+        log time, offset, ...; ints are not tracked by the garbage collector, tuples are)
+        and written with one ``struct.pack`` (the library packs each timestamp and offset
+        separately: half a microsecond per message). ``records`` stays empty."""
+
+        def __init__(self, channel_id: int) -> None:
+            super().__init__(channel_id=channel_id, records=[])
+            self.flat: List[int] = []
 
         def write(self, stream) -> None:
-            n = len(self.records)
-            stream.write(struct.pack(f"<BQHI{2 * n}Q", 0x07, 6 + 16 * n, self.channel_id, 16 * n,
-                                     *[x for record in self.records for x in record]))
+            n = len(self.flat)  # 2 per message
+            stream.write(struct.pack(f"<BQHI{n}Q", 0x07, 6 + 8 * n, self.channel_id, 8 * n, *self.flat))
 
     class FastWriter(Writer):
         def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
@@ -122,8 +127,8 @@ def _fast_writer_class():
                 cb.message_end_time = log_time
             index = cb.message_indices.get(channel_id)
             if not index:
-                index = cb.message_indices[channel_id] = FastMessageIndex(channel_id=channel_id, records=[])
-            index.records.append((log_time, buf.tell()))
+                index = cb.message_indices[channel_id] = FastMessageIndex(channel_id)
+            index.flat += (log_time, buf.tell())
             cb.num_messages += 1
             buf.write(header.pack(0x05, 22 + len(data), channel_id, sequence, log_time, publish_time))
             buf.write(data)
@@ -160,8 +165,8 @@ def _fast_writer_class():
                 counts[cid] += 1
                 index = indices.get(cid)
                 if not index:
-                    index = indices[cid] = FastMessageIndex(channel_id=cid, records=[])
-                index.records.append((log_time, pos))
+                    index = indices[cid] = FastMessageIndex(cid)
+                index.flat += (log_time, pos)
                 n = len(data)
                 pos += 31 + n  # 9 bytes record header + 22 bytes message fields + data
                 parts.append(header.pack(0x05, 22 + n, cid, sequence, log_time, log_time))
@@ -222,7 +227,7 @@ class McapObserver:
         Returns
         -------
         (channel id, encoder)
-            The pair :meth:`write_step` takes for this channel.
+            The channel id :meth:`write_step` takes and the function encoding its values.
         """
         schema = json.dumps(json_schema(topic, infos)).encode()
         sid = self.writer.register_schema(name=topic, encoding="jsonschema", data=schema)
@@ -240,8 +245,7 @@ class McapObserver:
             raise self._error(exc, t_ns) from None
         self.messages += 1
 
-    def write_step(self, t_ns: int, sequence: int,
-                   rows: Sequence[Tuple[Tuple[int, Callable[[Sequence[Any]], bytes]], Sequence[Any]]]) -> None:
+    def write_step(self, t_ns: int, sequence: int, items: Sequence[Tuple[int, bytes]]) -> None:
         """Log one macro step: one message per channel, then flush to disk now and then.
 
         Parameters
@@ -250,12 +254,12 @@ class McapObserver:
             Simulation time of the step's end, ns (log and publish time).
         sequence : int
             Step number.
-        rows : sequence of ((channel id, encoder), values)
-            The pairs returned by :meth:`add_channel`, each with its values.
+        items : sequence of (channel id, data)
+            Each channel's message, encoded by the encoder :meth:`add_channel` returned.
         """
         try:
-            self.writer.add_step(t_ns, sequence, [(cid, enc(values)) for (cid, enc), values in rows])
-            self.messages += len(rows)
+            self.writer.add_step(t_ns, sequence, items)
+            self.messages += len(items)
             now = time.monotonic()
             if now - self._last_flush > self.flush_seconds:
                 self.writer.flush()
