@@ -43,6 +43,9 @@ log = logging.getLogger(__name__)
 __all__ = ["FclBackend", "bvh_model", "fcl_transform"]
 
 
+_EYE3 = np.eye(3)
+
+
 def bvh_model(vertices: np.ndarray, faces: np.ndarray) -> "fcl.BVHModel":
     """An fcl BVH (OBBRSS) of a triangle mesh."""
     g = fcl.BVHModel()
@@ -106,6 +109,9 @@ class FclBackend(CollisionBackend):
         self._frame_box = [(np.asarray(self.scene.meshes[b.mesh_key].vertices, float).min(0),
                             np.asarray(self.scene.meshes[b.mesh_key].vertices, float).max(0))
                            for b in self.scene.bodies]
+        self._frame_corners = [np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
+                                         for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+                               for lo, hi in self._frame_box]
         self._unrotated = [not self.is_dynamic[i] and bool((self.T[i, :3, :3] == np.eye(3)).all())
                            for i in range(self.n)]
         self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
@@ -240,23 +246,28 @@ class FclBackend(CollisionBackend):
     FRAME_GAP_MARGIN = 1e-9
 
     def _frame_gap(self, a: int, b: int) -> float:
-        """Lower bound (m) of the distance of ``a`` and ``b``: the gap between the local AABB
-        of the body with more hull vertices and the box, in that body's frame, of the other
-        body's hull vertices. Both boxes contain their body, so the gap cannot exceed the
-        distance; unlike the world-AABB gap it does not grow loose when the larger body is
-        rotated (a tank at yaw 2.2 rad). Only asked for when the cheaper bounds failed and an
-        exact query would follow."""
-        ha, hb = self._local[self.scene.bodies[a].mesh_key][0], self._local[self.scene.bodies[b].mesh_key][0]
-        big, small, hs = (a, b, hb) if len(ha) >= len(hb) else (b, a, ha)
-        if self._unrotated[big]:  # a static body in the world axes: its frame box is its AABB
-            return -math.inf
-        Tb, Ts = self.T[big], self.T[small]
-        R = Tb[:3, :3]
-        # small's hull vertices in big's frame: R_b^T (R_s v + t_s - t_b)
-        pts = (hs @ (R.T @ Ts[:3, :3]).T) + R.T @ (Ts[:3, 3] - Tb[:3, 3])
-        lo, hi = self._frame_box[big]
-        sep = np.maximum(np.maximum(lo - pts.max(0), pts.min(0) - hi), 0.0)
-        return float(math.sqrt(float(sep @ sep)))
+        """Lower bound (m) of the distance of ``a`` and ``b``: in the frame of each of the two
+        bodies that is rotated and not smaller than the other (bounding spheres), the gap
+        between its local AABB and the box of the other body's local-AABB corners (the larger
+        of the two). Both boxes contain their body, so
+        the gap cannot exceed the distance; unlike the world-AABB gap it does not grow loose
+        when a body is rotated (a tank at yaw 2.2 rad). Only asked for when the cheaper bounds
+        failed and an exact query would follow."""
+        best = -math.inf
+        for f, o in ((a, b), (b, a)):
+            Tf = self.T[f]
+            R = Tf[:3, :3]
+            if self.sphere_r[o] > self.sphere_r[f]:
+                continue  # a larger body's box in a smaller one's frame is rarely tighter
+            if self._unrotated[f] or (self.is_dynamic[f] and (R == _EYE3).all()):
+                continue  # in the world axes its frame box is its world AABB: nothing to gain
+            To = self.T[o]
+            # the corners of o's local box in f's frame: R_f^T (R_o v + t_o - t_f)
+            pts = self._frame_corners[o] @ (R.T @ To[:3, :3]).T + R.T @ (To[:3, 3] - Tf[:3, 3])
+            lo, hi = self._frame_box[f]
+            sep = np.maximum(np.maximum(lo - pts.max(0), pts.min(0) - hi), 0.0)
+            best = max(best, math.sqrt(float(sep @ sep)))
+        return best
 
     def _gap(self, a: int, b: int) -> float:
         """AABB gap of two bodies (m, 0 if overlapping), scalar code for the per-candidate path."""

@@ -319,3 +319,41 @@ def test_far_pair_skip_changes_no_output_and_skips_evaluations():
             seen["near"] += 0 < rp.distance < 2.0
     assert evaluations["fast"] < 0.8 * evaluations["plain"]
     assert all(seen.values()), seen  # contacts, times of impact and near misses were all compared
+
+
+def test_body_frame_gap_changes_no_output_and_skips_exact_queries():
+    """The body-frame gap (the ball's box in the rotated tank's frame against the tank's own
+    box) is a lower bound of the distance: skipping exact queries with it changes no result,
+    and near the corner of the tank's loose world AABB it does skip them (time of impact off:
+    only the narrow-phase distances are counted)."""
+    from immersim.models.collision import fcl_backend
+
+    spec = "tank:name=t,tris=5.4k,yaw=0.785;sphere:name=ball,r=0.3,dynamic=1,x=20"
+    config = BackendConfig(max_distance=2.0, ccd=False)
+    with_gap = make_backend("fcl", parse_scene(spec), "ball vs t", config)
+    plain = make_backend("fcl", parse_scene(spec), "ball vs t", config)
+    plain.FRAME_GAP_MARGIN = math.inf
+    calls = {"with_gap": 0, "plain": 0}
+    real = fcl_backend.fcl.distance
+    lo, hi = with_gap.aabb[0]
+    seen = []
+    # the corner of the world AABB on the tank's short axis is ~4 m from the tank itself
+    corner = np.array([hi[0], lo[1], (lo[2] + hi[2]) / 2])
+    for k in range(16):  # from outside that corner, through it, towards the tank, spinning
+        p = corner + np.array([1.0, -1.0, 0.0]) * (1.0 - 3.8 * k / 15) / math.sqrt(2)
+        out = {}
+        for name, be in (("with_gap", with_gap), ("plain", plain)):
+            fcl_backend.fcl.distance = lambda *a, _n=name: calls.__setitem__(_n, calls[_n] + 1) or real(*a)
+            try:
+                out[name] = be.query([[*p, 0, 0, 0.4 * k]])
+            finally:
+                fcl_backend.fcl.distance = real
+        g, r = out["with_gap"], out["plain"]
+        assert (g.n_candidates, g.n_narrow) == (r.n_candidates, r.n_narrow)
+        rg, rp = g.pairs[0], r.pairs[0]
+        assert (rg.in_contact, rg.distance, rg.depth, rg.partner) == (rp.in_contact, rp.distance, rp.depth, rp.partner)
+        np.testing.assert_array_equal(rg.point, rp.point)
+        np.testing.assert_array_equal(rg.normal, rp.normal)
+        seen.append(rp.distance)
+    assert calls["with_gap"] < calls["plain"]
+    assert min(seen) < 2.0 and max(seen) == 2.0
