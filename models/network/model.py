@@ -491,7 +491,7 @@ class NetworkModel:
                 o, viewer, r_arr = tr.rec_obj[ok], tr.rec_viewer[ok], r_arr[ok]
             else:
                 o, viewer = tr.rec_obj, tr.rec_viewer
-            self._add_inflight(r_arr, self.index(viewer, o), np.take(self.owner, o), table, o)
+            self._add_inflight(r_arr, self.index(viewer, o), self.owner.copy(), table, o)
         if len(tr.frame_msg):
             f_arr = np.where(lost[tr.frame_msg], np.inf, arrival[tr.frame_msg])
             for key, val in (("arr", f_arr), ("slave", tr.frame_slave), ("frame", np.full(len(f_arr), self.k + 1))):
@@ -587,8 +587,9 @@ class NetworkModel:
     # -- in-flight records ----------------------------------------------------------------------
     def _add_inflight(self, arr: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
                       ridx: np.ndarray, epoch: Optional[int] = None) -> None:
-        """Put records in flight: arrival (s), flat cache index, sending group and the record
-        ``table[ridx]`` (rows t, p, v, a). Each is filed under the first frame ``k`` with
+        """Put records in flight: arrival (s), flat cache index, the record ``table[ridx]``
+        (rows t, p, v, a) and its sending group ``sender[ridx]`` (``sender`` has one entry
+        per table row: the owners when the table was sent). Each is filed under the first frame ``k`` with
         ``k T >= arrival``: it has arrived by that tick and not by the one before. ``epoch``
         is the ownership epoch the senders were checked against (-1: never checked)."""
         if not len(arr):
@@ -605,13 +606,13 @@ class NetworkModel:
                 sel = due == key
                 if not sel.any():
                     continue
-                self._inflight.setdefault(int(key), []).append((fi[sel], sender[sel], table, ridx[sel], meta))
+                self._inflight.setdefault(int(key), []).append((fi[sel], sender, table, ridx[sel], meta))
             return
         order = np.argsort(due, kind="stable")
-        due, fi, sender, ridx = due[order], fi[order], sender[order], ridx[order]
+        due, fi, ridx = due[order], fi[order], ridx[order]
         cuts = np.flatnonzero(np.diff(due)) + 1
         for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(due)]):
-            self._inflight.setdefault(int(due[lo]), []).append((fi[lo:hi], sender[lo:hi], table, ridx[lo:hi], meta))
+            self._inflight.setdefault(int(due[lo]), []).append((fi[lo:hi], sender, table, ridx[lo:hi], meta))
 
     def _deliver(self, t: float) -> None:
         """Apply every record that has arrived by ``t``; reject records from non-owners (§3.6.1).
@@ -624,7 +625,7 @@ class NetworkModel:
         for key in sorted(k for k in self._inflight if k <= self.k):
             for fi, sender, table, ridx, (epoch, t_send) in self._inflight.pop(key):
                 if epoch != self._epoch:  # owners changed since it was sent: check the senders
-                    valid = sender == np.take(self.owner, fi // G)
+                    valid = np.take(sender, ridx) == np.take(self.owner, fi // G)
                     if not valid.all():
                         self.metrics.rejected_updates += int((~valid).sum())
                         fi, ridx = fi[valid], ridx[valid]

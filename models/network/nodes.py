@@ -160,6 +160,15 @@ def _group_pairs(a: np.ndarray, b: np.ndarray, nb: int):
     return uk // nb, uk % nb, counts[uk], lookup[key]
 
 
+def _cat(parts) -> np.ndarray:
+    """The parts as one int64 array (no copy for a single int64 part)."""
+    if not parts:
+        return np.zeros(0, np.int64)
+    if len(parts) == 1:
+        return np.asarray(parts[0], np.int64)
+    return np.concatenate(parts).astype(np.int64, copy=False)
+
+
 def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.ndarray, slaves: List[np.ndarray],
                    pub_obj: np.ndarray, owner: np.ndarray, view_g: np.ndarray, view_o: np.ndarray,
                    frame_size: np.ndarray, send_pair: np.ndarray, view_owner=None) -> Traffic:
@@ -213,8 +222,11 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
     else:
         # STATE: owner's master -> viewer's master for published objects in the viewer's neighbourhood
         vown = owner[view_o] if view_owner is None else view_owner
-        cand = np.flatnonzero(send_pair)           # few pairs in DIS mode: filter them first
-        vg, vo, og = view_g[cand], view_o[cand], vown[cand]
+        if send_pair.all():                        # every frame published: no filtering copy
+            vg, vo, og = view_g, view_o, vown
+        else:
+            cand = np.flatnonzero(send_pair)       # few pairs in DIS mode: filter them first
+            vg, vo, og = view_g[cand], view_o[cand], vown[cand]
         keep = (og != vg) & (np.take(master, og) >= 0)
         if not keep.all():
             vg, vo, og = vg[keep], vo[keep], og[keep]
@@ -251,7 +263,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
                 b.add(t, sl, reg.supernode, WAN, H + rep, PduType.REPORT)
             fr_msg.append(idx), fr_slave.append(sl)
     arr = b.arrays()
-    cat = lambda parts: np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)  # noqa: E731
+    cat = _cat
     hop1 = cat(rec_hop1)
     rmsg = cat(rec_msg)
     if len(hop1) != len(rmsg):
