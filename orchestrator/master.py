@@ -190,21 +190,25 @@ class Master:
         if self.algorithm == "jacobi":
             gathered = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
                         for slot in map(slots.__getitem__, self.order)]
+            t0 = perf_counter_ns()
             for slot, inputs in gathered:
-                t0 = perf_counter_ns()
                 if self._advance(slot, t_ns, h_ns, inputs):
                     slot.read()
-                slot.busy_ns += perf_counter_ns() - t0
+                t1 = perf_counter_ns()  # one clock reading per unit: its end is the next one's start
+                slot.busy_ns += t1 - t0
+                t0 = t1
             return
         for name in self.order:
             slots[name].stepped = False
+        t0 = perf_counter_ns()
         for name in self.order:
             slot = slots[name]
-            t0 = perf_counter_ns()
             if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
                 slot.read()
-            slot.busy_ns += perf_counter_ns() - t0
             slot.stepped = True
+            t1 = perf_counter_ns()
+            slot.busy_ns += t1 - t0
+            t0 = t1
 
     def finish(self) -> None:
         """Bring lazily stepped units to the final time (counted as the unit's time)."""
