@@ -54,7 +54,11 @@ def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None, s
         else:
             seen, present, starts = segments
         per_max[present] = np.maximum.reduceat(err2, starts)
-        cnt = seen if mask is None else np.bincount(obj[mask], minlength=n_obj)
+        if mask is None:
+            cnt = seen
+        else:
+            cnt = np.zeros(n_obj, np.int64)
+            cnt[present] = np.add.reduceat(mask, starts, dtype=np.int64)
     else:
         np.maximum.at(per_max, obj, err2)
         cnt = np.bincount(obj, weights=None if mask is None else mask.astype(float), minlength=n_obj)
