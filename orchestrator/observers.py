@@ -136,7 +136,7 @@ def _fast_writer_class():
 
         def add_step(self, log_time: int, sequence: int, items: Sequence[Tuple[int, bytes]]) -> None:
             """The messages of one macro step (``(channel id, data)`` pairs, all at ``log_time``)
-            with one buffer write; the chunk is finished, when full, after the whole step, so a
+            written straight into the chunk buffer; the chunk is finished, when full, after the whole step, so a
             step is never split across chunks. With one channel the bytes equal the library's."""
             try:
                 stats = self._Writer__statistics
@@ -160,7 +160,7 @@ def _fast_writer_class():
             cb.num_messages += len(items)
             counts, indices = stats.channel_message_counts, cb.message_indices
             pos = buf.tell()
-            parts = []
+            write = buf.write
             for cid, data in items:
                 counts[cid] += 1
                 index = indices.get(cid)
@@ -169,9 +169,8 @@ def _fast_writer_class():
                 index.flat += (log_time, pos)
                 n = len(data)
                 pos += 31 + n  # 9 bytes record header + 22 bytes message fields + data
-                parts.append(header.pack(0x05, 22 + n, cid, sequence, log_time, log_time))
-                parts.append(data)
-            buf.write(b"".join(parts))
+                write(header.pack(0x05, 22 + n, cid, sequence, log_time, log_time))
+                write(data)
             if pos > self._Writer__chunk_size:
                 self._Writer__finalize_chunk()
 
