@@ -135,9 +135,10 @@ def _fast_writer_class():
             self._Writer__maybe_finalize_chunk()
 
         def add_step(self, log_time: int, sequence: int, items: Sequence[Tuple[int, bytes]]) -> None:
-            """The messages of one macro step (``(channel id, data)`` pairs, all at ``log_time``)
-            written straight into the chunk buffer; the chunk is finished, when full, after the whole step, so a
-            step is never split across chunks. With one channel the bytes equal the library's."""
+            """The messages of one macro step (``(channel id, data)`` pairs, all at ``log_time``),
+            written straight into the chunk buffer; the chunk is finished, when full, after the
+            whole step, so a step is never split across chunks. With one channel the bytes equal
+            the library's."""
             try:
                 stats = self._Writer__statistics
                 cb = self._Writer__chunk_builder
