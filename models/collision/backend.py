@@ -373,7 +373,9 @@ class CollisionBackend(ABC):
             raise ValueError(f"pose of dynamic body {self.scene.bodies[self.dyn[i]].name!r} "
                              f"({'x y z roll pitch yaw'.split()[k]}) = {poses[i, k]} is not finite")
         rows = poses.tolist()
-        moved = [i for i, row in zip(self._dyn_list, rows) if row != self._dyn_poses[i]]
+        dyn_poses = self._dyn_poses
+        changed = [(i, row) for i, row in zip(self._dyn_list, rows) if row != dyn_poses[i]]
+        moved = [i for i, _ in changed]
         if self._last is not None and not moved:
             # nothing moved: the last contacts hold, nothing was tested, nothing is closing
             self.prev_T[self.dyn] = self.T[self.dyn]
@@ -384,22 +386,24 @@ class CollisionBackend(ABC):
         far_skip = self._far_skip
         shift, rmax, T_rows = self._shift, self._rmax, self._T_rows
         prev_rows = self._prev_rows = {}
-        for i, row in zip(self._dyn_list, rows):
-            if row != self._dyn_poses[i]:
-                self._dyn_poses[i] = row
-                self.poses[i] = row
+        if changed:
+            mats = []
+            for i, row in changed:
+                dyn_poses[i] = row
                 M = pose_rows(row)
+                mats.append(M)
                 if far_skip:  # the far-pair skip's bookkeeping
                     old = prev_rows[i] = T_rows[i]
                     shift[i] += _face_shift(old, M, rmax[i])
                     T_rows[i] = M
-                self.T[i] = M
+            moved_arr = np.asarray(moved, dtype=int)
+            self.poses[moved_arr] = [row for _, row in changed]
+            self.T[moved_arr] = mats
         if self._last is None:
             # the first query's poses are the initial poses: the move from the scene spec's
             # pose to them is no motion (no time of impact, closing speed or honeycomb threshold)
             self.prev_T[self.dyn] = self.T[self.dyn]
         if moved:
-            moved_arr = np.asarray(moved, dtype=int)
             self._stale[moved_arr] = True
             self._moved(moved_arr)
         moved_set = set(moved)
