@@ -28,6 +28,8 @@ from .consistency import PointIndex
 G_ACC = 9.81
 #: up to this many avatars the kinematics run in Python floats (cheaper than numpy calls on tiny arrays)
 SCALAR_AVATARS = 8
+#: the same for up to this many free entities
+SCALAR_ENTITIES = 32
 
 
 class World:
@@ -195,6 +197,8 @@ class World:
         n, h = self._substeps(dt)
         decay = np.exp(-cfg.entity_drag * h)
         ct, st = np.cos(self.eturn * h), np.sin(self.eturn * h)
+        if len(self.epos) <= SCALAR_ENTITIES:
+            return self._advance_entities_scalar(n, h, float(decay), ct.tolist(), st.tolist())
         for _ in range(n):
             vx, vy = self.evel[:, 0], self.evel[:, 1]
             nv = np.empty_like(self.evel)
@@ -203,6 +207,32 @@ class World:
             self.epos += 0.5 * h * (self.evel + nv)
             self.evel = nv
             self._entity_walls()
+
+    def _advance_entities_scalar(self, n: int, h: float, decay: float, ct: list, st: list) -> None:
+        """:meth:`_advance_entities` for a few entities in Python floats (same operations in the
+        same order, walls included)."""
+        S = self.cfg.scene_size
+        S2, hh = 2 * S, 0.5 * h
+        px, py = self.epos[:, 0].tolist(), self.epos[:, 1].tolist()
+        vx, vy = self.evel[:, 0].tolist(), self.evel[:, 1].tolist()
+        for _ in range(n):
+            for i in range(len(px)):
+                ax, ay = vx[i], vy[i]
+                bx = (ct[i] * ax - st[i] * ay) * decay
+                by = (st[i] * ax + ct[i] * ay) * decay
+                x = px[i] + hh * (ax + bx)
+                y = py[i] + hh * (ay + by)
+                if x < 0.0:           # walls: reflect the position and that velocity component
+                    x, bx = -x, bx * -1.0
+                elif x > S:
+                    x, bx = S2 - x, bx * -1.0
+                if y < 0.0:
+                    y, by = -y, by * -1.0
+                elif y > S:
+                    y, by = S2 - y, by * -1.0
+                px[i], py[i], vx[i], vy[i] = x, y, bx, by
+        self.epos[:, 0], self.epos[:, 1] = px, py
+        self.evel = np.array([vx, vy]).T.copy()
 
     def _entity_walls(self) -> None:
         S = self.cfg.scene_size

@@ -242,12 +242,13 @@ def test_resting_avatars_skip_repeated_substeps_exactly():
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
 
 
-def test_scalar_avatar_kinematics_equal_the_array_code(monkeypatch):
-    """Few avatars run in Python floats: the same trajectories (walls, reversing, steering) as numpy."""
+def test_scalar_kinematics_equal_the_array_code(monkeypatch):
+    """Few avatars and entities run in Python floats: the same trajectories (walls, reversing,
+    steering, entity reflections) as the numpy code."""
     from immersim.models.network import world as world_mod
 
-    cfg = NetworkConfig(groups=4, render_nodes=2, entities=6, driven_groups=4, scene_size=12.0, seed=3,
-                        avatar_start="uniform")
+    cfg = NetworkConfig(groups=4, render_nodes=2, entities=20, driven_groups=4, scene_size=12.0, seed=3,
+                        avatar_start="uniform", entity_speed=6.0)
 
     def trace():
         m = NetworkModel(cfg)
@@ -257,11 +258,12 @@ def test_scalar_avatar_kinematics_equal_the_array_code(monkeypatch):
                 m.set_input(g, 1.0 if k < 70 else -1.0, 0.3 * np.sin(0.05 * k + g))
             m.step(T)
             w = m.world
-            out.append(np.r_[w.apos.ravel(), w.yaw, w.speed, w.accel, w.yaw_rate])
+            out.append(np.r_[w.apos.ravel(), w.yaw, w.speed, w.accel, w.yaw_rate, w.epos.ravel(), w.evel.ravel()])
         return np.array(out), m
 
     fast, mf = trace()
     monkeypatch.setattr(world_mod, "SCALAR_AVATARS", 0)
+    monkeypatch.setattr(world_mod, "SCALAR_ENTITIES", 0)
     ref, mr = trace()
     assert np.array_equal(fast, ref)
     S = cfg.scene_size
@@ -275,4 +277,5 @@ def test_scalar_avatar_kinematics_equal_the_array_code(monkeypatch):
     monkeypatch.setattr(world_mod.World, "_avatar_walls", counting)
     trace()
     assert hits["n"] > 3                                                     # walls were hit
+    assert (np.diff(np.sign(ref[:, 24::2]), axis=0) != 0).sum() > 20        # entities reflected
     assert ref[:, :8].min() >= 0.0 and ref[:, :8].max() <= S
