@@ -14,6 +14,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Callable, Dict, List, Tuple
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import ROOT, interleaved, median, stamp  # noqa: E402
@@ -21,6 +22,7 @@ from common import ROOT, interleaved, median, stamp  # noqa: E402
 from immersim.orchestrator.build import build_unit  # noqa: E402
 from immersim.orchestrator.execution import run_scenario  # noqa: E402
 from immersim.orchestrator.fmu import clear_caches  # noqa: E402
+from immersim.orchestrator.observers import McapObserver  # noqa: E402
 
 
 def scenario(tmp: Path, fmu: Path, n_units: int, steps: int) -> Path:
@@ -33,6 +35,32 @@ def scenario(tmp: Path, fmu: Path, n_units: int, steps: int) -> Path:
     p = tmp / f"bench_{n_units}.toml"
     p.write_text("\n".join(lines))
     return p
+
+
+def compression_table(tmp: Path, fmu: Path, n: int, repeats: int) -> List[Tuple[str, float, int]]:
+    """Our 3-unit run with each MCAP chunk compression: median process CPU per step, file size."""
+    scn = scenario(tmp, fmu, 3, n)
+    used = McapObserver.COMPRESSION
+    sizes: Dict[str, int] = {}
+
+    def run(comp: str) -> Callable[[], float]:
+        def fn() -> float:
+            McapObserver.COMPRESSION = comp
+            clear_caches()
+            c = time.process_time()
+            run_scenario(scn, tmp / f"c_{comp}.mcap")
+            sizes[comp] = (tmp / f"c_{comp}.mcap").stat().st_size
+            return time.process_time() - c
+        return fn
+
+    try:
+        times = interleaved({c: run(c) for c in ("lz4", "zstd", "none")}, repeats)
+    finally:
+        McapObserver.COMPRESSION = used
+    rows = [(c, median(v) / n * 1e6, sizes[c]) for c, v in times.items()]
+    for c, us, size in rows:
+        print(f"compression {c}: {us:.1f} us/step CPU, {size / 1024:.0f} kB", flush=True)
+    return rows
 
 
 def main() -> None:
@@ -78,6 +106,7 @@ def main() -> None:
             print(f"{n_units} unit(s): immersim {a:.1f} us/step, fmpy {b:.1f} us/step, ratio {a / b:.2f}; "
                   f"CPU {cus['immersim']:.1f} vs {cus['fmpy']:.1f}, ratio {cus['immersim'] / cus['fmpy']:.2f}",
                   flush=True)
+        comp_rows = compression_table(tmp, fmu, n, args.repeats)
     out = ROOT / "results" / "orchestrator"
     out.mkdir(parents=True, exist_ok=True)
     cmd = f"python benchmarks/bench_orchestrator.py --steps {args.steps} --repeats {args.repeats}"
@@ -91,6 +120,12 @@ def main() -> None:
     for n_units, a, b, r, amin, bmin, ca, cb, cr in rows:
         text.append(f"| {n_units} | {a:.1f} | {b:.1f} | {r:.2f} | {amin:.1f} | {bmin:.1f} | {ca:.1f} | {cb:.1f} "
                     f"| {cr:.2f} |")
+    text += ["", "MCAP chunk compression, 3 units, the same runs (interleaved, median; "
+             "`McapObserver.COMPRESSION` is the one the orchestrator uses):", "",
+             "| compression | immersim CPU [us/step] | file size [kB] |", "|---|---|---|"]
+    for comp, cpu_us, size in comp_rows:
+        mark = " (used)" if comp == McapObserver.COMPRESSION else ""
+        text.append(f"| {comp}{mark} | {cpu_us:.1f} | {size / 1024:.0f} |")
     (out / "README.md").write_text("\n".join(text) + "\n")
     print((out / "README.md").read_text())
 

@@ -196,7 +196,7 @@ class McapObserver:
 
     CHUNK_BYTES = 256 * 1024
     #: LZ4: about a quarter of zstd's CPU time per chunk for files about twice as large
-    #: (benchmarks/bench_orchestrator.py --compression compares); both are standard MCAP
+    #: (results/orchestrator/README.md compares); both are standard MCAP
     COMPRESSION = "lz4"
 
     def __init__(self, path: Path | str, flush_seconds: float = 1.0) -> None:
