@@ -487,8 +487,12 @@ class ValueReader:
                 out = view1.tolist()
                 if check and not isfinite(sum(out)):
                     self._raise_nonfinite(out)
-                out += map(bool, view2.tolist())
+                if one_bool:
+                    out.append(b2[0] != 0)
+                else:
+                    out += map(bool, view2.tolist())
                 return out
+            one_bool = n2.value == 1  # e.g. an at_rest flag: no map over a one-element list
             return read
         (f1, v1, n1, b1, view1, name1, as_bool), = groups
 
