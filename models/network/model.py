@@ -480,18 +480,18 @@ class NetworkModel:
         tr = self._messages(t, pub_obj, vg, vo, frame_size, send_pair, og)
         arrival, lost = self._transmit(tr)
         if len(tr.rec_msg):
-            r_arr, r_lost = arrival[tr.rec_msg], lost[tr.rec_msg]
-            if (tr.rec_hop1 >= 0).any():
-                r_lost = r_lost | np.where(tr.rec_hop1 >= 0, lost[np.maximum(tr.rec_hop1, 0)], False)
+            # the frame at which each record is due is its message's (-1: the message, or the
+            # first hop a relayed record waits for, was lost)
+            due_msg = self._due(arrival)
+            due_msg[lost] = -1
+            due = np.take(due_msg, tr.rec_msg)
+            if tr.plan.wait is not None:
+                hop = tr.rec_hop1
+                due[(hop >= 0) & np.take(lost, np.maximum(hop, 0))] = -1
             # one record table per frame (objects x cache width, rows like the cache's); pairs
             # refer to it by object
             table = self._table(self._obj_ids, t, P, V, A)
-            if r_lost.any():
-                ok = ~r_lost
-                o, viewer, r_arr = tr.rec_obj[ok], tr.rec_viewer[ok], r_arr[ok]
-            else:
-                o, viewer = tr.rec_obj, tr.rec_viewer
-            self._add_inflight(r_arr, self.index(viewer, o), self.owner.copy(), table, o)
+            self._file(due, self.index(tr.rec_viewer, tr.rec_obj), self.owner.copy(), table, tr.rec_obj)
         if len(tr.frame_msg):
             f_arr = np.where(lost[tr.frame_msg], np.inf, arrival[tr.frame_msg])
             for key, val in (("arr", f_arr), ("slave", tr.frame_slave), ("frame", np.full(len(f_arr), self.k + 1))):
@@ -592,13 +592,28 @@ class NetworkModel:
         per table row: the owners when the table was sent). Each is filed under the first frame ``k`` with
         ``k T >= arrival``: it has arrived by that tick and not by the one before. ``epoch``
         is the ownership epoch the senders were checked against (-1: never checked)."""
-        if not len(arr):
+        if len(arr):
+            self._file(self._due(arr), fi, sender, table, ridx, epoch)
+
+    def _due(self, arr: np.ndarray) -> np.ndarray:
+        """First frame ``k`` (>= the current one) with ``k T >= arrival`` for arrivals ``arr`` (s)."""
+        return np.maximum(np.ceil(arr / self.cfg.frame_s - 1e-9), self.k).astype(np.int64)
+
+    def _file(self, due: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
+              ridx: np.ndarray, epoch: Optional[int] = None) -> None:
+        """File records under the frame they are due (``due`` (k,), -1: lost, dropped), in
+        send order; see :meth:`_add_inflight`."""
+        if not len(due):
             return
+        hi = int(due.max())
+        if hi < 0:
+            return
+        lo = int(due.min())
+        some_lost = lo < 0
+        if some_lost:
+            lo = int(due[due >= 0].min())
         meta = (self._epoch if epoch is None else epoch, float(table[:, T_COL].max()))
-        T = self.cfg.frame_s
-        due = np.maximum(np.ceil(arr / T - 1e-9), self.k).astype(np.int64)
-        lo, hi = int(due.min()), int(due.max())
-        if lo == hi:
+        if lo == hi and not some_lost:
             self._inflight.setdefault(lo, []).append((fi, sender, table, ridx, meta))
             return
         if hi - lo <= 3:
@@ -608,6 +623,9 @@ class NetworkModel:
                     continue
                 self._inflight.setdefault(int(key), []).append((fi[sel], sender, table, ridx[sel], meta))
             return
+        if some_lost:
+            keep = due >= 0
+            due, fi, ridx = due[keep], fi[keep], ridx[keep]
         order = np.argsort(due, kind="stable")
         due, fi, ridx = due[order], fi[order], ridx[order]
         cuts = np.flatnonzero(np.diff(due)) + 1

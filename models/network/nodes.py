@@ -113,6 +113,7 @@ class TrafficPlan:
         self.hop1 = lk.TransmitPlan(links, tr.sender[first], tr.link[first], tr.nbytes[first])
         second = ~first
         self.second = second if second.any() else None
+        self.wait = None     # (first hops, records' messages) of records relayed once their first hop arrived
         if self.second is not None:
             direct = second & (tr.hop_of >= 0)
             self.direct, self.direct_src = direct, tr.hop_of[direct]
