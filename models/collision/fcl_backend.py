@@ -83,6 +83,8 @@ class FclBackend(CollisionBackend):
             self._by_pose.setdefault(self._key(self.objs[i]), []).append(int(i))
         self._member_mask = np.zeros(self.n, bool)
         self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
+        self._toi_need: Dict[int, bool] = {}  # _needs_toi's answers in the current query
+        self._toi_need_query = None
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
@@ -166,18 +168,28 @@ class FclBackend(CollisionBackend):
         if T0 is None:
             return bool((self.prev_T[a] != self.T[a]).any()
                         and self._travel(a) > self.config.ccd_fast * self._thin[a])
+        if self._toi_need_query is not self._prev_rows:  # a new query: forget the last one's
+            self._toi_need, self._toi_need_query = {}, self._prev_rows
+        known = self._toi_need.get(a)  # decided already in this query (a body in two pairs)
+        if known is not None:
+            return known
         T1 = self._T_rows[a]
         if T0 == T1:
             return False
         threshold = self.config.ccd_fast * self._thin[a]
-        dx, dy, dz = T1[0][3] - T0[0][3], T1[1][3] - T0[1][3], T1[2][3] - T0[2][3]
+        (a0, a1, a2, ax), (b0, b1, b2, by), (c0, c1, c2, cz) = T0[0], T0[1], T0[2]
+        (p0, p1, p2, px), (q0, q1, q2, qy), (r0, r1, r2, rz) = T1[0], T1[1], T1[2]
+        dx, dy, dz = px - ax, qy - by, rz - cz
         # trace(R1 R0^T) = sum of the element-wise products (rotation_angle's formula)
-        c = sum(T1[i][j] * T0[i][j] for i in range(3) for j in range(3))
+        c = p0 * a0 + p1 * a1 + p2 * a2 + q0 * b0 + q1 * b1 + q2 * b2 + r0 * c0 + r1 * c1 + r2 * c2
         angle = math.acos(min(1.0, max(-1.0, (c - 1.0) / 2.0)))
         estimate = math.sqrt(dx * dx + dy * dy + dz * dz) + angle * self._radius[a]
         if abs(estimate - threshold) > 1e-9 * max(threshold, 1e-300) + 1e-12:
-            return estimate > threshold
-        return bool(self._travel(a) > threshold)
+            need = estimate > threshold
+        else:
+            need = bool(self._travel(a) > threshold)
+        self._toi_need[a] = need
+        return need
 
     # -- narrow phase -------------------------------------------------------------------
     def _collide(self, a: int, b: int, obj_b=None) -> PairResult | None:
