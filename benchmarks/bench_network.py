@@ -272,9 +272,11 @@ show what the protocol simulation costs by itself.
 Best median wall time per 33 ms step with the metrics {best:.1f} ms: target **{verdict}**
 (real-time factor {33.0 / best:.2f}); without the display metric {best_any:.1f} ms. `cpu_median_ms` is the process CPU time per step and `load` the 1-minute
 load average of the machine during the run (2 cores shared with other jobs): the wall times
-include waiting for a core. The per-frame work is dominated by numpy passes over the
-~235,000 (viewer, object) pairs of the 9-cell neighbourhoods (display error of eq. 3-1/3-2,
-subscription tracking) and, when every frame is published, the same number of cache updates.
+include waiting for a core. With DIS updates the display error of eq. 3-1/3-2 comes from
+record groups (one evaluation per distinct record and object, updated only where a copy
+changed; `models/network/display.py`); when every frame is published (`dis_threshold` 0)
+nearly every one of the ~235,000 copies gets a new record each frame, so the error is
+evaluated per copy and the ~206,000 cache writes per frame dominate.
 
 ## Traffic vs number of render nodes (4 render nodes per group, 10 entities per group, 1 km scene)
 
