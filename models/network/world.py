@@ -100,6 +100,10 @@ class World:
         return out
 
     def moving(self, eps: float = 1e-9) -> bool:
+        """Some avatar or entity moves faster than ``eps`` (m/s), or some throttle is set."""
+        if len(self.speed) <= SCALAR_AVATARS and len(self.evel) <= SCALAR_ENTITIES:   # tiny: plain Python
+            return (any(abs(v) > eps for v in self.speed.tolist())
+                    or any(abs(v) > eps for v in self.evel.ravel().tolist()) or any(self.throttle.tolist()))
         return bool(np.any(np.abs(self.speed) > eps) or np.any(np.abs(self.evel) > eps)
                     or np.any(self.throttle != 0.0))
 
