@@ -316,6 +316,12 @@ class FmuInstance:
     def _last_message(self) -> str:
         return self.messages[-1] if self.messages else ""
 
+    def _raised(self, function: str, exc: Exception) -> FmuCallError:
+        """A Python exception a fast-path call raised (an in-process FMU, called without
+        releasing the GIL, left it set) as the typed error of a failed call."""
+        return FmuCallError(self.name, function, self.t_ns, 3,
+                            f"{type(exc).__name__}: {exc} {self._last_message()}".strip())
+
     def _check(self, function: str, status: int) -> None:
         if status > 1:
             self.fatal = self.fatal or status == 4
@@ -350,7 +356,10 @@ class FmuInstance:
             if h_ns != self._h_ns:
                 self._c_h.value, self._h_ns = h_ns / 1e9, h_ns
             self._c_t.value = t_ns / 1e9  # ns_to_s, inlined
-            status = self._do_step(self._c_component, self._c_t, self._c_h, self._c_true)
+            try:
+                status = self._do_step(self._c_component, self._c_t, self._c_h, self._c_true)
+            except Exception as exc:
+                raise self._raised("fmi2DoStep", exc) from None
             if status > 1:
                 self._check("fmi2DoStep", status)
         else:
@@ -481,12 +490,17 @@ class ValueReader:
             (f1, v1, n1, b1, view1, name1, _), (f2, v2, n2, b2, view2, name2, _) = groups
 
             def read() -> List[Any]:
-                status = f1(comp, v1, n1, b1)
-                if status > 1:
-                    inst._check(name1, status)
-                status = f2(comp, v2, n2, b2)
-                if status > 1:
-                    inst._check(name2, status)
+                try:
+                    status = f1(comp, v1, n1, b1)
+                    if status > 1:
+                        inst._check(name1, status)
+                    status = f2(comp, v2, n2, b2)
+                    if status > 1:
+                        inst._check(name2, status)
+                except FmuCallError:
+                    raise
+                except Exception as exc:
+                    raise inst._raised(f"{name1}/{name2}", exc) from None
                 out = view1.tolist()
                 if check and not isfinite(sum(out)):
                     self._raise_nonfinite(out)
@@ -500,7 +514,10 @@ class ValueReader:
         (f1, v1, n1, b1, view1, name1, as_bool), = groups
 
         def read_one() -> List[Any]:
-            status = f1(comp, v1, n1, b1)
+            try:
+                status = f1(comp, v1, n1, b1)
+            except Exception as exc:
+                raise inst._raised(name1, exc) from None
             if status > 1:
                 inst._check(name1, status)
             if as_bool:
@@ -520,7 +537,10 @@ class ValueReader:
         comp = inst._c_component
         out: List[Any] = []
         for fn, vrs, n, buf, view, getter, as_bool in self._groups:
-            status = fn(comp, vrs, n, buf)
+            try:
+                status = fn(comp, vrs, n, buf)
+            except Exception as exc:
+                raise inst._raised(getter, exc) from None
             if status > 1:
                 inst._check(getter, status)
             out += [v != 0 for v in view.tolist()] if as_bool else view.tolist()
@@ -579,7 +599,10 @@ class RealSetter:
 
         def set_values(values: Sequence[float]) -> None:
             buf[:] = values
-            status = fn(comp, vrs, n, buf)
+            try:
+                status = fn(comp, vrs, n, buf)
+            except Exception as exc:
+                raise inst._raised("fmi2SetReal", exc) from None
             if status > 1:
                 inst._check("fmi2SetReal", status)
         return set_values
@@ -589,7 +612,10 @@ class RealSetter:
         inst = self.inst
         if self._fmi2:
             self._buf[:] = values
-            status = inst._set_real(inst._c_component, self._vrs, self._n, self._buf)
+            try:
+                status = inst._set_real(inst._c_component, self._vrs, self._n, self._buf)
+            except Exception as exc:
+                raise inst._raised("fmi2SetReal", exc) from None
             if status > 1:
                 inst._check("fmi2SetReal", status)
         else:

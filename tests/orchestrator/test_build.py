@@ -108,3 +108,26 @@ def test_instances_of_one_fmu_share_one_extraction(test_fmus, tmp_path):
     finally:
         for inst in (a, b, c):
             inst.terminate()
+
+
+def test_exception_left_by_an_in_process_fmu_is_a_typed_error(test_fmus, tmp_path):
+    """A per-step FMI call that raises a Python exception (a pythonfmu FMU is called without
+    releasing the GIL, so an error it leaves set surfaces in the caller) is reported as a
+    failed call naming unit, function and time."""
+    from immersim.orchestrator.errors import FmuCallError
+    from immersim.orchestrator.fmu import FmuInstance
+
+    inst = FmuInstance("u", test_fmus["oscillator"], tmp_path / "u")
+    try:
+        assert inst.in_process_python
+        inst.initialize(0, None, {"x0": 1.0})
+        inst.do_step(0, 33_000_000)
+
+        def broken(*args):
+            raise ValueError("left set by the FMU")
+
+        inst._do_step = broken
+        with pytest.raises(FmuCallError, match=r"unit u: fmi2DoStep .* at t = 0.033 s: ValueError: left set by the FMU"):
+            inst.do_step(33_000_000, 33_000_000)
+    finally:
+        inst.terminate()
