@@ -145,6 +145,7 @@ class NetworkModel:
         self._msg_memo: Optional[tuple] = None   # (inputs, Traffic, compose mask) of the last small frame
         self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs) of the last frame
         self._segments: Optional[tuple] = None   # (vo, per-object runs of vo)
+        self._view_hit = False
         self._groups: Optional[DisplayGroups] = None  # record groups of the display metric (large views)
         self._frame_traffic = (0, 0)     # the same for the interval that ended at the last frame
         self._bootstrap()
@@ -472,6 +473,9 @@ class NetworkModel:
         og = np.take(self.owner, vo)
         if cfg.topology == "full_mesh":  # a broadcast subscribes everyone to everything
             newly = np.zeros(len(vg), bool)
+        elif self._view_hit:             # same cells and viewers as the last frame: nobody entered
+            newly = np.zeros(len(vg), bool)
+            self._view_prev = (cells, online_g)
         else:
             newly = self._entered(cells, online_g, vg, vo)
             if newly.any():
@@ -535,7 +539,9 @@ class NetworkModel:
         online (a scene at rest, or slow objects in large cells)."""
         memo = self._view_memo
         if memo is not None and np.array_equal(memo[0], cells) and np.array_equal(memo[1], online_g):
+            self._view_hit = True
             return memo[2]
+        self._view_hit = False
         viewers = np.flatnonzero(online_g)
         vo, vg_local = self.grid.view_pairs(cells, cells[viewers])
         vg = viewers[vg_local]
@@ -770,37 +776,45 @@ class NetworkModel:
         if og is None:
             og = np.take(self.owner, vo)
         n = len(fi)
-        err2, remote = np.empty(n), np.empty(n, bool)
-        px, py = np.ascontiguousarray(P[:, 0]), np.ascontiguousarray(P[:, 1])
-        ec = self.enter_col
-        # in chunks that stay in the CPU cache: one row (cache line) gathered per copy, then
-        # the column arithmetic on the chunk
-        for a in range(0, n, MEASURE_CHUNK):
-            b = min(a + MEASURE_CHUNK, n)
-            c = np.take(self.cache, fi[a:b], axis=0)
-            ct = c[:, T_COL]
-            rm = remote[a:b]
-            np.greater_equal(ct, c[:, ec] - 1e-12, out=rm)
-            rm &= og[a:b] != vg[a:b]
-            o = vo[a:b]
-            ex = c[:, 1] - np.take(px, o)
-            ey = c[:, 2] - np.take(py, o)
-            if order >= 1:
-                dt = t - ct
-                ex += c[:, 3] * dt
-                ey += c[:, 4] * dt
-                if order >= 2:
-                    h = 0.5 * dt * dt
-                    ex += c[:, 5] * h
-                    ey += c[:, 6] * h
-            ex *= ex
-            ey *= ey
-            np.add(ex, ey, out=err2[a:b])
+        px, py = P[:, 0], P[:, 1]
+        if n <= MEASURE_CHUNK:
+            err2, remote = self._copy_errors(t, fi, vo, vg, og, px, py)
+        else:
+            # in chunks that stay in the CPU cache: one row (cache line) gathered per copy,
+            # then the column arithmetic on the chunk
+            err2, remote = np.empty(n), np.empty(n, bool)
+            px, py = np.ascontiguousarray(px), np.ascontiguousarray(py)
+            for a in range(0, n, MEASURE_CHUNK):
+                b = min(a + MEASURE_CHUNK, n)
+                err2[a:b], remote[a:b] = self._copy_errors(t, fi[a:b], vo[a:b], vg[a:b], og[a:b], px, py)
         pm, pr, mx, rms = inconsistency_sq(vo, err2, self.n_obj, remote, sorted_obj=True,
                                           segments=self._object_segments(vo))
         self.per_object_max, self.per_object_rms = pm, pr
         self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
         self.metrics.inconsistency_rms = rms
+
+    def _copy_errors(self, t, fi, vo, vg, og, px, py):
+        """Squared display errors (k,) m^2 of copies ``fi`` at frame time ``t`` and whether each
+        counts (a non-owner's copy with a record since it subscribed), eq. 3-1/3-2 with the
+        dead reckoning of §3.6.3: ``e = (p - truth) + v dt (+ a dt^2 / 2)``."""
+        order = self.cfg.prediction_order
+        c = np.take(self.cache, fi, axis=0)       # one row (cache line) per copy
+        ct = c[:, T_COL]
+        remote = (og != vg) & (ct >= c[:, self.enter_col] - 1e-12)
+        ex = c[:, 1] - np.take(px, vo)
+        ey = c[:, 2] - np.take(py, vo)
+        if order >= 1:
+            dt = t - ct
+            ex += c[:, 3] * dt
+            ey += c[:, 4] * dt
+            if order >= 2:
+                h = 0.5 * dt * dt
+                ex += c[:, 5] * h
+                ey += c[:, 6] * h
+        ex *= ex
+        ey *= ey
+        ex += ey
+        return ex, remote
 
     # -- queries ------------------------------------------------------------------------------------
     def perceived_avatar(self, node: int, g: int) -> np.ndarray:
