@@ -118,7 +118,7 @@ class NetworkModel:
         self.cache[:, T_COL] = -np.inf
         self._obj_ids = np.arange(self.n_obj)
         self._uid = 1              # next record-table id (0: the scene file); rid = uid * n_obj + object
-        # owner's knowledge of what it last published (DIS)
+        # owner's knowledge of what it last published (DIS; not kept up to date without DIS)
         self.pub_t = np.full(self.n_obj, -np.inf)
         self.pub_p = np.zeros((self.n_obj, 2))
         self.pub_v = np.zeros((self.n_obj, 2))
@@ -443,7 +443,7 @@ class NetworkModel:
                     self._push(t + float(L), "impulse", int(e), d.copy(), int(g))
                 self.metrics.remote_contacts += int(remote.sum())
         # 2. ownership (§3.6.2)
-        P, V, A = w.positions(), w.velocities(), w.accelerations()
+        P, V, A = w.state()
         if cfg.ownership != "none" and cfg.entities:
             cand = np.flatnonzero(online_g)
             cur = self.owner[G:]
@@ -464,8 +464,9 @@ class NetworkModel:
         else:
             pub = has_owner
         pub_obj = np.flatnonzero(pub)
-        self.pub_t[pub_obj] = t
-        self.pub_p[pub_obj], self.pub_v[pub_obj], self.pub_a[pub_obj] = P[pub_obj], V[pub_obj], A[pub_obj]
+        if cfg.dis_threshold > 0:   # what the owner last published: read by the DIS test only
+            self.pub_t[pub_obj] = t
+            self.pub_p[pub_obj], self.pub_v[pub_obj], self.pub_a[pub_obj] = P[pub_obj], V[pub_obj], A[pub_obj]
         self.metrics.published += len(pub_obj)
         # 4. messages by topology, link sampling
         cells = self.grid.cell(P)

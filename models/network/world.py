@@ -89,6 +89,19 @@ class World:
     def accelerations(self) -> np.ndarray:
         return np.concatenate([self.aacc(), self.eacc()])
 
+    def state(self):
+        """Positions, velocities, accelerations (G + E, 2) of all objects, avatars first (as
+        :meth:`positions`, :meth:`velocities`, :meth:`accelerations`; one cos/sin of the headings)."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        G = len(c)
+        av = np.empty((G, 2))
+        np.multiply(c, self.speed, out=av[:, 0])
+        np.multiply(s, self.speed, out=av[:, 1])
+        lat = self.speed * self.yaw_rate
+        aa = np.stack((self.accel * c - lat * s, self.accel * s + lat * c), axis=1)
+        return (np.concatenate([self.apos, self.epos]), np.concatenate([av, self.evel]),
+                np.concatenate([aa, self.eacc()]))
+
     def specific_force(self) -> np.ndarray:
         """Body-frame specific force of every avatar (G, 3), m/s^2, gravity included on z."""
         return np.stack((self.accel, self.speed * self.yaw_rate, np.full(len(self.speed), G_ACC)), axis=1)
