@@ -24,7 +24,7 @@ identity string, IPv4 address, port and a 128-bit ID (MD5 of ``ip:port``, §2.3.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, List, Optional
+from typing import List, Optional
 
 import numpy as np
 

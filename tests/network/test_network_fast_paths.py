@@ -47,7 +47,6 @@ def test_reused_messages_and_views_change_nothing(monkeypatch, topology):
                         links=LOSSY)
     fast = _trace(cfg, 50, drive=True)
     monkeypatch.setattr(model_mod, "MEMO_PAIRS", -1)                      # never reuse messages
-    monkeypatch.setattr(NetworkModel, "_view_memo", None, raising=False)
     orig = NetworkModel._view
 
     def fresh_view(self, cells, online_g):
