@@ -26,6 +26,8 @@ from typing import List, Optional
 
 import numpy as np
 
+from .arrays import sum_by_key, unique_values
+
 #: a frame that touched more than this share of the copies is evaluated per copy
 TOUCHED_SHARE = 0.25
 
@@ -63,17 +65,17 @@ class DisplayGroups:
 
     # -- the frame ------------------------------------------------------------------------
     def update(self, model, cells: np.ndarray, online: np.ndarray, vo: np.ndarray, vg: np.ndarray,
-               fi: np.ndarray) -> bool:
-        """Bring the groups to this frame's view (``vo``, ``vg``, ``fi``; ``cells`` (n_obj,),
-        ``online`` (G,) bool). Returns False (groups invalid) when the frame touched too many
-        copies: the caller then evaluates per copy."""
+               fi: np.ndarray, og: np.ndarray) -> bool:
+        """Bring the groups to this frame's view (``vo``, ``vg``, ``fi``, owners ``og`` of the
+        objects; ``cells`` (n_obj,), ``online`` (G,) bool). Returns False (groups invalid) when
+        the frame touched too many copies: the caller then evaluates per copy."""
         prev, self.prev = self.prev, (cells, online, vo, vg, fi)
         limit = TOUCHED_SHARE * max(len(fi), 1)
         n_touched, self.n_touched = self.n_touched, 0
         if not self.valid or prev is None:
             if n_touched > limit:     # records changed almost everywhere: stay per copy
                 return False
-            return self._rebuild(model, cells, online, fi)
+            return self._rebuild(model, vg, fi, og)
         parts = self.touched
         self.touched = []
         pc, pon, pvo, pvg, pfi = prev
@@ -84,18 +86,21 @@ class DisplayGroups:
             self.invalidate()
             return False
         if n:
-            self._apply(model, np.unique(np.concatenate(parts)), cells, online)
+            self._apply(model, unique_values(np.concatenate(parts)), cells, online)
         return True
 
-    def _rebuild(self, model, cells, online, fi) -> bool:
-        """Groups from scratch: every copy of this frame's view is (re)counted."""
+    def _rebuild(self, model, vg, fi, og) -> bool:
+        """Groups from scratch over this frame's view: its copies are all in view, so a copy
+        counts when it is not the owner's and holds a record since it subscribed."""
         self.crid.fill(-1)
-        self.key = np.zeros(0, np.int64)
-        self.cnt = np.zeros(0, np.int64)
-        self.rows = np.zeros((0, model.cache.shape[1]))
+        rows = np.take(model.cache, fi, axis=0)
+        sel = np.flatnonzero((og != vg) & (rows[:, 0] >= rows[:, model.enter_col] - 1e-12))
+        keys = np.take(rows[:, model.rid_col], sel).astype(np.int64)
+        self.crid[fi[sel]] = keys
+        self.key, first, self.cnt = sum_by_key(keys, np.ones(len(keys), np.int64))
+        self.rows = np.take(rows, sel[first], axis=0)
         self.valid = True
         self.touched = []
-        self._apply(model, fi, cells, online)
         return True
 
     def _view_changes(self, grid, pc, pon, pvo, pvg, pfi, cells, online, vo, vg, fi) -> List[np.ndarray]:
@@ -140,8 +145,7 @@ class DisplayGroups:
         if not len(keys):
             return
         w = np.concatenate([np.full(len(dec), -1, np.int64), np.ones(len(inc_sel), np.int64)])
-        uk, first, inv = np.unique(keys, return_index=True, return_inverse=True)
-        dw = np.bincount(inv.ravel(), weights=w, minlength=len(uk)).astype(np.int64)
+        uk, first, dw = sum_by_key(keys, w)
         pos = np.searchsorted(self.key, uk)
         found = pos < len(self.key)
         found[found] = self.key[pos[found]] == uk[found]
@@ -173,7 +177,7 @@ class DisplayGroups:
         if n_valid == 0:
             z = np.zeros(n_obj)
             return z, z.copy(), 0.0, 0.0
-        o = self.key % n_obj
+        o = self.key >> 32                 # record id = object * 2^32 + table id
         c = self.rows
         ct = c[:, 0]
         # the same arithmetic as the per-copy evaluation, so each group's error is bit-identical

@@ -40,6 +40,7 @@ from .world import World
 log = logging.getLogger(__name__)
 
 HIST = 16  # frames of displayed-avatar history kept for slaves that lag
+RID_OBJECT = float(2 ** 32)  # record id = object * 2^32 + record-table id (sorted by object, then table)
 T_COL = 0  # cache row: record time, then p, v, a as the prediction order uses them (see NetworkModel)
 #: queued events that change what the nodes show (heartbeats and time-out checks do not)
 PENDING = frozenset(("input", "impulse", "join", "leave"))
@@ -85,6 +86,8 @@ class NetworkModel:
         self.supernode = Supernode(cfg.heartbeat_timeout_s)
         G, E = cfg.groups, cfg.entities
         self.n_obj = G + E
+        if self.n_obj >= 2 ** 21:
+            raise ValueError(f"network model: {self.n_obj} objects, at most 2^21 - 1 (record ids object * 2^32 + table)")
         self.t = 0.0
         self.k = 0
         self.latency_scale = 1.0
@@ -117,7 +120,7 @@ class NetworkModel:
         self.cache = _aligned_rows(G * self.n_obj, width)
         self.cache[:, T_COL] = -np.inf
         self._obj_ids = np.arange(self.n_obj)
-        self._uid = 1              # next record-table id (0: the scene file); rid = uid * n_obj + object
+        self._uid = 1              # next record-table id (0: the scene file); rid = object * 2^32 + uid
         # owner's knowledge of what it last published (DIS; not kept up to date without DIS)
         self.pub_t = np.full(self.n_obj, -np.inf)
         self.pub_p = np.zeros((self.n_obj, 2))
@@ -201,7 +204,7 @@ class NetworkModel:
             tab[:, 3:5] = V
         if self._ncol >= 7:
             tab[:, 5:7] = A
-        tab[:, self.rid_col] = objs + self._uid * self.n_obj
+        tab[:, self.rid_col] = objs * RID_OBJECT + self._uid     # exact in float64 (< 2^53)
         self._uid += 1
         return tab
 
@@ -761,10 +764,12 @@ class NetworkModel:
         order = cfg.prediction_order
         if fi is None:
             fi = self.index(vg, vo)
+        if og is None:
+            og = np.take(self.owner, vo)
         if len(fi) > GROUPS_MIN_PAIRS:
             if self._groups is None:
                 self._groups = DisplayGroups(len(self.cache), self.n_obj, cfg.groups)
-            if self._groups.update(self, cells, online_g, vo, vg, fi):
+            if self._groups.update(self, cells, online_g, vo, vg, fi, og):
                 pm, pr, mx, rms = self._groups.errors(t, P, order)
                 self.per_object_max, self.per_object_rms = pm, pr
                 self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
@@ -774,8 +779,6 @@ class NetworkModel:
             self._groups.invalidate()
         # copies shown by non-owners that have a record of the object; dead reckoning (§3.6.3)
         # evaluated column by column: e = p + v dt (+ a dt^2 / 2) - truth
-        if og is None:
-            og = np.take(self.owner, vo)
         n = len(fi)
         px, py = P[:, 0], P[:, 1]
         if n <= MEASURE_CHUNK:

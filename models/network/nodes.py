@@ -29,6 +29,7 @@ from typing import List, Optional
 import numpy as np
 
 from . import links as lk
+from .arrays import sorted_unique
 from .config import NetworkConfig
 from .ids import node_id
 from .pdu import HEADER, PduType, controller_bytes, record_bytes, report_bytes
@@ -237,13 +238,13 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
             rec_msg.append(idx[inv]), rec_view.append(vg), rec_obj.append(vo)
         else:  # client_server: owner -> server, server -> viewer
             srv = reg.supernode
-            sent = np.unique(vo)
+            sent = sorted_unique(vo)[0]
             n_pub = np.bincount(owner[sent], minlength=G)
             senders = np.flatnonzero((n_pub > 0) & (master >= 0))
             hop1 = np.full(G, -1)
             hop1[senders] = b.add(t, master[senders], srv, WAN, H + n_pub[senders] * rec, PduType.STATE)
             # second hop (-2: leaves when the last first-hop message feeding it has arrived)
-            rg_u, inv = np.unique(vg, return_inverse=True)
+            rg_u, _, inv = sorted_unique(vg)
             cnt = np.bincount(inv, minlength=len(rg_u))
             idx = b.add(t, np.full(len(rg_u), srv), master[rg_u], WAN, H + cnt * rec, PduType.RELAY, -2)
             rec_msg.append(idx[inv]), rec_view.append(vg), rec_obj.append(vo)
@@ -257,7 +258,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
                 idx = b.add(compose, master[sg], sl, LAN, fb, PduType.FRAME)
                 b.add(t, sl, master[sg], LAN, H + rep, PduType.REPORT)
             else:
-                gs = np.unique(sg)
+                gs = sorted_unique(sg)[0]
                 h1 = np.full(G, -1)
                 h1[gs] = b.add(compose, master[gs], reg.supernode, WAN, H + frame_size[gs] * rec, PduType.FRAME)
                 idx = b.add(compose, np.full(len(sl), reg.supernode), sl, WAN, fb, PduType.RELAY, h1[sg])

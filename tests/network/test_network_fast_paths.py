@@ -278,3 +278,26 @@ def test_scalar_kinematics_equal_the_array_code(monkeypatch):
     assert hits["n"] > 3                                                     # walls were hit
     assert (np.diff(np.sign(ref[:, 24::2]), axis=0) != 0).sum() > 20        # entities reflected
     assert ref[:, :8].min() >= 0.0 and ref[:, :8].max() <= S
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 5000])
+def test_sorted_unique_equals_np_unique(n):
+    from immersim.models.network.arrays import sorted_unique
+
+    a = np.random.default_rng(n).integers(-50, 300, n) * (2 ** 33)
+    u, first, inv = sorted_unique(a)
+    ru, rfirst, rinv = np.unique(a, return_index=True, return_inverse=True)
+    assert np.array_equal(u, ru) and np.array_equal(first, rfirst) and np.array_equal(inv, rinv.ravel())
+
+
+def test_unique_values_and_sum_by_key_equal_numpy():
+    from immersim.models.network.arrays import sum_by_key, unique_values
+
+    rng = np.random.default_rng(4)
+    a = rng.integers(0, 400, 3000) * (2 ** 32) + rng.integers(0, 5, 3000)
+    w = rng.choice([-1, 1], 3000)
+    assert np.array_equal(unique_values(a), np.unique(a)) and len(unique_values(a[:0])) == 0
+    u, first, dw = sum_by_key(a, w)
+    ru, rfirst, rinv = np.unique(a, return_index=True, return_inverse=True)
+    assert np.array_equal(u, ru) and np.array_equal(first, rfirst)
+    assert np.array_equal(dw, np.bincount(rinv.ravel(), weights=w).astype(np.int64))
