@@ -122,6 +122,7 @@ def bench_scale(quick: bool):
         times, cpu = np.array(times) * 1e3, np.array(cpu) * 1e3
         res.append(dict(dis_threshold=dis, measure=measure, nodes=cfg.n_render, entities=cfg.entities, init_s=t_init,
                         median_ms=float(np.median(times)), p90_ms=float(np.percentile(times, 90)),
+                        max_ms=float(times.max()), cpu_max_ms=float(cpu.max()),
                         cpu_median_ms=float(np.median(cpu)), load=0.5 * (load0 + os.getloadavg()[0]),
                         mean_ms=float(times.mean()), rt_factor=33.0 / float(np.median(times)),
                         messages=float(np.mean([s.messages for s in out])),
@@ -159,10 +160,10 @@ def bench_campus(quick: bool):
     return res
 
 
-SCALE_COLS = (["dis_threshold", "measure", "nodes", "entities", "init_s", "median_ms", "p90_ms", "mean_ms",
-               "cpu_median_ms", "load", "rt_factor", "messages", "mbytes", "rms"],
-              {"init_s": "{:.2f}", "median_ms": "{:.1f}", "p90_ms": "{:.1f}", "mean_ms": "{:.1f}",
-               "cpu_median_ms": "{:.1f}", "load": "{:.1f}",
+SCALE_COLS = (["dis_threshold", "measure", "nodes", "entities", "init_s", "median_ms", "p90_ms", "max_ms", "mean_ms",
+               "cpu_median_ms", "cpu_max_ms", "load", "rt_factor", "messages", "mbytes", "rms"],
+              {"init_s": "{:.2f}", "median_ms": "{:.1f}", "p90_ms": "{:.1f}", "max_ms": "{:.1f}", "mean_ms": "{:.1f}",
+               "cpu_median_ms": "{:.1f}", "cpu_max_ms": "{:.1f}", "load": "{:.1f}",
                "rt_factor": "{:.2f}", "messages": "{:.0f}", "mbytes": "{:.2f}", "rms": "{:.4f}"})
 CAMPUS_COLS = (["scene", "steps", "median_ms", "p90_ms", "cpu_median_ms", "cpu_mean_ms", "load", "at_rest"],
                {"median_ms": "{:.3f}", "p90_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "cpu_mean_ms": "{:.3f}",
@@ -239,11 +240,7 @@ def main() -> None:
                     {"rms": "{:.4f}", "max": "{:.3f}", "bytes_per_step": "{:.0f}"})
     tr_tab = table(traffic_rows, ["topology", "nodes", "messages", "bytes", "dropped", "rms"],
                    {"messages": "{:.0f}", "bytes": "{:.0f}", "rms": "{:.4f}"})
-    sc_tab = table(scale, ["dis_threshold", "measure", "nodes", "entities", "init_s", "median_ms", "p90_ms", "mean_ms",
-                           "cpu_median_ms", "load", "rt_factor", "messages", "mbytes", "rms"],
-                   {"init_s": "{:.2f}", "median_ms": "{:.1f}", "p90_ms": "{:.1f}", "mean_ms": "{:.1f}",
-                    "cpu_median_ms": "{:.1f}", "load": "{:.1f}",
-                    "rt_factor": "{:.2f}", "messages": "{:.0f}", "mbytes": "{:.2f}", "rms": "{:.4f}"})
+    sc_tab = table(scale, *SCALE_COLS)
     (OUT / "inconsistency_vs_latency.md").write_text(lat_tab)
     (OUT / "traffic_vs_nodes.md").write_text(tr_tab)
     (OUT / "scale.md").write_text(sc_tab)
