@@ -5,6 +5,14 @@ its README and reference output. The FMU packs the script, ``immersim.fmus.commo
 whole ``immersim.models`` package into ``resources/`` so that, at run time, the FMU needs only
 the third-party packages. Builds are incremental: an FMU is rebuilt only when the sha256 of
 its sources (and of the pythonfmu version) changes.
+
+Code isolation: pythonfmu FMUs share the interpreter of the master that loads them, and Python
+imports a module name once per process. So that an FMU always runs the code it was built
+from -- not the ``immersim`` the master imported, nor another build loaded earlier (an
+ablation that swaps a unit for an older FMU of it) -- the packed package is named
+``immersim_<digest>`` and the script ``<unit>_fmu_<digest>`` (12 hex digits of the source
+digest), and the script's ``immersim.`` imports are rewritten to it. Instances of one build
+share their modules; different builds never do.
 """
 from __future__ import annotations
 
@@ -15,6 +23,7 @@ import shutil
 import sys
 import tempfile
 import zipfile
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, List, Optional
@@ -22,6 +31,8 @@ from typing import Iterable, List, Optional
 from .errors import BuildError
 
 log = logging.getLogger(__name__)
+
+LAYOUT = 2  #: archive layout version, part of the build digest (2: per-build package names)
 
 def _models_dir() -> Path:
     import immersim.models  # the installed location, editable or not
@@ -66,7 +77,7 @@ class UnitSources:
     def digest(self) -> str:
         import pythonfmu
 
-        h = hashlib.sha256(f"pythonfmu {pythonfmu.__version__}\n".encode())
+        h = hashlib.sha256(f"pythonfmu {pythonfmu.__version__}\nlayout {LAYOUT}\n".encode())
         for src, arc in sorted(self.files, key=lambda f: str(f[1])):
             h.update(str(arc).encode() + b"\0" + src.read_bytes() + b"\0")
         return h.hexdigest()
@@ -109,14 +120,23 @@ def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: 
     if not force and fmu.exists() and stamp.exists() and stamp.read_text().strip() == digest:
         log.info("unit %s: up to date (%s)", unit_dir.name, fmu)
         return fmu
+    package, script_name = packed_names(unit_dir.name, digest)
     with tempfile.TemporaryDirectory(prefix=f"immersim_build_{unit_dir.name}_") as tmp:
         stage = Path(tmp) / "stage"
         for src, arc in sources.files:
-            target = stage / arc
+            if arc.parts[0] == "immersim":  # the packed package, under its build's own name
+                target = stage / package / Path(*arc.parts[1:])
+            elif src == sources.script:
+                target = stage / script_name
+            else:
+                target = stage / arc
             target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, target)
-        script = stage / sources.script.name
-        extra = [stage / "immersim"] + [stage / arc for _, arc in sources.files[1:] if arc.parent == Path(".")]
+            if arc.parent == Path("."):  # the unit's own scripts: absolute imports of the package
+                target.write_text(_IMPORTS.sub(package + ".", src.read_text()))
+            else:
+                shutil.copy2(src, target)
+        script = stage / script_name
+        extra = [stage / package] + [stage / arc for _, arc in sources.files[1:] if arc.parent == Path(".")]
         out = Path(tmp) / "out"
         # pythonfmu imports the script by module name: keep sys.path and sys.modules clean
         saved_path = list(sys.path)
@@ -127,20 +147,31 @@ def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: 
         finally:
             sys.path[:] = saved_path
             sys.modules.pop(script.stem, None)
+            for name in [m for m in sys.modules if m == package or m.startswith(package + ".")]:
+                del sys.modules[name]  # imported by the build from the stage, which is about to go
         if built.stem != unit_dir.name:
             raise BuildError(
                 f"unit {unit_dir.name}: the wrapper's modelName is {built.stem!r}; it must equal the folder name")
-        _check_archive(built, unit_dir.name)
+        _check_archive(built, unit_dir.name, package, script_name)
         shutil.move(str(built), fmu)
     stamp.write_text(digest + "\n")
     log.info("unit %s: built %s", unit_dir.name, fmu)
     return fmu
 
 
-def _check_archive(fmu: Path, unit: str) -> None:
+_IMPORTS = re.compile(r"\bimmersim\.(?=(?:fmus|models)\b)")
+
+
+def packed_names(unit: str, digest: str) -> tuple:
+    """Names of the packed package and wrapper script of one build (see the module docstring)."""
+    tag = digest[:12]
+    return f"immersim_{tag}", f"{unit}_fmu_{tag}.py"
+
+
+def _check_archive(fmu: Path, unit: str, package: str, script_name: str) -> None:
     with zipfile.ZipFile(fmu) as z:
         names = set(z.namelist())
-    for needed in ("modelDescription.xml", f"resources/{unit}_fmu.py", "resources/immersim/models/__init__.py"):
+    for needed in ("modelDescription.xml", f"resources/{script_name}", f"resources/{package}/models/__init__.py"):
         if needed not in names:
             raise BuildError(f"unit {unit}: built FMU lacks {needed}")
 

@@ -1,5 +1,7 @@
 """The FMU build pipeline: valid FMI 2.0 CS FMUs, incremental builds, several instances,
 the same results in FMPy and in OSP libcosim."""
+import math
+import re
 import shutil
 import zipfile
 
@@ -10,6 +12,7 @@ from fmpy.validation import validate_fmu
 from immersim.orchestrator.build import build_unit
 from immersim.orchestrator.crosscheck import simulate_fmpy, simulate_libcosim
 from immersim.orchestrator.errors import BuildError
+from immersim.orchestrator.execution import run_scenario
 from immersim.orchestrator.fmu import read_model
 
 from ..conftest import TESTS
@@ -26,10 +29,37 @@ def test_validates_and_declares_units(test_fmus):
 
 
 def test_packs_models_so_only_third_party_packages_are_needed(test_fmus):
-    names = zipfile.ZipFile(test_fmus["oscillator"]).namelist()
-    assert "resources/immersim/models/__init__.py" in names
-    assert "resources/immersim/fmus/common/slave.py" in names
+    z = zipfile.ZipFile(test_fmus["oscillator"])
+    names = z.namelist()
+    module = z.read("resources/slavemodule.txt").decode()
+    tag = module.rsplit("_", 1)[1]
+    assert re.fullmatch(r"oscillator_fmu_[0-9a-f]{12}", module) and f"resources/{module}.py" in names
+    assert f"resources/immersim_{tag}/models/__init__.py" in names
+    assert f"resources/immersim_{tag}/fmus/common/slave.py" in names
     assert "binaries/linux64/oscillator.so" in names
+    # the script imports its own packed copy, never the master's immersim
+    script = z.read(f"resources/{module}.py").decode()
+    assert f"from immersim_{tag}.fmus.common import" in script and "from immersim." not in script
+
+
+def test_two_builds_of_a_unit_run_their_own_code_in_one_process(tmp_path, test_fmus):
+    """An ablation that swaps a unit for another build of it: both builds in one run, each with
+    its own code (Python imports a module name once per process; each build has its own)."""
+    unit = tmp_path / "oscillator"
+    shutil.copytree(TESTS / "units" / "oscillator", unit)
+    script = unit / "oscillator_fmu.py"
+    text = script.read_text()
+    assert text.count("w = math.sqrt((k + kc) / m)") == 1  # a changed model: twice the frequency
+    script.write_text(text.replace("w = math.sqrt((k + kc) / m)", "w = 2.0 * math.sqrt((k + kc) / m)"))
+    stiff = build_unit(unit, tmp_path / "stiff")
+    scn = tmp_path / "two.toml"
+    scn.write_text(f'[simulation]\nstop = 0.99\n[[units]]\nname = "soft"\nfmu = "{test_fmus["oscillator"]}"\n'
+                   'parameters = { x0 = 1.0 }\n'
+                   f'[[units]]\nname = "stiff"\nfmu = "{stiff}"\nparameters = {{ x0 = 1.0 }}\n')
+    res = run_scenario(scn, tmp_path / "two.mcap")
+    t = 0.99
+    for name, w in (("soft", math.sqrt(2.0)), ("stiff", 2.0 * math.sqrt(2.0))):  # x_other = 0: x0 cos(w t)
+        assert res.values[name]["x"] == pytest.approx(math.cos(w * t), abs=1e-9)
 
 
 def test_incremental_build(tmp_path):
