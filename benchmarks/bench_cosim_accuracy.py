@@ -123,16 +123,34 @@ def _grid_samples(series: Dict[str, Tuple[np.ndarray, np.ndarray, str]]) -> Dict
     return out
 
 
+def _grid_events(series: Dict[str, Tuple[np.ndarray, np.ndarray, str]]) -> Dict[str, Dict[int, float]]:
+    """Each event signal's largest value over every grid interval ``((k-1) 33 ms, k 33 ms]``,
+    keyed by k: an event shorter than 33 ms (a contact of a few 1 ms steps in the reference) is
+    seen at the grid point that ends its interval."""
+    out = {}
+    for name, (t, v, _unit) in series.items():
+        ns = np.rint(t * 1e9).astype(np.int64)
+        k = -(-ns // GRID_NS)  # ceil
+        d: Dict[int, float] = {}
+        for ki, vi in zip(k.tolist(), np.asarray(v, dtype=float).tolist()):
+            d[ki] = max(d.get(ki, vi), vi)
+        out[name] = d
+    return out
+
+
 def run_one(study: Study, overrides: Dict, tmp: Path, tag: str):
     """Run one variant; return (loop wall s, samples by signal)."""
     mcap = tmp / f"{study.name}_{tag}.mcap"
     res = run_scenario(study.file, mcap, overrides=overrides)
-    patterns = [p for ps in study.groups.values() for p in ps] + (list(study.event) if study.event else [])
-    return res.timing.get("loop", float("nan")), _grid_samples(read_series(mcap, patterns))
+    patterns = [p for ps in study.groups.values() for p in ps]
+    samples = _grid_samples(read_series(mcap, patterns))
+    if study.event:
+        samples.update(_grid_events(read_series(mcap, list(study.event))))
+    return res.timing.get("loop", float("nan")), samples
 
 
 def event_k(study: Study, ref: Dict[str, Dict[int, float]]) -> Optional[int]:
-    """First grid index k at which the study's event signal is set in the reference."""
+    """First grid index k whose interval ((k-1) 33 ms, k 33 ms] holds the study's event in the reference."""
     import fnmatch
 
     if not study.event:
