@@ -8,7 +8,7 @@ machine and the summary tables.
 
 Usage::
 
-    /tmp/venv/bin/python scripts/ablation_report.py [-j 2] [--skip-run]
+    .venv/bin/python scripts/ablation_report.py [-j 2] [--skip-run]
 """
 from __future__ import annotations
 
@@ -82,7 +82,7 @@ def main() -> None:
 
 Command (runs both sweeps and rewrites this file):
 
-    /tmp/venv/bin/python scripts/ablation_report.py -j {args.j}
+    .venv/bin/python scripts/ablation_report.py -j {args.j}
 
 which runs
 
