@@ -82,7 +82,9 @@ def _cmd_info(args: argparse.Namespace) -> int:
                      + (f" ({run.get('reason')})" if run.get("reason") else ""))
     meta = info.metadata.get("immersim", {})
     if meta:
-        lines.append(f"immersim {meta.get('version')}, {meta.get('algorithm')}, step {int(meta.get('step_ns', 0)) / 1e9:g} s")
+        extrap = f" + {meta['extrapolation']}" if meta.get("extrapolation") else ""
+        lines.append(f"immersim {meta.get('version')}, {meta.get('algorithm')}{extrap}, "
+                     f"step {int(meta.get('step_ns', 0)) / 1e9:g} s")
     for topic, ch in info.channels.items():
         span = f"{ch.first_ns / 1e9:.6g} .. {ch.last_ns / 1e9:.6g} s"
         lines.append(f"channel {topic}: {ch.count} messages, {span}, {len(ch.signals)} signals")
@@ -132,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scenario", help="scenario TOML file")
     r.add_argument("-o", "--output", help="MCAP file (default: results/runs/<scenario>.mcap)")
     r.add_argument("--set", action="append", metavar="UNIT.PARAM=VALUE",
-                   help="override a parameter or simulation.stop/step/algorithm (TOML value)")
+                   help="override a parameter or simulation.stop/step/algorithm/extrapolation/lazy (TOML value)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(fn=_cmd_run)
 
