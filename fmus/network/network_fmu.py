@@ -8,7 +8,7 @@ ControllerPackets to the group's master and act when they arrive; collision resp
 """
 import numpy as np
 
-from immersim.fmus.common import TableSlave, Var
+from immersim.fmus.common import OUTPUTS_UNCHANGED, TableSlave, Var
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.config import OWNERSHIP_RULES, TOPOLOGIES
 from immersim.models.network.world import G_ACC
@@ -118,6 +118,9 @@ class network(TableSlave):
             grid=bool(v["grid"]), dis_threshold=v["dis_threshold"], scene_size=v["scene_size"],
             entity_speed=v["entity_speed"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
         self.model = NetworkModel(cfg)
+        self._key = None         # see _output_key
+        self._jolted = True
+        self._slave = 1 if cfg.render_nodes > 1 else 0
         self._names()
         self._write_outputs()
 
@@ -134,45 +137,65 @@ class network(TableSlave):
         self.values.update({f"perceived[{p}].{c}": 0.0 for p in range(G + 1, CAPACITY + 1) for c in "xy"})
         self.values.update({f"entity[{e}].{c}": 0.0 for e in range(E + 1, N_ENTITY_OUT + 1) for c in "xyz"})
 
+    #: skip rewriting the outputs when everything they are computed from is unchanged (tests
+    #: switch this off to compare against writing them every step)
+    SKIP_UNCHANGED = True
+
     def step_model(self, t, h):
         v, m = self.values, self.model
         if v["latency_scale"] < 0:
             raise ValueError(f"{self.instance_name}: input latency_scale = {v['latency_scale']} must be >= 0 (t = {t:g} s)")
         m.latency_scale = v["latency_scale"]
-        m.world.jolt[:] = 0.0
+        w = m.world
+        if self._jolted:
+            w.jolt[:] = 0.0
+            self._jolted = False
         for p, (thr, steer, active, nx, ny) in enumerate(self._in_names):
             m.set_input(p, v[thr], v[steer], t)
             if v[active]:
+                self._jolted = True
                 m.bounce(p, (v[nx], v[ny]))
         m.step(h)
+        key = self._output_key(h)
+        if key == self._key:        # at rest: every output would be written with its old value
+            return OUTPUTS_UNCHANGED
         self._write_outputs(h)
+        self._key = key
+        return None
+
+    def _output_key(self, h):
+        """Everything the outputs are computed from (world arrays, the perceived avatars'
+        frame, the step's metrics, ``at_rest``), as bytes and numbers; equal keys give equal
+        outputs (None when the shortcut is off)."""
+        if not self.SKIP_UNCHANGED:
+            return None
+        m = self.model
+        w, s = m.world, m.metrics
+        return (h, w.apos.tobytes(), w.yaw.tobytes(), w.speed.tobytes(), w.accel.tobytes(), w.yaw_rate.tobytes(),
+                w.jolt.tobytes(), w.epos.tobytes(), m.perceived_key(self._slave),
+                s.inconsistency_max, s.inconsistency_rms, s.desync_frames, s.frame_messages, s.frame_bytes,
+                s.handovers, s.dropped_frames, s.rejected_updates, s.online_nodes, m.at_rest())
 
     def _write_outputs(self, h=None):
         v, m = self.values, self.model
         w = m.world
-        G = m.cfg.groups
-        # one (G, 14) block: x, y, z, yaw, vx, vy, f (3), w (3), jolt, jolt_acc
-        blk = np.zeros((G, len(AVATAR_FIELDS)))
-        blk[:, 0:2] = w.apos
-        blk[:, 3] = w.yaw
-        blk[:, 4:6] = w.avel
-        # specific force (accel, v * yaw rate, g) and angular rate (0, 0, yaw rate), written in place
-        blk[:, 6] = w.accel
-        np.multiply(w.speed, w.yaw_rate, out=blk[:, 7])
-        blk[:, 8] = G_ACC
-        blk[:, 11] = w.yaw_rate
-        blk[:, 12] = w.jolt
-        if h:
-            blk[:, 13] = w.jolt / h
-        v.update(zip(self._avatar_names, blk.ravel().tolist()))
-        slave = 1 if m.cfg.render_nodes > 1 else 0
-        v.update(zip(self._perceived_names, m.perceived_avatars(slave).ravel().tolist()))
+        # per avatar: x, y, z, yaw, vx, vy, specific force (accel, v * yaw rate, g), angular
+        # rate (0, 0, yaw rate), jolt, jolt / h; Python floats (the same products as the arrays')
+        x, y = w.apos[:, 0].tolist(), w.apos[:, 1].tolist()
+        yaw, sp = w.yaw.tolist(), w.speed.tolist()
+        c, s = np.cos(w.yaw).tolist(), np.sin(w.yaw).tolist()
+        acc, yr, jolt = w.accel.tolist(), w.yaw_rate.tolist(), w.jolt.tolist()
+        out = []
+        for i in range(len(yaw)):
+            j = jolt[i]
+            out += (x[i], y[i], 0.0, yaw[i], c[i] * sp[i], s[i] * sp[i], acc[i], sp[i] * yr[i], G_ACC,
+                    0.0, 0.0, yr[i], j, j / h if h else 0.0)
+        v.update(zip(self._avatar_names, out))
+        v.update(zip(self._perceived_names, m.perceived_avatars(self._slave).ravel().tolist()))
         n = len(self._entity_names) // 3
         if n:
-            ent = np.empty((n, 3))
-            ent[:, 0:2] = w.epos[:n]
-            ent[:, 2] = w.ez[:n]
-            v.update(zip(self._entity_names, ent.ravel().tolist()))
+            ex, ey, ez = w.epos[:n, 0].tolist(), w.epos[:n, 1].tolist(), w.ez[:n].tolist()
+            v.update(zip(self._entity_names, [c for e in zip(ex, ey, ez) for c in e]))
         s = m.metrics
         v["inconsistency_max"], v["inconsistency_rms"] = float(s.inconsistency_max), float(s.inconsistency_rms)
         v["desync_frames"] = int(s.desync_frames)
@@ -187,3 +210,5 @@ class network(TableSlave):
 
     def set_model_state(self, state):
         self.model.set_state(state)
+        self._key = None            # the restored outputs are in self.values; rewrite after the next step
+        self._jolted = True

@@ -835,6 +835,14 @@ class NetworkModel:
         frame = max(frame, self.k - HIST + 1)
         return self.hist[frame % HIST, grp].copy()
 
+    def perceived_key(self, node: int) -> tuple:
+        """What :meth:`perceived_avatars` of ``node`` reads: (history slot, group), and the
+        slot's contents as bytes (equal keys, equal positions)."""
+        grp = int(self.reg.group[node])
+        frame = self.k if node == self.master[grp] else int(self.shown_frame[node])
+        frame = max(frame, self.k - HIST + 1)
+        return self.hist[frame % HIST, grp].tobytes()
+
     def at_rest(self) -> bool:
         """Stepping on with unchanged inputs would change no per-frame output.
 

@@ -91,16 +91,32 @@ class World:
 
     def state(self):
         """Positions, velocities, accelerations (G + E, 2) of all objects, avatars first (as
-        :meth:`positions`, :meth:`velocities`, :meth:`accelerations`; one cos/sin of the headings)."""
+        :meth:`positions`, :meth:`velocities`, :meth:`accelerations`; one cos/sin of the headings).
+
+        Written column by column into fresh arrays (the same element-wise operations as
+        :meth:`aacc` and :meth:`eacc`, without ``np.stack``/``np.concatenate``)."""
         c, s = np.cos(self.yaw), np.sin(self.yaw)
-        G = len(c)
-        av = np.empty((G, 2))
-        np.multiply(c, self.speed, out=av[:, 0])
-        np.multiply(s, self.speed, out=av[:, 1])
-        lat = self.speed * self.yaw_rate
-        aa = np.stack((self.accel * c - lat * s, self.accel * s + lat * c), axis=1)
-        return (np.concatenate([self.apos, self.epos]), np.concatenate([av, self.evel]),
-                np.concatenate([aa, self.eacc()]))
+        G, E = len(c), len(self.evel)
+        n = G + E
+        P, V, A = np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2))
+        P[:G] = self.apos
+        P[G:] = self.epos
+        sp = self.speed
+        np.multiply(c, sp, out=V[:G, 0])
+        np.multiply(s, sp, out=V[:G, 1])
+        V[G:] = self.evel
+        lat = sp * self.yaw_rate
+        acc = self.accel
+        np.subtract(acc * c, lat * s, out=A[:G, 0])
+        np.add(acc * s, lat * c, out=A[:G, 1])
+        if E:
+            v = self.evel
+            vx, vy = v[:, 0], v[:, 1]
+            drag = self.cfg.entity_drag
+            # eturn * (-vy) - drag vx, eturn * vx - drag vy (eacc, element by element)
+            np.subtract(self.eturn * -vy, drag * vx, out=A[G:, 0])
+            np.subtract(self.eturn * vx, drag * vy, out=A[G:, 1])
+        return P, V, A
 
     def specific_force(self) -> np.ndarray:
         """Body-frame specific force of every avatar (G, 3), m/s^2, gravity included on z."""
