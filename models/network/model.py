@@ -145,7 +145,10 @@ class NetworkModel:
         self.overlay: Optional[PastryOverlay] = None
         self.join_hops: List[int] = []
         self._iv = [0, 0]                # messages, bytes since the last frame (heartbeats excluded)
-        self._msg_memo: Optional[tuple] = None   # (inputs, Traffic, compose mask) of the last small frame
+        self._msg_memo: Optional[dict] = None    # the last small frame's messages (see _messages)
+        self._og_memo: Optional[tuple] = None    # (epoch, view, owner of each view pair)
+        self._owner_snap: Optional[tuple] = None  # (epoch, copy of the owners): senders of filed records
+        self._group_version = 0                  # bumped whenever a group's master or slaves are set
         self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs) of the last frame
         self._segments: Optional[tuple] = None   # (vo, per-object runs of vo)
         self._view_hit = False
@@ -237,6 +240,7 @@ class NetworkModel:
         rows = self.supernode.group(self.reg.identify[g])
         nodes = np.array([r.node for r in rows], np.int64)
         old = self.master[g]
+        self._group_version += 1
         self.master[g] = nodes[0] if len(nodes) else -1
         self.slaves[g] = nodes[1:]
         self.shown_frame[nodes[1:]] = np.minimum(self.shown_frame[nodes[1:]], self.k) if len(nodes) > 1 else 0
@@ -473,20 +477,22 @@ class NetworkModel:
         self.metrics.published += len(pub_obj)
         # 4. messages by topology, link sampling
         cells = self.grid.cell(P)
-        vo, vg, fi, frame_size = self._view(cells, online_g)
-        og = np.take(self.owner, vo)
+        view = self._view(cells, online_g)
+        vo, vg, fi, frame_size = view
+        og = self._view_owners(view)
+        newly = None                     # None: nobody entered a view this frame
         if cfg.topology == "full_mesh":  # a broadcast subscribes everyone to everything
-            newly = np.zeros(len(vg), bool)
+            pass
         elif self._view_hit:             # same cells and viewers as the last frame: nobody entered
-            newly = np.zeros(len(vg), bool)
             self._view_prev = (cells, online_g)
         else:
             newly = self._entered(cells, online_g, vg, vo)
             if newly.any():
                 self.cache[fi[newly], self.enter_col] = t
+            else:
+                newly = None
             self._view_prev = (cells, online_g)
-        send_pair = pub[vo] | newly
-        tr = self._messages(t, pub_obj, vg, vo, frame_size, send_pair, og)
+        tr, memo = self._messages(t, pub, pub_obj, view, newly, og)
         arrival, lost = self._transmit(tr)
         if len(tr.rec_msg):
             # the frame at which each record is due is its message's (-1: the message, or the
@@ -498,13 +504,26 @@ class NetworkModel:
                 hop = tr.rec_hop1
                 due[(hop >= 0) & np.take(lost, np.maximum(hop, 0))] = -1
             # one record table per frame (objects x cache width, rows like the cache's); pairs
-            # refer to it by object
+            # refer to it by object; the senders are the owners now (one snapshot per epoch)
             table = self._table(self._obj_ids, t, P, V, A)
-            self._file(due, self.index(tr.rec_viewer, tr.rec_obj), self.owner.copy(), table, tr.rec_obj)
+            if memo is None or memo.get("rec_fi") is None:
+                rec_fi = self.index(tr.rec_viewer, tr.rec_obj)
+                if memo is not None:
+                    memo["rec_fi"] = rec_fi
+            else:
+                rec_fi = memo["rec_fi"]
+            snap = self._owner_snap
+            if snap is None or snap[0] != self._epoch:
+                snap = self._owner_snap = (self._epoch, self.owner.copy())
+            self._file(due, rec_fi, snap[1], table, tr.rec_obj)
         if len(tr.frame_msg):
             f_arr = np.where(lost[tr.frame_msg], np.inf, arrival[tr.frame_msg])
-            for key, val in (("arr", f_arr), ("slave", tr.frame_slave), ("frame", np.full(len(f_arr), self.k + 1))):
-                self._frames[key] = np.concatenate([self._frames[key], val])
+            fr = self._frames
+            if len(fr["arr"]):
+                for key, val in (("arr", f_arr), ("slave", tr.frame_slave), ("frame", np.full(len(f_arr), self.k + 1))):
+                    fr[key] = np.concatenate([fr[key], val])
+            else:   # the usual case: every earlier FRAME has flipped
+                self._frames = {"arr": f_arr, "slave": tr.frame_slave, "frame": np.full(len(f_arr), self.k + 1)}
         # 5. deliveries up to now, slave frame flips (§3.5.2)
         self._deliver(t)
         self._flip_frames(t)
@@ -513,28 +532,60 @@ class NetworkModel:
         self._frame_traffic = (self._iv[0], self._iv[1])
         self._iv = [0, 0]
 
-    def _messages(self, t: float, pub_obj, vg, vo, frame_size, send_pair, og) -> Traffic:
-        """This frame's messages (:func:`nodes.build_messages`) with their :class:`TrafficPlan`.
+    def _messages(self, t: float, pub: np.ndarray, pub_obj: np.ndarray, view: tuple, newly: Optional[np.ndarray],
+                  og: np.ndarray):
+        """This frame's messages (:func:`nodes.build_messages`) with their :class:`TrafficPlan`,
+        and the memo entry (a dict, or None) they came from.
 
         In small scenes (at most ``MEMO_PAIRS`` view pairs) the messages of the last frame are
         reused when every input but the time is the same (groups, owners, publications,
         view pairs): only the send times, ``t`` or ``t`` plus the composition time, differ.
+        Without DIS and with nobody entering a view, those inputs are functions of the
+        groups (``_group_version``), the owners (``_epoch``) and the view pairs (the object
+        ``view``), so the memo is found without comparing arrays.
         """
         cfg = self.cfg
-        key = None
+        vo, vg, fi, frame_size = view
+        memo = self._msg_memo
+        fast = None
         if len(vg) <= MEMO_PAIRS:
+            if cfg.dis_threshold <= 0 and newly is None:
+                fast = (self._group_version, self._epoch)
+                if memo is not None and memo["fast"] == fast and memo["view"] is view:
+                    return self._resend(memo, t), memo
+            send_pair = pub[vo] if newly is None else pub[vo] | newly
             key = (self.master.tobytes(), tuple(s.tobytes() for s in self.slaves), pub_obj.tobytes(),
                    self.owner.tobytes(), vg.tobytes(), vo.tobytes(), send_pair.tobytes(), og.tobytes())
-            memo = self._msg_memo
-            if memo is not None and memo[0] == key:
-                tr, is_compose = memo[1], memo[2]
-                return replace(tr, send_t=np.where(is_compose, t + cfg.compose_ms * 1e-3, t))
+            if memo is not None and memo["key"] == key:
+                memo["fast"], memo["view"] = fast, view
+                return self._resend(memo, t), memo
+        else:
+            send_pair = pub[vo] if newly is None else pub[vo] | newly
         tr = build_messages(cfg, self.reg, t, self.master, self.slaves, pub_obj, self.owner, vg, vo, frame_size,
                             send_pair, og)
         tr.plan = TrafficPlan(tr, cfg.links)
-        if key is not None:
-            self._msg_memo = (key, tr, tr.send_t != t)
+        if fast is None and len(vg) > MEMO_PAIRS:
+            return tr, None
+        # send times of a reuse: t + (composition time or 0), the same sums as build_messages's
+        delay = np.where(tr.send_t != t, cfg.compose_ms * 1e-3, 0.0)
+        self._msg_memo = memo = {"key": key, "fast": fast, "view": view, "tr": tr, "delay": delay}
+        return tr, memo
+
+    @staticmethod
+    def _resend(memo: dict, t: float) -> Traffic:
+        """The memo's messages sent at ``t`` (the memo's Traffic, its send times replaced)."""
+        tr = memo["tr"]
+        tr.send_t = t + memo["delay"]
         return tr
+
+    def _view_owners(self, view: tuple) -> np.ndarray:
+        """Owner of the object of each view pair (kept while the view and the owners stay)."""
+        memo = self._og_memo
+        if memo is not None and memo[0] == self._epoch and memo[1] is view:
+            return memo[2]
+        og = np.take(self.owner, view[0])
+        self._og_memo = (self._epoch, view, og)
+        return og
 
     def _view(self, cells: np.ndarray, online_g: np.ndarray):
         """(viewer, object) pairs of the 9-cell neighbourhoods of the online groups (§3.3): object
@@ -722,8 +773,12 @@ class NetworkModel:
             return
         on_time = due & (fr["arr"] <= t + 1e-12) & (fr["frame"] == self.k)
         self.shown_frame[fr["slave"][on_time]] = self.k
-        self.metrics.dropped_frames += int((due & ~on_time).sum())
-        self._frames = {k: v[~due] for k, v in fr.items()}
+        n_due = int(np.count_nonzero(due))
+        self.metrics.dropped_frames += n_due - int(np.count_nonzero(on_time))
+        if n_due == len(due):   # every pending frame flipped or dropped (the usual case)
+            self._frames = {k: v[:0] for k, v in fr.items()}
+        else:
+            self._frames = {k: v[~due] for k, v in fr.items()}
 
     # -- display ----------------------------------------------------------------------------------
     def _display(self, vg: Optional[np.ndarray] = None, vo: Optional[np.ndarray] = None,
