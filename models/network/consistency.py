@@ -5,6 +5,7 @@ timing); here are the pure, vectorised pieces.
 """
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 from typing import Tuple
 
@@ -182,6 +183,11 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     """
     if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
         return current
+    if etree is None and len(avatar_pos) * len(entity_pos) <= SCALAR_PAIRS and avatar_pos.shape[1] == 2:
+        out = _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, frame_s, scale, min_axis,
+                                    foci)
+        if out is not None:
+            return out
     a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis, foci)
     centre = avatar_pos + shift if rule == "mahalanobis" else avatar_pos
     if etree is None and len(centre) * len(entity_pos) <= BRUTE_FORCE_PAIRS:
@@ -214,6 +220,73 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
         first = np.ones(len(ei), bool)
         first[1:] = ei[1:] != ei[:-1]
         out[ei[first]] = gi[first]
+    return out
+
+
+#: up to this many (avatar, entity) pairs :func:`assign_owners` runs in Python floats
+SCALAR_PAIRS = 256
+
+
+def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, frame_s, scale, min_axis, foci):
+    """:func:`assign_owners` for a few 2-D avatars and entities in Python floats (eq. 3-6,
+    3-11/3-12, 3-3): the same operations in the same order as :func:`ellipsoid_axes` and
+    :func:`mahalanobis_ellipsoid` (IEEE double either way: squares as products, square roots
+    correctly rounded), the winner of each entity the lowest (distance, avatar). None for a
+    degenerate ellipsoid (``a = 0`` or ``b = 0``: the array code's NaN/inf semantics)."""
+    ax, ay = avatar_pos[:, 0].tolist(), avatar_pos[:, 1].tolist()
+    vx, vy = avatar_vel[:, 0].tolist(), avatar_vel[:, 1].tolist()
+    cx, cy, ux, uy, a2, b2, reach = [], [], [], [], [], [], []
+    for i in range(len(ax)):
+        speed = math.sqrt(vx[i] * vx[i] + vy[i] * vy[i])
+        D = speed * frame_s
+        a = max(D * scale, min_axis)
+        focal = D * scale if foci == "reach" else D
+        hf = 0.5 * focal
+        b2_i = a * a - hf * hf
+        if not (a > 0.0 and b2_i > 0.0 and math.isfinite(a)):   # degenerate ellipsoid: the array code
+            return None
+        b = math.sqrt(b2_i)
+        if speed > 0:
+            u0, u1 = vx[i] / speed, vy[i] / speed
+        else:
+            u0, u1 = 1.0, 0.0
+        if rule == "mahalanobis":
+            cx.append(ax[i] + hf * u0)
+            cy.append(ay[i] + hf * u1)
+        else:
+            cx.append(ax[i])
+            cy.append(ay[i])
+        ux.append(u0)
+        uy.append(u1)
+        a2.append(a * a)
+        b2.append(b * b)
+        reach.append(a)
+    out = current.copy()
+    ex, ey = entity_pos[:, 0].tolist(), entity_pos[:, 1].tolist()
+    G = len(cx)
+    maha = rule == "mahalanobis"
+    for j in range(len(ex)):
+        best, who = None, -1
+        x, y = ex[j], ey[j]
+        for i in range(G):
+            rx, ry = x - cx[i], y - cy[i]
+            if maha:
+                along = rx * ux[i] + ry * uy[i]
+                al2 = along * along
+                perp2 = rx * rx + ry * ry - al2
+                if perp2 < 0.0:
+                    perp2 = 0.0
+                d = math.sqrt(al2 / a2[i] + perp2 / b2[i])
+                if not d <= 1.0:     # (NaN too, like the array test)
+                    continue
+            else:
+                d = math.sqrt(rx * rx + ry * ry)
+                if not d <= reach[i]:
+                    continue
+            if best is None or d < best:
+                best, who = d, i
+        if who >= 0:
+            out[j] = who
     return out
 
 

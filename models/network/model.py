@@ -149,6 +149,9 @@ class NetworkModel:
         self._og_memo: Optional[tuple] = None    # (epoch, view, owner of each view pair)
         self._owner_snap: Optional[tuple] = None  # (epoch, copy of the owners): senders of filed records
         self._group_version = 0                  # bumped whenever a group's master or slaves are set
+        self._slaves_memo: Optional[tuple] = None  # (group version, slave nodes, arange(G))
+        self._pub_memo: Optional[tuple] = None     # ((group version, epoch), published mask, objects)
+        self._entity_ids = np.arange(G, self.n_obj)
         self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs) of the last frame
         self._segments: Optional[tuple] = None   # (vo, per-object runs of vo)
         self._view_hit = False
@@ -454,23 +457,31 @@ class NetworkModel:
         if cfg.ownership != "none" and cfg.entities:
             cand = np.flatnonzero(online_g)
             cur = self.owner[G:]
-            cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
-            new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
-                                      cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci,
-                                      etree)  # contacts change velocities, not positions: the tree holds
-            claimed = new_local != cur_local
-            new = cur.copy()
-            new[claimed] = cand[new_local[claimed]]
-            self._handover(np.arange(G, self.n_obj), new)
+            if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
+                new = assign_owners(cfg.ownership, w.apos, V[:G], w.epos, cur, cfg.frame_s, cfg.ownership_scale,
+                                    cfg.ownership_min_axis, cfg.ownership_foci, etree)
+            else:
+                cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
+                new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
+                                          cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis,
+                                          cfg.ownership_foci, etree)  # contacts change velocities, not positions
+                claimed = new_local != cur_local
+                new = cur.copy()
+                new[claimed] = cand[new_local[claimed]]
+            self._handover(self._entity_ids, new)
         # 3. publishing: every frame, or DIS threshold / heartbeat
-        has_owner = online_g[self.owner]
         if cfg.dis_threshold > 0:
+            has_owner = online_g[self.owner]
             pred = dead_reckon(self.pub_p, self.pub_v, self.pub_a, t - self.pub_t, cfg.prediction_order)
             err = np.hypot(*(pred - P).T)
             pub = has_owner & ((err > cfg.dis_threshold) | (t - self.pub_t >= cfg.dis_heartbeat_s))
-        else:
-            pub = has_owner
-        pub_obj = np.flatnonzero(pub)
+            pub_obj = np.flatnonzero(pub)
+        else:   # every object with an online owner (kept while groups and owners stay)
+            memo = self._pub_memo
+            if memo is None or memo[0] != (self._group_version, self._epoch):
+                pub = online_g[self.owner]
+                memo = self._pub_memo = ((self._group_version, self._epoch), pub, np.flatnonzero(pub))
+            pub, pub_obj = memo[1], memo[2]
         if cfg.dis_threshold > 0:   # what the owner last published: read by the DIS test only
             self.pub_t[pub_obj] = t
             self.pub_p[pub_obj], self.pub_v[pub_obj], self.pub_a[pub_obj] = P[pub_obj], V[pub_obj], A[pub_obj]
@@ -799,13 +810,22 @@ class NetworkModel:
             self._measure(t, P, vg, vo, fi, og, cells, online_g)
         # displayed avatars at every master (for slaves showing an older frame)
         blk = self.cache[:G * G]                  # avatars are objects 0..G-1: object-major block
-        av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL],
-                         cfg.prediction_order).reshape(G, G, 2).transpose(1, 0, 2)
-        av[np.arange(G), np.arange(G)] = P[:G]
-        self.hist[self.k % HIST] = av
-        sl = np.concatenate([s for s in self.slaves if len(s)]) if any(len(s) for s in self.slaves) else np.zeros(0, int)
+        av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
+        slot = self.hist[self.k % HIST]
+        slot[...] = av.reshape(G, G, 2).transpose(1, 0, 2)
+        sl, diag = self._slave_nodes()
+        slot[diag, diag] = P[:G]                  # a master shows its own avatar as it is
         if len(sl):
-            self.metrics.desync_frames = max(self.metrics.desync_frames, int((self.k - self.shown_frame[sl]).max()))
+            self.metrics.desync_frames = max(self.metrics.desync_frames, self.k - int(self.shown_frame[sl].min()))
+
+    def _slave_nodes(self):
+        """Every slave render node (k,) and ``arange(G)``, kept while the groups stay."""
+        memo = self._slaves_memo
+        if memo is None or memo[0] != self._group_version:
+            sl = (np.concatenate([s for s in self.slaves if len(s)]) if any(len(s) for s in self.slaves)
+                  else np.zeros(0, int))
+            memo = self._slaves_memo = (self._group_version, sl, np.arange(self.cfg.groups))
+        return memo[1], memo[2]
 
     def _measure(self, t, P, vg, vo, fi, og, cells, online_g) -> None:
         """Display error of every remote copy at frame time ``t`` (eq. 3-1/3-2).
