@@ -79,6 +79,12 @@ class BackendConfig:
         which cannot tunnel, get the time of impact from the distances at both ends of the step.
     max_contacts : int
         fcl: contacts requested per narrow-phase collision (deepest one is reported).
+    chunk_faces : int
+        fcl: exact distances against a mesh of at least ``CHUNK_MIN_FACES`` (1024) triangles
+        are computed chunk by chunk (pieces of at most ``chunk_faces`` triangles, each its own
+        BVH, visited in the order of a lower bound and pruned by it: exact, far fewer
+        triangle pairs where large flat faces are nearest); 0: one whole-mesh BVH query
+        (the mesh path).
     st : float
         basis_point: sampling threshold ST of eq. 5-8..5-11 (0.05 in the thesis).
     dn_rule : {'strict', 'floor'}
@@ -98,6 +104,7 @@ class BackendConfig:
     ccd: bool = True
     ccd_fast: float = 0.5
     max_contacts: int = 32
+    chunk_faces: int = 32
     st: float = 0.05
     dn_rule: str = "strict"
     cells_n: int = 8
@@ -120,6 +127,8 @@ class BackendConfig:
             raise ValueError("need 0 < shrink_step <= shrink_ratio < 1")
         if self.honeycomb_axes not in ("all", "separating"):
             raise ValueError(f"honeycomb_axes = {self.honeycomb_axes!r} must be 'all' or 'separating'")
+        if self.chunk_faces < 0:
+            raise ValueError(f"chunk_faces = {self.chunk_faces} must be >= 0")
         if self.rays_per_cell < 1:
             raise ValueError(f"rays_per_cell = {self.rays_per_cell} must be >= 1")
 

@@ -36,6 +36,7 @@ import fcl
 import numpy as np
 
 from .backend import CollisionBackend, PairResult, PairSpec, aggregate
+from .chunks import CHUNK_MIN_FACES, ChunkedMesh, chunk_lower_bounds, chunked_distance
 from .geometry import rotation_angle, slerp_pose
 
 log = logging.getLogger(__name__)
@@ -114,6 +115,19 @@ class FclBackend(CollisionBackend):
         self._frame_corners = [np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
                                          for i in (0, 1) for j in (0, 1) for k in (0, 1)])
                                for lo, hi in self._frame_box]
+        # chunked exact distances (module docstring): the chunks of each large mesh, built once
+        self._chunked: Dict[str, ChunkedMesh] = {}
+        if self.config.chunk_faces > 0:
+            for key, m in self.scene.meshes.items():
+                if len(m.faces) >= CHUNK_MIN_FACES:
+                    self._chunked[key] = ChunkedMesh(m.vertices, m.faces, self.config.chunk_faces)
+        self._body_chunks = [self._chunked.get(b.mesh_key) for b in self.scene.bodies]
+        # the other side of the chunk bound: each body's hull vertices and local AABB
+        self._hull = [self._local[b.mesh_key][0] for b in self.scene.bodies]
+        self._box_c = [(lo + hi) / 2 for lo, hi in self._frame_box]
+        self._box_h = [(hi - lo) / 2 for lo, hi in self._frame_box]
+        self._tf_version = [0] * self.n  # bumped when a body moves: tags its chunks' transform
+        self._tf_cache: Dict[int, tuple] = {}
         self._unrotated = [not self.is_dynamic[i] and bool((self.T[i, :3, :3] == np.eye(3)).all())
                            for i in range(self.n)]
         self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
@@ -137,9 +151,18 @@ class FclBackend(CollisionBackend):
         return on_overlap
 
     def _moved(self, idx: np.ndarray) -> None:
-        stale = self._fcl_stale
+        stale, version = self._fcl_stale, self._tf_version
         for i in idx.tolist():
             stale[i] = True
+            version[i] += 1
+
+    def _chunk_tf(self, i: int) -> Tuple[tuple, "fcl.Transform"]:
+        """The tag (body, transform version) and fcl transform of body ``i`` for its chunks."""
+        tag = (i, self._tf_version[i])
+        cached = self._tf_cache.get(i)
+        if cached is None or cached[0] != tag:
+            cached = self._tf_cache[i] = (tag, fcl_transform(self.T[i]))
+        return cached
 
     def _sync(self, bodies: List[int]) -> None:
         """Set the fcl transforms of ``bodies`` that moved since theirs was last set."""
@@ -217,17 +240,20 @@ class FclBackend(CollisionBackend):
         if (self._gap(a, b) >= before or self._bound(a, b) >= before
                 or self._frame_gap(a, b) >= before + self.FRAME_GAP_MARGIN):
             return False
-        if self._faces[a] > self._faces[b]:  # the larger BVH first: fcl's traversal is cheaper
-            d = fcl.distance(self.objs[a], self.objs[b], self._dreq, res)
-            self._exact[(a, b)] = (d, self.T[a].copy(), self.T[b].copy())
-            if res.min_distance < before:
-                self._a_first = True
-                return True
-            return False
-        d = fcl.distance(self.objs[b], self.objs[a], self._dreq, res)  # member first (see _collide)
+        # the larger BVH first: fcl's traversal is cheaper (member first otherwise, see _collide)
+        a_first = bool(self._faces[a] > self._faces[b])
+        big, small = (a, b) if a_first else (b, a)
+        chunks = self._body_chunks[big]
+        if chunks is None:
+            d = fcl.distance(self.objs[big], self.objs[small], self._dreq, res)
+        else:  # the same triangle pairs, chunk by chunk (module docstring of .chunks)
+            lb = chunk_lower_bounds(chunks, self.T[big], self.T[small], self._hull[small], self._box_c[small],
+                                    self._box_h[small])
+            tag, tf = self._chunk_tf(big)
+            d = chunked_distance(chunks, tag, tf, lb, self.objs[small], True, self._dreq, res)
         self._exact[(a, b)] = (d, self.T[a].copy(), self.T[b].copy())
         if res.min_distance < before:
-            self._a_first = False
+            self._a_first = a_first
             return True
         return False
 
@@ -423,13 +449,25 @@ class FclBackend(CollisionBackend):
         oa = fcl.CollisionObject(self.geoms[self.scene.bodies[a].mesh_key], fcl_transform(A0))
         ob = fcl.CollisionObject(self.geoms[self.scene.bodies[b].mesh_key], fcl_transform(B0))
         req = fcl.DistanceRequest()
+        # a static chunked partner: its chunks at its (fixed) pose, a's pose interpolated
+        chunks = self._body_chunks[b] if not self.is_dynamic[b] else None
+        if chunks is not None:
+            tag, tf = self._chunk_tf(b)
+            hull, box_c, box_h = self._hull[a], self._box_c[a], self._box_h[a]
+        TA = A0
         s = 0.0
         for it in range(200):
             if it == 0 and d0 is not None:
                 d = d0
             else:
                 counts[1] += 1
-                d = fcl.distance(oa, ob, req, fcl.DistanceResult())
+                if chunks is None:
+                    d = fcl.distance(oa, ob, req, fcl.DistanceResult())
+                else:
+                    lb = chunk_lower_bounds(chunks, B1, TA, hull, box_c, box_h)
+                    res = fcl.DistanceResult()
+                    chunked_distance(chunks, tag, tf, lb, oa, False, req, res)
+                    d = res.min_distance
             if d <= self.toi_tol:
                 return s
             if mu <= 0:
@@ -437,6 +475,8 @@ class FclBackend(CollisionBackend):
             s += d / mu
             if s > s_max:
                 return None
-            oa.setTransform(fcl_transform(slerp_pose(A0, A1, s)))
-            ob.setTransform(fcl_transform(slerp_pose(B0, B1, s)))
+            TA = slerp_pose(A0, A1, s)
+            oa.setTransform(fcl_transform(TA))
+            if chunks is None:
+                ob.setTransform(fcl_transform(slerp_pose(B0, B1, s)))
         return s
