@@ -156,17 +156,18 @@ class network(TableSlave):
                 self._jolted = True
                 m.bounce(p, (v[nx], v[ny]))
         m.step(h)
-        key = self._output_key(h)
-        if key == self._key:        # at rest: every output would be written with its old value
+        rest = m.at_rest()
+        key = self._output_key(h, rest) if rest else None
+        if key is not None and key == self._key:   # at rest: every output would get its old value
             return OUTPUTS_UNCHANGED
-        self._write_outputs(h)
+        self._write_outputs(h, rest)
         self._key = key
         return None
 
-    def _output_key(self, h):
+    def _output_key(self, h, rest):
         """Everything the outputs are computed from (world arrays, the perceived avatars'
         frame, the step's metrics, ``at_rest``), as bytes and numbers; equal keys give equal
-        outputs (None when the shortcut is off)."""
+        outputs (None when the shortcut is off). Only taken at rest, where it may repeat."""
         if not self.SKIP_UNCHANGED:
             return None
         m = self.model
@@ -174,9 +175,9 @@ class network(TableSlave):
         return (h, w.apos.tobytes(), w.yaw.tobytes(), w.speed.tobytes(), w.accel.tobytes(), w.yaw_rate.tobytes(),
                 w.jolt.tobytes(), w.epos.tobytes(), m.perceived_key(self._slave),
                 s.inconsistency_max, s.inconsistency_rms, s.desync_frames, s.frame_messages, s.frame_bytes,
-                s.handovers, s.dropped_frames, s.rejected_updates, s.online_nodes, m.at_rest())
+                s.handovers, s.dropped_frames, s.rejected_updates, s.online_nodes, rest)
 
-    def _write_outputs(self, h=None):
+    def _write_outputs(self, h=None, rest=None):
         v, m = self.values, self.model
         w = m.world
         # per avatar: x, y, z, yaw, vx, vy, specific force (accel, v * yaw rate, g), angular
@@ -203,7 +204,7 @@ class network(TableSlave):
         v["handovers"], v["dropped_frames"] = int(s.handovers), int(s.dropped_frames)
         v["rejected_updates"] = int(s.rejected_updates)
         v["online_nodes"] = int(s.online_nodes)
-        v["at_rest"] = bool(m.at_rest())
+        v["at_rest"] = bool(m.at_rest() if rest is None else rest)
 
     def get_model_state(self):
         return self.model.get_state()

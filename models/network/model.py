@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import heapq
+import math
 import logging
 from dataclasses import replace
 from typing import Dict, List, Optional
@@ -46,6 +47,8 @@ T_COL = 0  # cache row: record time, then p, v, a as the prediction order uses t
 PENDING = frozenset(("input", "impulse", "join", "leave"))
 MEMO_PAIRS = 4096  # at most this many view pairs: a frame's messages may be reused (see _messages)
 MEASURE_CHUNK = 16384   # copies per chunk of the per-copy display error (fits a core's cache)
+SCALAR_VIEW = 64        # at most this many view pairs: the display error in Python floats
+SMALL_VIEW = 256        # at most this many view pairs: the display error on (k, 2) blocks
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
 
 
@@ -150,6 +153,8 @@ class NetworkModel:
         self._owner_snap: Optional[tuple] = None  # (epoch, copy of the owners): senders of filed records
         self._group_version = 0                  # bumped whenever a group's master or slaves are set
         self._slaves_memo: Optional[tuple] = None  # (group version, slave nodes, arange(G))
+        self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, their lists)
+        self._not_own_memo: Optional[tuple] = None  # (view owners, viewers, owner != viewer)
         self._pub_memo: Optional[tuple] = None     # ((group version, epoch), published mask, objects)
         self._entity_ids = np.arange(G, self.n_obj)
         self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs) of the last frame
@@ -778,7 +783,26 @@ class NetworkModel:
         return newly
 
     def _flip_frames(self, t: float) -> None:
+        """Slaves whose FRAME for this tick has arrived by ``t`` show it; late ones are dropped
+        (§3.5.2). Pending FRAMEs due later stay."""
         fr = self._frames
+        if len(fr["arr"]) <= 64:    # a few slaves: in Python (the same comparisons)
+            k = self.k
+            frames = fr["frame"].tolist()
+            if not frames or min(frames) > k:
+                return
+            lim = t + 1e-12
+            show = [sl for a, f, sl in zip(fr["arr"].tolist(), frames, fr["slave"].tolist()) if f == k and a <= lim]
+            if show:
+                self.shown_frame[show] = k
+            n_due = sum(f <= k for f in frames)
+            self.metrics.dropped_frames += n_due - len(show)
+            if n_due == len(frames):
+                self._frames = {key: v[:0] for key, v in fr.items()}
+            else:
+                keep = np.array([f > k for f in frames])
+                self._frames = {key: v[keep] for key, v in fr.items()}
+            return
         due = fr["frame"] <= self.k
         if not due.any():
             return
@@ -855,8 +879,12 @@ class NetworkModel:
         # copies shown by non-owners that have a record of the object; dead reckoning (§3.6.3)
         # evaluated column by column: e = p + v dt (+ a dt^2 / 2) - truth
         n = len(fi)
+        if n <= SCALAR_VIEW:
+            return self._measure_scalar(t, P, vo, vg, fi, og)
         px, py = P[:, 0], P[:, 1]
-        if n <= MEASURE_CHUNK:
+        if n <= SMALL_VIEW:
+            err2, remote = self._copy_errors_small(t, fi, vo, vg, og, P)
+        elif n <= MEASURE_CHUNK:
             err2, remote = self._copy_errors(t, fi, vo, vg, og, px, py)
         else:
             # in chunks that stay in the CPU cache: one row (cache line) gathered per copy,
@@ -871,6 +899,77 @@ class NetworkModel:
         self.per_object_max, self.per_object_rms = pm, pr
         self.metrics.inconsistency_max = max(self.metrics.inconsistency_max, mx)
         self.metrics.inconsistency_rms = rms
+
+    def _measure_scalar(self, t, P, vo, vg, fi, og) -> None:
+        """:meth:`_measure` of a view of a few copies in Python floats: eq. 3-1/3-2 with the
+        dead reckoning of §3.6.3 (the operations of :meth:`_copy_errors` and
+        :func:`metrics.inconsistency_sq` in the same order; the total is numpy's sum of the
+        same squared errors)."""
+        memo = self._scalar_view_memo
+        if memo is None or memo[0] is not og or memo[1] is not vo:
+            memo = self._scalar_view_memo = (og, vo, vo.tolist(), (og != vg).tolist())
+        objs, not_own = memo[2], memo[3]
+        order, enter = self.cfg.prediction_order, self.enter_col
+        rows = np.take(self.cache, fi, axis=0).tolist()
+        pos = P.tolist()
+        n_obj = self.n_obj
+        per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
+        err2 = []
+        n_valid = 0
+        for c, o, no in zip(rows, objs, not_own):
+            ct = c[0]
+            if not (no and ct >= c[enter] - 1e-12):   # not a remote copy with a record: counts as 0
+                e = 0.0
+            else:
+                n_valid += 1
+                cnt[o] += 1
+                p = pos[o]
+                ex = c[1] - p[0]
+                ey = c[2] - p[1]
+                if order >= 1:
+                    dt = t - ct
+                    ex += c[3] * dt
+                    ey += c[4] * dt
+                    if order >= 2:
+                        h = 0.5 * dt * dt
+                        ex += c[5] * h
+                        ey += c[6] * h
+                e = ex * ex + ey * ey
+            err2.append(e)
+            s2[o] += e
+            if e > per_max[o]:
+                per_max[o] = e
+        m = self.metrics
+        if n_valid == 0:
+            self.per_object_max, self.per_object_rms = np.zeros(n_obj), np.zeros(n_obj)
+            m.inconsistency_max = max(m.inconsistency_max, 0.0)
+            m.inconsistency_rms = 0.0
+            return
+        sqrt = math.sqrt
+        self.per_object_max = np.array([sqrt(x) for x in per_max])
+        self.per_object_rms = np.array([sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
+        m.inconsistency_max = max(m.inconsistency_max, sqrt(max(err2)))
+        m.inconsistency_rms = sqrt(float(np.add.reduce(np.array(err2))) / n_valid)
+
+    def _copy_errors_small(self, t, fi, vo, vg, og, P):
+        """:meth:`_copy_errors` of a small view on (k, 2) blocks (fewer numpy calls; the same
+        element-wise operations), with the non-owner mask kept while view and owners stay."""
+        memo = self._not_own_memo
+        if memo is None or memo[0] is not og or memo[1] is not vg:
+            memo = self._not_own_memo = (og, vg, og != vg)
+        order = self.cfg.prediction_order
+        c = np.take(self.cache, fi, axis=0)
+        ct = c[:, T_COL]
+        remote = memo[2] & (ct >= c[:, self.enter_col] - 1e-12)
+        d = c[:, 1:3] - P[vo]
+        if order >= 1:
+            dt = t - ct
+            d += c[:, 3:5] * dt[:, None]
+            if order >= 2:
+                h = 0.5 * dt * dt
+                d += c[:, 5:7] * h[:, None]
+        d *= d
+        return d[:, 0] + d[:, 1], remote
 
     def _copy_errors(self, t, fi, vo, vg, og, px, py):
         """Squared display errors (k,) m^2 of copies ``fi`` at frame time ``t`` and whether each
