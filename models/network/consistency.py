@@ -261,6 +261,9 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
         a2.append(a * a)
         b2.append(b * b)
         reach.append(a)
+    # b <= a: the ellipsoid (and the reach sphere) lie in the sphere of radius a, so a pair
+    # with |r|^2 > a^2 (1 + 1e-9) has d > 1 (d > a) whatever the rounding: skipped
+    far = [x * (1.0 + 1e-9) for x in a2]
     out = current.copy()
     ex, ey = entity_pos[:, 0].tolist(), entity_pos[:, 1].tolist()
     G = len(cx)
@@ -270,17 +273,20 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
         x, y = ex[j], ey[j]
         for i in range(G):
             rx, ry = x - cx[i], y - cy[i]
+            rr = rx * rx + ry * ry
+            if rr > far[i]:   # |r| > a (with margin): outside the sphere that holds the ellipsoid
+                continue
             if maha:
                 along = rx * ux[i] + ry * uy[i]
                 al2 = along * along
-                perp2 = rx * rx + ry * ry - al2
+                perp2 = rr - al2
                 if perp2 < 0.0:
                     perp2 = 0.0
                 d = math.sqrt(al2 / a2[i] + perp2 / b2[i])
                 if not d <= 1.0:     # (NaN too, like the array test)
                     continue
             else:
-                d = math.sqrt(rx * rx + ry * ry)
+                d = math.sqrt(rr)
                 if not d <= reach[i]:
                     continue
             if best is None or d < best:

@@ -187,7 +187,6 @@ class World:
         """:meth:`_advance_avatars` for a few avatars in Python floats: the same operations in
         the same order (IEEE double either way), without ~30 numpy calls per sub-step."""
         cfg = self.cfg
-        G = len(self.speed)
         S, ms, acc, drag = cfg.scene_size, cfg.max_speed, cfg.max_accel, cfg.drag
         pi, two_pi = np.pi, 2 * np.pi
         thr, ks = self.throttle.tolist(), k_steer.tolist()
@@ -196,21 +195,22 @@ class World:
         accel, yaw_rate = self.accel.tolist(), self.yaw_rate.tolist()
         still = not any(thr) and not any(sp)
         for _ in range(n):
-            yaw0 = list(yaw)
-            for i in range(G):
-                v0 = sp[i]
-                a = acc * thr[i] - drag * v0
+            yaw0 = yaw
+            x2, y2, yaw2, sp2, accel, yaw_rate = [], [], [], [], [], []
+            for v0, th, k, yw, xi, yi in zip(sp, thr, ks, yaw, x, y):
+                a = acc * th - drag * v0
                 v1 = min(max(v0 + a * h, -ms), ms)
-                accel[i] = (v1 - v0) / h
+                accel.append((v1 - v0) / h)
                 vm = 0.5 * (v0 + v1)
-                yr = vm * ks[i]
-                yaw_rate[i] = yr
-                yaw_m = yaw[i] + 0.5 * yr * h
+                yr = vm * k
+                yaw_rate.append(yr)
+                yaw_m = yw + 0.5 * yr * h
                 step = vm * h
-                x[i] = step * math.cos(yaw_m) + x[i]
-                y[i] = step * math.sin(yaw_m) + y[i]
-                yaw[i] = (yaw[i] + yr * h + pi) % two_pi - pi
-                sp[i] = v1
+                x2.append(step * math.cos(yaw_m) + xi)
+                y2.append(step * math.sin(yaw_m) + yi)
+                yaw2.append((yw + yr * h + pi) % two_pi - pi)
+                sp2.append(v1)
+            x, y, yaw, sp = x2, y2, yaw2, sp2
             if min(min(x), min(y)) < 0.0 or max(max(x), max(y)) > S:   # a wall: the array code
                 self.apos, self.yaw, self.speed = np.array([x, y]).T.copy(), np.array(yaw), np.array(sp)
                 self._avatar_walls()
@@ -249,12 +249,12 @@ class World:
         px, py = self.epos[:, 0].tolist(), self.epos[:, 1].tolist()
         vx, vy = self.evel[:, 0].tolist(), self.evel[:, 1].tolist()
         for _ in range(n):
-            for i in range(len(px)):
-                ax, ay = vx[i], vy[i]
-                bx = (ct[i] * ax - st[i] * ay) * decay
-                by = (st[i] * ax + ct[i] * ay) * decay
-                x = px[i] + hh * (ax + bx)
-                y = py[i] + hh * (ay + by)
+            qx, qy, wx, wy = [], [], [], []
+            for x, y, ax, ay, c, s in zip(px, py, vx, vy, ct, st):
+                bx = (c * ax - s * ay) * decay
+                by = (s * ax + c * ay) * decay
+                x = x + hh * (ax + bx)
+                y = y + hh * (ay + by)
                 if x < 0.0:           # walls: reflect the position and that velocity component
                     x, bx = -x, bx * -1.0
                 elif x > S:
@@ -263,7 +263,11 @@ class World:
                     y, by = -y, by * -1.0
                 elif y > S:
                     y, by = S2 - y, by * -1.0
-                px[i], py[i], vx[i], vy[i] = x, y, bx, by
+                qx.append(x)
+                qy.append(y)
+                wx.append(bx)
+                wy.append(by)
+            px, py, vx, vy = qx, qy, wx, wy
         self.epos[:, 0], self.epos[:, 1] = px, py
         self.evel = np.array([vx, vy]).T.copy()
 
