@@ -157,7 +157,7 @@ class NetworkModel:
         self._not_own_memo: Optional[tuple] = None  # (view owners, viewers, owner != viewer)
         self._pub_memo: Optional[tuple] = None     # ((group version, epoch), published mask, objects)
         self._entity_ids = np.arange(G, self.n_obj)
-        self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs) of the last frame
+        self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs, group version) of the last frame
         self._segments: Optional[tuple] = None   # (vo, per-object runs of vo)
         self._view_hit = False
         self._groups: Optional[DisplayGroups] = None  # record groups of the display metric (large views)
@@ -609,7 +609,8 @@ class NetworkModel:
         The last frame's pairs are reused when no object changed cell and the same groups are
         online (a scene at rest, or slow objects in large cells)."""
         memo = self._view_memo
-        if memo is not None and np.array_equal(memo[0], cells) and np.array_equal(memo[1], online_g):
+        if (memo is not None and (memo[3] == self._group_version or np.array_equal(memo[1], online_g))
+                and memo[0].tobytes() == cells.tobytes()):   # (the same int64 cells)
             self._view_hit = True
             return memo[2]
         self._view_hit = False
@@ -617,7 +618,7 @@ class NetworkModel:
         vo, vg_local = self.grid.view_pairs(cells, cells[viewers])
         vg = viewers[vg_local]
         out = (vo, vg, self.index(vg, vo), np.bincount(vg, minlength=self.cfg.groups))
-        self._view_memo = (cells, online_g, out)
+        self._view_memo = (cells, online_g, out, self._group_version)
         self._segments = None
         return out
 
