@@ -47,6 +47,7 @@ T_COL = 0  # cache row: record time, then p, v, a as the prediction order uses t
 PENDING = frozenset(("input", "impulse", "join", "leave"))
 MEMO_PAIRS = 4096  # at most this many view pairs: a frame's messages may be reused (see _messages)
 MEASURE_CHUNK = 16384   # copies per chunk of the per-copy display error (fits a core's cache)
+SCALAR_FRAMES = 64      # at most this many pending FRAMEs: the slave flips in Python
 SCALAR_VIEW = 64        # at most this many view pairs: the display error in Python floats
 SMALL_VIEW = 256        # at most this many view pairs: the display error on (k, 2) blocks
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
@@ -787,7 +788,7 @@ class NetworkModel:
         """Slaves whose FRAME for this tick has arrived by ``t`` show it; late ones are dropped
         (§3.5.2). Pending FRAMEs due later stay."""
         fr = self._frames
-        if len(fr["arr"]) <= 64:    # a few slaves: in Python (the same comparisons)
+        if len(fr["arr"]) <= SCALAR_FRAMES:   # a few slaves: in Python (the same comparisons)
             k = self.k
             frames = fr["frame"].tolist()
             if not frames or min(frames) > k:

@@ -1,0 +1,137 @@
+"""The small-scene shortcuts (campus size) change no output: each is checked against the
+array code it replaces, bit for bit.
+
+* ownership (eq. 3-6, 3-11/3-12, 3-3) in Python floats, with the sphere-of-radius-``a`` cull,
+  vs the array code (every rule and reading of the foci, resting and degenerate avatars);
+* the display error (eq. 3-1/3-2) of small views in Python floats and on (k, 2) blocks, the
+  slave FRAME flips in Python, and the memo'd messages found by group version / ownership
+  epoch / view object, vs the array code and messages built every frame;
+* the FMU wrapper's "outputs unchanged" shortcut (``OUTPUTS_UNCHANGED`` at rest) vs writing
+  every output every step, through driving, bounces, idling and a state restore.
+"""
+import importlib.util
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from immersim.fmus.common import OUTPUTS_UNCHANGED
+from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network import consistency as cons
+from immersim.models.network import model as model_mod
+
+T = 0.033
+LOSSY = {"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}
+UNIT = Path(__file__).resolve().parents[2] / "fmus" / "network" / "network_fmu.py"
+
+
+def _plain(monkeypatch):
+    """Switch every small-scene shortcut off (the array code and per-frame messages)."""
+    monkeypatch.setattr(cons, "SCALAR_PAIRS", -1)
+    for name in ("SCALAR_VIEW", "SMALL_VIEW", "SCALAR_FRAMES", "MEMO_PAIRS"):
+        monkeypatch.setattr(model_mod, name, -1)
+
+
+@pytest.mark.parametrize("rule,foci", [("mahalanobis", "frame"), ("mahalanobis", "reach"), ("euclidean", "frame")])
+def test_scalar_ownership_equals_the_array_code(monkeypatch, rule, foci):
+    rng = np.random.default_rng(5)
+    for trial in range(300):
+        G, E = rng.integers(1, 6), rng.integers(1, 30)
+        apos = rng.uniform(0, 20, (G, 2))
+        vel = rng.normal(0, 8, (G, 2)) * (rng.random((G, 1)) < 0.7)     # some avatars at rest
+        if trial % 7 == 0:
+            vel[:] = np.round(vel)                                       # exact ties of speed
+        epos = np.r_[apos[rng.integers(0, G, E // 2)] + rng.normal(0, 3, (E // 2, 2)), rng.uniform(0, 20, (E - E // 2, 2))]
+        cur = rng.integers(0, G, E)
+        min_axis = 0.0 if trial % 11 == 0 else float(rng.choice([0.5, 2.0, 5.0]))   # 0: degenerate (array code)
+        args = (rule, apos, vel, epos, cur, T, 30.0, min_axis, foci)
+        with np.errstate(divide="ignore", invalid="ignore"):   # a = 0: the array code's inf/NaN
+            fast = cons.assign_owners(*args)
+            with monkeypatch.context() as mp:
+                mp.setattr(cons, "SCALAR_PAIRS", -1)
+                plain = cons.assign_owners(*args)
+        np.testing.assert_array_equal(fast, plain)
+
+
+def _trace(cfg, steps, bounce_every=0):
+    m = NetworkModel(cfg)
+    out = []
+    for k in range(steps):
+        idle = steps // 3 <= k < steps // 2           # a stretch at rest
+        for g in range(cfg.driven_groups):
+            m.set_input(g, 0.0 if idle else (0.8 if k < steps // 2 else -0.6), 0.0 if idle else 0.2 * (g - 1))
+        if bounce_every and k % bounce_every == bounce_every - 1:
+            m.bounce(k % cfg.groups, (-1.0, 0.3))
+        out.append(m.step(T).as_dict())
+    return m, out
+
+
+def _same(a, b):
+    (ma, oa), (mb, ob) = a, b
+    assert oa == ob
+    for name in ("cache", "owner", "per_object_max", "per_object_rms", "hist", "shown_frame", "busy"):
+        np.testing.assert_array_equal(getattr(ma, name), getattr(mb, name), err_msg=name)
+    assert ma.totals.by_type == mb.totals.by_type
+    assert ma.rng.bit_generator.state == mb.rng.bit_generator.state
+
+
+CASES = [
+    dict(),                                                             # the campus_drive size
+    dict(links=LOSSY, prediction_order=2),
+    dict(links=LOSSY, prediction_order=0, ownership="euclidean", topology="client_server"),
+    dict(topology="full_mesh", grid=False, entities=3),
+    dict(ownership_foci="reach", dis_threshold=0.1, scene_size=40.0),
+    dict(entities=0, render_nodes=1),                                   # the campus_idle size, no slaves
+]
+
+
+@pytest.mark.parametrize("case", range(len(CASES)))
+def test_small_scene_shortcuts_change_nothing(monkeypatch, case):
+    cfg = replace(NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=4, scene_size=60.0,
+                                entity_speed=3.0), **CASES[case])
+    fast = _trace(cfg, 90, bounce_every=13)
+    _plain(monkeypatch)
+    _same(fast, _trace(cfg, 90, bounce_every=13))
+
+
+def _load_wrapper():
+    spec = importlib.util.spec_from_file_location("network_fmu_under_test", UNIT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.network
+
+
+def _fmu_run(cls, params, steps):
+    s = cls(instance_name="t", resources=str(UNIT.parent), visible=False, logging_callback=None)
+    s.values.update(params)
+    s.setup_experiment(0.0, None, None)
+    s.exit_initialization_mode()
+    outs = [v.name for v in cls.VARIABLES if v.causality == "output"]
+    rows, unchanged, saved = [], 0, None
+    for k in range(steps):
+        drive = k >= 60                         # at rest first (a drag-braked avatar never stops exactly)
+        s.values["avatar[1].throttle"] = 0.7 if drive else 0.0
+        s.values["avatar[2].steer"] = 0.3 if k >= 70 else 0.0
+        hit = k in (5, 75)                      # a contact at rest (no jolt) and one while driving
+        s.values["contact[1].active"] = hit
+        s.values["contact[1].nx"], s.values["contact[1].ny"] = (-1.0, 0.0) if hit else (0.0, 0.0)
+        if k == 20:
+            saved = s._get_fmu_state()
+        if k == 40:
+            s._set_fmu_state(saved)            # back to step 20 (at rest): the clock goes back 20 steps
+        t = s._time
+        unchanged += s.step_model(t, T) is OUTPUTS_UNCHANGED
+        s._time = t + T
+        rows.append([s.values[n] for n in outs])
+    return rows, unchanged
+
+
+def test_fmu_unchanged_outputs_shortcut_equals_writing_every_step(monkeypatch):
+    cls = _load_wrapper()
+    params = dict(players=3, render_nodes=3, entities=0, seed=0, prediction_order=1)
+    fast, n_unchanged = _fmu_run(cls, params, 120)
+    monkeypatch.setattr(cls, "SKIP_UNCHANGED", False)
+    plain, n_plain = _fmu_run(cls, params, 120)
+    assert n_plain == 0 and n_unchanged > 40        # the idle steps keep their outputs ...
+    assert fast == plain                            # ... and every output is the same
