@@ -40,6 +40,9 @@ def _variables():
         Var("max_distance", "parameter", "Real", 2.0, "m",
             "pairs farther apart (AABB gap) skip the exact distance and report distance = max_distance"),
         Var("ccd", "parameter", "Boolean", True, "", "fcl: time of impact (conservative advancement) for moved bodies"),
+        Var("chunk_faces", "parameter", "Integer", 32, "",
+            "fcl: exact distances to meshes of >= 1024 triangles chunk by chunk, chunks of at most this many "
+            "triangles (0: whole-mesh BVH queries, see README)"),
     ]
     for i in range(1, BODY_CAPACITY + 1):
         for axis, unit in POSE:
@@ -80,7 +83,8 @@ class collision(TableSlave):
             raise ValueError(f"{who}: parameter scene has {n_dyn} dynamic bodies; the FMU takes at most {BODY_CAPACITY}")
         try:
             config = BackendConfig(max_distance=val["max_distance"], ccd=bool(val["ccd"]), st=val["st"],
-                                   cells_n=int(val["cells_n"]), cells_m=int(val["cells_m"]))
+                                   cells_n=int(val["cells_n"]), cells_m=int(val["cells_m"]),
+                                   chunk_faces=int(val["chunk_faces"]))
         except ValueError as exc:
             raise ValueError(f"{who}: parameters: {exc}") from exc
         try:

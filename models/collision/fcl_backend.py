@@ -22,6 +22,9 @@
   point (translation + angle x radius), until ``d <= toi_tol`` (contact at ``s``) or ``s > 1``.
   fcl's own ``continuousCollide`` is not used: its conservative-advancement solver rejects
   mesh-mesh requests in python-fcl 0.7 and the naive solver only samples 10 poses.
+* Exact distances to a mesh of at least ``CHUNK_MIN_FACES`` triangles go chunk by chunk
+  (:mod:`.chunks`; ``BackendConfig.chunk_faces``, 0 for the whole-mesh query): the same
+  distances (round-off), far fewer triangle pairs where a large flat face is nearest.
 * Far pairs (every member's AABB at least ``max_distance`` away, no time of impact needed)
   are skipped by the base class's far-pair skip (``FAR_SKIP``); the fcl transform of a moved
   body is set only when a pair that involves it is evaluated.
