@@ -124,6 +124,7 @@ class NetworkModel:
         self.cache = _aligned_rows(G * self.n_obj, width)
         self.cache[:, T_COL] = -np.inf
         self._obj_ids = np.arange(self.n_obj)
+        self._obj_rid = self._obj_ids * RID_OBJECT
         self._uid = 1              # next record-table id (0: the scene file); rid = object * 2^32 + uid
         # owner's knowledge of what it last published (DIS; not kept up to date without DIS)
         self.pub_t = np.full(self.n_obj, -np.inf)
@@ -216,7 +217,10 @@ class NetworkModel:
             tab[:, 3:5] = V
         if self._ncol >= 7:
             tab[:, 5:7] = A
-        tab[:, self.rid_col] = objs * RID_OBJECT + self._uid     # exact in float64 (< 2^53)
+        if objs is self._obj_ids:   # a frame's table: every object, ids object * 2^32 kept
+            tab[:, self.rid_col] = self._obj_rid + self._uid
+        else:
+            tab[:, self.rid_col] = objs * RID_OBJECT + self._uid     # exact in float64 (< 2^53)
         self._uid += 1
         return tab
 
@@ -355,7 +359,7 @@ class NetworkModel:
         if m.frames == 0:  # no frame in a short step: the display (and its error) is unchanged
             m.inconsistency_max, m.inconsistency_rms, m.desync_frames = self._last_display
         self._last_display = (m.inconsistency_max, m.inconsistency_rms, m.desync_frames)
-        m.online_nodes = int(self.online.sum())
+        m.online_nodes = int(np.count_nonzero(self.online))
         m.frame_messages, m.frame_bytes = self._frame_traffic
         self.totals.add(m)
         self.inputs_changed = False
@@ -532,7 +536,7 @@ class NetworkModel:
             snap = self._owner_snap
             if snap is None or snap[0] != self._epoch:
                 snap = self._owner_snap = (self._epoch, self.owner.copy())
-            self._file(due, rec_fi, snap[1], table, tr.rec_obj)
+            self._file(due, rec_fi, snap[1], table, tr.rec_obj, t_send=float(t))
         if len(tr.frame_msg):
             f_arr = np.where(lost[tr.frame_msg], np.inf, arrival[tr.frame_msg])
             fr = self._frames
@@ -661,7 +665,7 @@ class NetworkModel:
                 np.maximum.at(send2, msg[ok], arrival[hop1][ok])
             a2, l2 = plan.hop2.run(self.rng, send2[second], self.busy, self.latency_scale)
             arrival[second], lost[second] = a2, lost[second] | l2
-        self.metrics.lost_messages += int(lost.sum())
+        self.metrics.lost_messages += int(np.count_nonzero(lost))
         return arrival, lost
 
     # -- in-flight records ----------------------------------------------------------------------
@@ -680,19 +684,31 @@ class NetworkModel:
         return np.maximum(np.ceil(arr / self.cfg.frame_s - 1e-9), self.k).astype(np.int64)
 
     def _file(self, due: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
-              ridx: np.ndarray, epoch: Optional[int] = None) -> None:
+              ridx: np.ndarray, epoch: Optional[int] = None, t_send: Optional[float] = None) -> None:
         """File records under the frame they are due (``due`` (k,), -1: lost, dropped), in
-        send order; see :meth:`_add_inflight`."""
+        send order; see :meth:`_add_inflight`. ``t_send``: the newest record time of
+        ``table`` when the caller knows it (a frame's table: the frame time)."""
         if not len(due):
             return
-        hi = int(due.max())
-        if hi < 0:
-            return
-        lo = int(due.min())
-        some_lost = lo < 0
-        if some_lost:
-            lo = int(due[due >= 0].min())
-        meta = (self._epoch if epoch is None else epoch, float(table[:, T_COL].max()))
+        if len(due) <= 64:   # a few records: the extremes in Python
+            dl = due.tolist()
+            hi = max(dl)
+            if hi < 0:
+                return
+            lo = min(dl)
+            some_lost = lo < 0
+            if some_lost:
+                lo = min(d for d in dl if d >= 0)
+        else:
+            hi = int(due.max())
+            if hi < 0:
+                return
+            lo = int(due.min())
+            some_lost = lo < 0
+            if some_lost:
+                lo = int(due[due >= 0].min())
+        meta = (self._epoch if epoch is None else epoch,
+                float(table[:, T_COL].max()) if t_send is None else t_send)
         if lo == hi and not some_lost:
             self._inflight.setdefault(lo, []).append((fi, sender, table, ridx, meta))
             return
