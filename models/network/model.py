@@ -47,7 +47,6 @@ T_COL = 0  # cache row: record time, then p, v, a as the prediction order uses t
 PENDING = frozenset(("input", "impulse", "join", "leave"))
 MEMO_PAIRS = 4096  # at most this many view pairs: a frame's messages may be reused (see _messages)
 MEASURE_CHUNK = 16384   # copies per chunk of the per-copy display error (fits a core's cache)
-SCALAR_FRAMES = 64      # at most this many pending FRAMEs: the slave flips in Python
 SCALAR_VIEW = 64        # at most this many view pairs: the display error in Python floats
 SMALL_VIEW = 256        # at most this many view pairs: the display error on (k, 2) blocks
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
@@ -60,10 +59,16 @@ def _aligned_rows(n: int, w: int) -> np.ndarray:
     return buf[off:off + n * w].reshape(n, w)
 
 
+_PREFIX_DTYPES: Dict[int, np.dtype] = {}
+
+
 def _row_prefix(a: np.ndarray, ncol: int) -> np.ndarray:
     """The first ``ncol`` floats of every row of the C-contiguous (n, w) array ``a`` as one
     ``ncol * 8``-byte opaque item per row (a view: whole-record gathers and scatters)."""
-    return np.ndarray((a.shape[0],), np.dtype((np.void, 8 * ncol)), a, 0, (a.strides[0],))
+    dt = _PREFIX_DTYPES.get(ncol)
+    if dt is None:
+        dt = _PREFIX_DTYPES[ncol] = np.dtype((np.void, 8 * ncol))
+    return np.ndarray((a.shape[0],), dt, a, 0, (a.strides[0],))
 
 
 class NetworkModel:
@@ -135,8 +140,8 @@ class NetworkModel:
         self._inflight: Dict[int, List[tuple]] = {}
         self._epoch = 0            # bumped at every ownership change: older chunks are re-checked
         self._newest = -np.inf     # newest record time written into the cache so far
-        self._frames: Dict[str, np.ndarray] = {k: np.zeros(0, t) for k, t in
-                                               (("arr", float), ("slave", np.int64), ("frame", np.int64))}
+        #: FRAME packets on their way to slaves: (arrival s (inf: lost), slave node, frame k)
+        self._frames: List[tuple] = []
         self.hist = np.zeros((HIST, G, G, 2))
         # subscription: object cells and online viewers of the last frame (a pair is in view
         # when the object's cell is in the 9-cell neighbourhood of the viewer avatar's cell);
@@ -194,7 +199,7 @@ class NetworkModel:
         self._publish_initial()
         # frame 1 comes from the scene file every node has loaded (no packet needed)
         sl = np.concatenate(self.slaves) if self.slaves else np.zeros(0, np.int64)
-        self._frames = {"arr": np.zeros(len(sl)), "slave": sl.astype(np.int64), "frame": np.ones(len(sl), np.int64)}
+        self._frames = [(0.0, node, 1) for node in sl.tolist()]
         self._display()
 
     def _publish_initial(self) -> None:
@@ -538,13 +543,9 @@ class NetworkModel:
                 snap = self._owner_snap = (self._epoch, self.owner.copy())
             self._file(due, rec_fi, snap[1], table, tr.rec_obj, t_send=float(t))
         if len(tr.frame_msg):
-            f_arr = np.where(lost[tr.frame_msg], np.inf, arrival[tr.frame_msg])
-            fr = self._frames
-            if len(fr["arr"]):
-                for key, val in (("arr", f_arr), ("slave", tr.frame_slave), ("frame", np.full(len(f_arr), self.k + 1))):
-                    fr[key] = np.concatenate([fr[key], val])
-            else:   # the usual case: every earlier FRAME has flipped
-                self._frames = {"arr": f_arr, "slave": tr.frame_slave, "frame": np.full(len(f_arr), self.k + 1)}
+            arr_l, lost_l, nxt = arrival.tolist(), lost.tolist(), self.k + 1
+            self._frames += [(math.inf if lost_l[i] else arr_l[i], node, nxt)
+                             for i, node in zip(tr.frame_msg.tolist(), tr.frame_slave.tolist())]
         # 5. deliveries up to now, slave frame flips (§3.5.2)
         self._deliver(t)
         self._flip_frames(t)
@@ -801,37 +802,21 @@ class NetworkModel:
         return newly
 
     def _flip_frames(self, t: float) -> None:
-        """Slaves whose FRAME for this tick has arrived by ``t`` show it; late ones are dropped
-        (§3.5.2). Pending FRAMEs due later stay."""
+        """Slaves whose FRAME for this tick has arrived by ``t`` show it; late or lost ones are
+        dropped (§3.5.2). Pending FRAMEs due later stay."""
         fr = self._frames
-        if len(fr["arr"]) <= SCALAR_FRAMES:   # a few slaves: in Python (the same comparisons)
-            k = self.k
-            frames = fr["frame"].tolist()
-            if not frames or min(frames) > k:
-                return
-            lim = t + 1e-12
-            show = [sl for a, f, sl in zip(fr["arr"].tolist(), frames, fr["slave"].tolist()) if f == k and a <= lim]
-            if show:
-                self.shown_frame[show] = k
-            n_due = sum(f <= k for f in frames)
-            self.metrics.dropped_frames += n_due - len(show)
-            if n_due == len(frames):
-                self._frames = {key: v[:0] for key, v in fr.items()}
-            else:
-                keep = np.array([f > k for f in frames])
-                self._frames = {key: v[keep] for key, v in fr.items()}
+        if not fr:
             return
-        due = fr["frame"] <= self.k
-        if not due.any():
+        k = self.k
+        if min(f for _, _, f in fr) > k:
             return
-        on_time = due & (fr["arr"] <= t + 1e-12) & (fr["frame"] == self.k)
-        self.shown_frame[fr["slave"][on_time]] = self.k
-        n_due = int(np.count_nonzero(due))
-        self.metrics.dropped_frames += n_due - int(np.count_nonzero(on_time))
-        if n_due == len(due):   # every pending frame flipped or dropped (the usual case)
-            self._frames = {k: v[:0] for k, v in fr.items()}
-        else:
-            self._frames = {k: v[~due] for k, v in fr.items()}
+        lim = t + 1e-12
+        show = [node for a, node, f in fr if f == k and a <= lim]
+        if show:
+            self.shown_frame[show] = k
+        later = [x for x in fr if x[2] > k]
+        self.metrics.dropped_frames += len(fr) - len(later) - len(show)
+        self._frames = later
 
     # -- display ----------------------------------------------------------------------------------
     def _display(self, vg: Optional[np.ndarray] = None, vo: Optional[np.ndarray] = None,

@@ -30,6 +30,8 @@ G_ACC = 9.81
 SCALAR_AVATARS = 8
 #: the same for up to this many free entities
 SCALAR_ENTITIES = 32
+#: up to this many avatar-entity pairs the contact pre-check runs in Python floats
+SCALAR_CONTACT_PAIRS = 64
 
 
 class World:
@@ -363,6 +365,14 @@ class World:
             if not len(close):
                 return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
             etree = etree.tree
+        elif etree is None and G * E <= SCALAR_CONTACT_PAIRS:
+            # tiny scenes: the same brute-force check in Python floats (the same differences,
+            # squares and bound)
+            r2 = r * r * (1.0 + 1e-9)
+            ep = self.epos.tolist()
+            if not any((ex - ax) * (ex - ax) + (ey - ay) * (ey - ay) <= r2
+                       for ax, ay in self.apos.tolist() for ex, ey in ep):
+                return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
         elif etree is None and G * E <= 4096:
             # small scenes: a brute-force distance check finds the (rare) frames with a contact;
             # the exact k-d tree path below (its pair order) only runs then

@@ -4,8 +4,8 @@ array code it replaces, bit for bit.
 * ownership (eq. 3-6, 3-11/3-12, 3-3) in Python floats, with the sphere-of-radius-``a`` cull,
   vs the array code (every rule and reading of the foci, resting and degenerate avatars);
 * the display error (eq. 3-1/3-2) of small views in Python floats and on (k, 2) blocks, the
-  slave FRAME flips in Python, and the memo'd messages found by group version / ownership
-  epoch / view object, vs the array code and messages built every frame;
+  contact pre-check in Python floats, and the memo'd messages found by group version /
+  ownership epoch / view object, vs the array code and messages built every frame;
 * the FMU wrapper's "outputs unchanged" shortcut (``OUTPUTS_UNCHANGED`` at rest) vs writing
   every output every step, through driving, bounces, idling and a state restore.
 """
@@ -20,6 +20,7 @@ from immersim.fmus.common import OUTPUTS_UNCHANGED
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network import consistency as cons
 from immersim.models.network import model as model_mod
+from immersim.models.network import world as world_mod
 
 T = 0.033
 LOSSY = {"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}
@@ -29,7 +30,8 @@ UNIT = Path(__file__).resolve().parents[2] / "fmus" / "network" / "network_fmu.p
 def _plain(monkeypatch):
     """Switch every small-scene shortcut off (the array code and per-frame messages)."""
     monkeypatch.setattr(cons, "SCALAR_PAIRS", -1)
-    for name in ("SCALAR_VIEW", "SMALL_VIEW", "SCALAR_FRAMES", "MEMO_PAIRS"):
+    monkeypatch.setattr(world_mod, "SCALAR_CONTACT_PAIRS", -1)
+    for name in ("SCALAR_VIEW", "SMALL_VIEW", "MEMO_PAIRS"):
         monkeypatch.setattr(model_mod, name, -1)
 
 
