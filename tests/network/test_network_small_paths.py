@@ -5,7 +5,8 @@ array code it replaces, bit for bit.
   vs the array code (every rule and reading of the foci, resting and degenerate avatars);
 * the display error (eq. 3-1/3-2) of small views in Python floats and on (k, 2) blocks, the
   contact pre-check in Python floats, and the memo'd messages found by group version /
-  ownership epoch / view object, vs the array code and messages built every frame;
+  ownership epoch / view object, and the link jitter of several classes drawn in one call,
+  vs the array code, messages built every frame and one draw per link class;
 * the FMU wrapper's "outputs unchanged" shortcut (``OUTPUTS_UNCHANGED`` at rest) vs writing
   every output every step, through driving, bounces, idling and a state restore.
 """
@@ -19,6 +20,7 @@ import pytest
 from immersim.fmus.common import OUTPUTS_UNCHANGED
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network import consistency as cons
+from immersim.models.network import links as links_mod
 from immersim.models.network import model as model_mod
 from immersim.models.network import world as world_mod
 
@@ -31,6 +33,7 @@ def _plain(monkeypatch):
     """Switch every small-scene shortcut off (the array code and per-frame messages)."""
     monkeypatch.setattr(cons, "SCALAR_PAIRS", -1)
     monkeypatch.setattr(world_mod, "SCALAR_CONTACT_PAIRS", -1)
+    monkeypatch.setattr(links_mod, "MERGE_DRAWS", False)
     for name in ("SCALAR_VIEW", "SMALL_VIEW", "MEMO_PAIRS"):
         monkeypatch.setattr(model_mod, name, -1)
 
@@ -80,6 +83,7 @@ def _same(a, b):
 
 CASES = [
     dict(),                                                             # the campus_drive size
+    dict(links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(40.0, 15.0, 0.0, 2.0)}),
     dict(links=LOSSY, prediction_order=2),
     dict(links=LOSSY, prediction_order=0, ownership="euclidean", topology="client_server"),
     dict(topology="full_mesh", grid=False, entities=3),
