@@ -22,7 +22,8 @@
   point (translation + angle x radius), until ``d <= toi_tol`` (contact at ``s``) or ``s > 1``.
   fcl's own ``continuousCollide`` is not used: its conservative-advancement solver rejects
   mesh-mesh requests in python-fcl 0.7 and the naive solver only samples 10 poses.
-* Exact distances to a mesh of at least ``CHUNK_MIN_FACES`` triangles go chunk by chunk
+* Exact distances of a body of at most ``CHUNK_OTHER_MAX_FACES`` triangles (a box) to a
+  mesh of at least ``CHUNK_MIN_FACES`` triangles go chunk by chunk
   (:mod:`.chunks`; ``BackendConfig.chunk_faces``, 0 for the whole-mesh query): the same
   distances (round-off), far fewer triangle pairs where a large flat face is nearest.
 * Far pairs (every member's AABB at least ``max_distance`` away, no time of impact needed)
@@ -39,7 +40,7 @@ import fcl
 import numpy as np
 
 from .backend import CollisionBackend, PairResult, PairSpec, aggregate
-from .chunks import CHUNK_MIN_FACES, ChunkedMesh, chunk_lower_bounds, chunked_distance
+from .chunks import CHUNK_MIN_FACES, CHUNK_OTHER_MAX_FACES, ChunkedMesh, chunk_lower_bounds, chunked_distance
 from .geometry import rotation_angle, slerp_pose
 
 log = logging.getLogger(__name__)
@@ -246,7 +247,7 @@ class FclBackend(CollisionBackend):
         # the larger BVH first: fcl's traversal is cheaper (member first otherwise, see _collide)
         a_first = bool(self._faces[a] > self._faces[b])
         big, small = (a, b) if a_first else (b, a)
-        chunks = self._body_chunks[big]
+        chunks = self._body_chunks[big] if self._faces[small] <= CHUNK_OTHER_MAX_FACES else None
         if chunks is None:
             d = fcl.distance(self.objs[big], self.objs[small], self._dreq, res)
         else:  # the same triangle pairs, chunk by chunk (module docstring of .chunks)
@@ -453,7 +454,8 @@ class FclBackend(CollisionBackend):
         ob = fcl.CollisionObject(self.geoms[self.scene.bodies[b].mesh_key], fcl_transform(B0))
         req = fcl.DistanceRequest()
         # a static chunked partner: its chunks at its (fixed) pose, a's pose interpolated
-        chunks = self._body_chunks[b] if not self.is_dynamic[b] else None
+        chunks = (self._body_chunks[b] if not self.is_dynamic[b] and self._faces[a] <= CHUNK_OTHER_MAX_FACES
+                  else None)
         if chunks is not None:
             tag, tf = self._chunk_tf(b)
             hull, box_c, box_h = self._hull[a], self._box_c[a], self._box_h[a]

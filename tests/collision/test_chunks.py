@@ -14,7 +14,7 @@ from immersim.models.collision.scene import make_tank
 
 # a yawed 5.4k tank and three kinds of other body (the campus_drive avatar box, the missile, a ball)
 SPEC = ("tank:name=t,tris=5.4k,yaw=2.2408;box:name=box,sx=4,sy=2,sz=4.4,dynamic=1,x=30;"
-        "missile:name=m,x=-30;sphere:name=ball,r=1,dynamic=1,y=30")
+        "box:name=stick,sx=0.3,sy=0.5,sz=1.5,dynamic=1,x=-30;sphere:name=ball,r=1,dynamic=1,y=30")
 
 
 def test_split_faces_partitions_every_triangle_once():
@@ -59,14 +59,15 @@ def _bvh(mesh):
     return g
 
 
-@pytest.mark.parametrize("body", ["box", "m", "ball"])
+@pytest.mark.parametrize("body", ["box", "stick", "ball"])
 def test_chunked_distances_equal_the_whole_mesh_path_on_random_poses(body):
     """Random poses around the tank (contacts, near misses, far): the chunked path reports the
     same contact flags, depths, contact points and partners, the same distances to 1e-9 m and
     normals to 1e-6; its nearest point is a true nearest point (at the reported distance from
     the tank, and ``p - d n`` on the tank) even where it is another one than the whole-mesh
-    query's (parallel features: the nearest points are not unique)."""
-    rng = np.random.default_rng({"box": 1, "m": 2, "ball": 3}[body])
+    query's (parallel features: the nearest points are not unique). The ball (1280 triangles,
+    more than CHUNK_OTHER_MAX_FACES) keeps the whole-mesh query: identical outputs."""
+    rng = np.random.default_rng({"box": 1, "stick": 2, "ball": 3}[body])
     chunked = make_backend("fcl", parse_scene(SPEC), f"{body} vs t", BackendConfig(max_distance=2.0))
     mesh = make_backend("fcl", parse_scene(SPEC), f"{body} vs t", BackendConfig(max_distance=2.0, chunk_faces=0))
     tank = chunked.scene.mesh(0).copy()
@@ -84,6 +85,8 @@ def test_chunked_distances_equal_the_whole_mesh_path_on_random_poses(body):
         assert abs(rc.distance - rm.distance) <= 1e-9
         np.testing.assert_allclose(rc.normal, rm.normal, atol=1e-6)
         np.testing.assert_allclose(rc.toi, rm.toi, atol=1e-9)
+        if body == "ball":
+            assert _same(rc, rm)
         if rc.in_contact:
             np.testing.assert_array_equal(rc.point, rm.point)
             seen["contact"] += 1
@@ -100,17 +103,34 @@ def test_chunked_distances_equal_the_whole_mesh_path_on_random_poses(body):
 
 
 def test_chunked_time_of_impact_equals_the_whole_mesh_path():
-    """The missile diving onto a tank (conservative advancement on chunk distances): the
-    same time of impact to 1e-9 s and the same contacts, step by step."""
-    spec = "tank:name=t,tris=5.4k;missile:name=m,x=-6,z=9,pitch=0.564"
-    chunked = make_backend("fcl", parse_scene(spec), "m vs t", BackendConfig(max_distance=2.0))
-    mesh = make_backend("fcl", parse_scene(spec), "m vs t", BackendConfig(max_distance=2.0, chunk_faces=0))
+    """A thin box diving fast onto a tank (conservative advancement on chunk distances; the
+    missile, 192 triangles, keeps the whole-mesh query): the same time of impact to 1e-9 s
+    and the same contacts, step by step."""
+    spec = "tank:name=t,tris=5.4k,yaw=0.3;box:name=s,sx=0.3,sy=0.5,sz=1.5,dynamic=1,x=-6,z=9"
+    chunked = make_backend("fcl", parse_scene(spec), "s vs t", BackendConfig(max_distance=2.0))
+    mesh = make_backend("fcl", parse_scene(spec), "s vs t", BackendConfig(max_distance=2.0, chunk_faces=0))
     tois = []
     for k in range(40):
-        pose = [[-6 + 0.18 * k, 0.3, max(9 - 0.2 * k, 2.5), 0, 0.564, 0]]
+        pose = [[-6 + 0.18 * k, 0.3, max(9 - 0.35 * k, 2.5), 0.1, 0.564, 0.02 * k]]
         rc, rm = chunked.query(pose).pairs[0], mesh.query(pose).pairs[0]
         assert (rc.in_contact, rc.partner) == (rm.in_contact, rm.partner)
         assert abs(rc.toi - rm.toi) <= 1e-9
         assert abs(rc.distance - rm.distance) <= 1e-9
         tois.append(rc.toi)
     assert max(tois) > 0  # an impact inside a step was found
+
+
+def test_a_missile_keeps_the_whole_mesh_query():
+    spec = "tanks:n=4,tris=5.4k,spacing=12;missile:x=0,y=0,z=9,pitch=0.564"
+    chunked = make_backend("fcl", parse_scene(spec), "missile vs any tank", BackendConfig(max_distance=2.0))
+    mesh = make_backend("fcl", parse_scene(spec), "missile vs any tank",
+                        BackendConfig(max_distance=2.0, chunk_faces=0))
+    for k in range(30):
+        pose = [[0.2 * k, 0.3, max(9 - 0.25 * k, 2.0), 0, 0.564, 0]]
+        assert _same(chunked.query(pose).pairs[0], mesh.query(pose).pairs[0])
+
+
+def _same(p, q):
+    """Exact equality of two PairResults."""
+    return ((p.in_contact, p.distance, p.depth, p.toi, p.closing_speed, p.partner, p.point.tolist(), p.normal.tolist())
+            == (q.in_contact, q.distance, q.depth, q.toi, q.closing_speed, q.partner, q.point.tolist(), q.normal.tolist()))
