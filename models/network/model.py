@@ -162,6 +162,7 @@ class NetworkModel:
         self._slaves_memo: Optional[tuple] = None  # (group version, slave nodes, arange(G))
         self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, their lists)
         self._not_own_memo: Optional[tuple] = None  # (view owners, viewers, owner != viewer)
+        self._cells_memo: Optional[tuple] = None   # (positions array, their cells)
         self._pub_memo: Optional[tuple] = None     # ((group version, epoch), published mask, objects)
         self._entity_ids = np.arange(G, self.n_obj)
         self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs, group version) of the last frame
@@ -502,7 +503,12 @@ class NetworkModel:
             self.pub_p[pub_obj], self.pub_v[pub_obj], self.pub_a[pub_obj] = P[pub_obj], V[pub_obj], A[pub_obj]
         self.metrics.published += len(pub_obj)
         # 4. messages by topology, link sampling
-        cells = self.grid.cell(P)
+        cm = self._cells_memo
+        if cm is not None and cm[0] is P:   # the same position array (a scene at rest): the same cells
+            cells = cm[1]
+        else:
+            cells = self.grid.cell(P)
+            self._cells_memo = (P, cells)
         view = self._view(cells, online_g)
         vo, vg, fi, frame_size = view
         og = self._view_owners(view)

@@ -6,7 +6,8 @@ array code it replaces, bit for bit.
 * the display error (eq. 3-1/3-2) of small views in Python floats and on (k, 2) blocks, the
   contact pre-check in Python floats, and the memo'd messages found by group version /
   ownership epoch / view object, and the link jitter of several classes drawn in one call,
-  vs the array code, messages built every frame and one draw per link class;
+  avatars at a sub-step fixed point not sub-stepped (and their frame arrays reused), vs the
+  array code, messages built every frame, one draw per link class and every sub-step;
 * the FMU wrapper's "outputs unchanged" shortcut (``OUTPUTS_UNCHANGED`` at rest) vs writing
   every output every step, through driving, bounces, idling and a state restore.
 """
@@ -34,6 +35,7 @@ def _plain(monkeypatch):
     monkeypatch.setattr(cons, "SCALAR_PAIRS", -1)
     monkeypatch.setattr(world_mod, "SCALAR_CONTACT_PAIRS", -1)
     monkeypatch.setattr(links_mod, "MERGE_DRAWS", False)
+    monkeypatch.setattr(world_mod, "REST_SKIP", False)
     for name in ("SCALAR_VIEW", "SMALL_VIEW", "MEMO_PAIRS"):
         monkeypatch.setattr(model_mod, name, -1)
 
@@ -63,7 +65,7 @@ def _trace(cfg, steps, bounce_every=0):
     m = NetworkModel(cfg)
     out = []
     for k in range(steps):
-        idle = steps // 3 <= k < steps // 2           # a stretch at rest
+        idle = k < 15 or steps // 3 <= k < steps // 2   # at rest first (exactly), then coasting
         for g in range(cfg.driven_groups):
             m.set_input(g, 0.0 if idle else (0.8 if k < steps // 2 else -0.6), 0.0 if idle else 0.2 * (g - 1))
         if bounce_every and k % bounce_every == bounce_every - 1:
