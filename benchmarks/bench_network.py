@@ -9,7 +9,10 @@
 4. campus: the campus_drive / campus_idle configuration (3 players x 3 render nodes, 8 or 0
    entities) through the FMU class's ``do_step`` (model + wrapper), CPU time per 33 ms step.
 
-Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus]
+   Also the built network.fmu under FMPy (doStep and reading the outputs back), and with
+   ``--baseline DIR`` the in-process runs alternated with another commit's tree.
+
+Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus] [--baseline DIR]
 """
 from __future__ import annotations
 
@@ -131,21 +134,36 @@ def bench_scale(quick: bool):
     return res
 
 
-def bench_campus(quick: bool):
-    """CPU and wall time of the FMU class's do_step at the campus scenes' size (in process)."""
-    sys.path.insert(0, str(ROOT / "fmus" / "network"))
+#: the campus scenes' network parameters, and the driven case's constant driver inputs
+CAMPUS = (("campus_drive (driving)", 8, True), ("campus_idle (at rest)", 0, False))
+CAMPUS_DRIVE = ((0.8, 0.0), (0.7, 0.1), (0.6, -0.2))
+
+
+def campus_inprocess(steps: int, fmu_dir: str = str(ROOT / "fmus" / "network")):
+    """CPU and wall time of the FMU class's do_step (model + wrapper, in process) at the campus
+    scenes' size; ``fmu_dir`` holds the ``network_fmu.py`` to load (another tree's for a
+    baseline run, with that tree's ``immersim`` first on ``PYTHONPATH``)."""
+    sys.path.insert(0, fmu_dir)
     from network_fmu import network
 
-    steps = 200 if quick else 600
     res = []
-    for label, entities, drive in (("campus_drive (driving)", 8, True), ("campus_idle (at rest)", 0, False)):
+    for label, entities, drive in CAMPUS:
         s = network(instance_name="bench", resources=str(ROOT), visible=False, logging_callback=None)
         s.values.update(players=3, render_nodes=3, entities=entities, seed=0, prediction_order=1)
         s.setup_experiment(0.0, None, None)
         s.exit_initialization_mode()
         if drive:
-            for p, (thr, steer) in enumerate(((0.8, 0.0), (0.7, 0.1), (0.6, -0.2)), start=1):
+            for p, (thr, steer) in enumerate(CAMPUS_DRIVE, start=1):
                 s.values[f"avatar[{p}].throttle"], s.values[f"avatar[{p}].steer"] = thr, steer
+        unchanged = [0]
+        step_model = s.step_model
+
+        def counted(t, h):
+            r = step_model(t, h)
+            unchanged[0] += r is True        # OUTPUTS_UNCHANGED
+            return r
+
+        s.step_model = counted
         wall, cpu = [], []
         load0 = os.getloadavg()[0]
         for k in range(steps):
@@ -156,8 +174,89 @@ def bench_campus(quick: bool):
         wall, cpu = np.array(wall[10:]) * 1e3, np.array(cpu[10:]) * 1e3
         res.append(dict(scene=label, steps=steps, median_ms=float(np.median(wall)), p90_ms=float(np.percentile(wall, 90)),
                         cpu_median_ms=float(np.median(cpu)), cpu_mean_ms=float(cpu.mean()),
-                        load=0.5 * (load0 + os.getloadavg()[0]), at_rest=bool(s.values["at_rest"])))
+                        load=0.5 * (load0 + os.getloadavg()[0]), at_rest=bool(s.values["at_rest"]),
+                        unchanged=unchanged[0]))
     return res
+
+
+def campus_fmpy(steps: int):
+    """The built network.fmu under plain FMPy (FMU2Slave): wall and CPU time of doStep (the
+    C boundary included) and of reading every output back (getReal/getInteger/getBoolean, what
+    a master does each step)."""
+    import shutil
+    import tempfile
+    import zipfile
+
+    from fmpy import read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from immersim.orchestrator.build import build_unit, default_build_dir
+
+    path = build_unit(ROOT / "fmus" / "network", default_build_dir())
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    outs = {t: [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == t]
+            for t in ("Real", "Integer", "Boolean")}
+    res = []
+    for label, entities, drive in CAMPUS:
+        tmp = tempfile.mkdtemp(prefix="bench_net_")
+        zipfile.ZipFile(path).extractall(tmp)
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=tmp, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName="bench")
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.setInteger([vr["players"], vr["render_nodes"], vr["entities"], vr["seed"], vr["prediction_order"]],
+                       [3, 3, entities, 0, 1])
+        fmu.exitInitializationMode()
+        if drive:
+            for p, (thr, steer) in enumerate(CAMPUS_DRIVE, start=1):
+                fmu.setReal([vr[f"avatar[{p}].throttle"], vr[f"avatar[{p}].steer"]], [thr, steer])
+        step_w, step_c, get_w = [], [], []
+        for k in range(steps):
+            t0, c0 = time.perf_counter(), time.process_time()
+            fmu.doStep(currentCommunicationPoint=k * T, communicationStepSize=T)
+            t1, c1 = time.perf_counter(), time.process_time()
+            fmu.getReal(outs["Real"])
+            fmu.getInteger(outs["Integer"])
+            fmu.getBoolean(outs["Boolean"])
+            step_w.append(t1 - t0)
+            step_c.append(c1 - c0)
+            get_w.append(time.perf_counter() - t1)
+        fmu.terminate()
+        fmu.freeInstance()
+        shutil.rmtree(tmp, ignore_errors=True)
+        res.append(dict(scene=label, steps=steps, dostep_median_ms=1e3 * float(np.median(step_w[10:])),
+                        dostep_cpu_median_ms=1e3 * float(np.median(step_c[10:])),
+                        get_median_ms=1e3 * float(np.median(get_w[10:]))))
+    return res
+
+
+def bench_campus(quick: bool, baseline: str = ""):
+    """Campus-size cost: in process (model + wrapper) and through FMPy. With ``baseline`` (a
+    directory holding another commit's ``immersim/models`` and ``immersim/fmus``), the in-process
+    runs of that tree and of this one alternate in fresh processes, three rounds each."""
+    steps = 200 if quick else 600
+    if not baseline:
+        return campus_inprocess(steps), campus_fmpy(steps), []
+    import json
+
+    def sub(tree):
+        """campus_inprocess in a fresh process: ``tree``'s code, or this tree's (None)."""
+        fmu_dir = str(ROOT / "fmus" / "network") if tree is None else str(Path(tree) / "immersim" / "fmus" / "network")
+        code = (f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); "
+                f"from bench_network import campus_inprocess; print(json.dumps(campus_inprocess({steps}, {fmu_dir!r})))")
+        env = dict(os.environ)
+        if tree is not None:
+            env["PYTHONPATH"] = tree
+        return json.loads(subprocess.check_output([sys.executable, "-c", code], env=env, cwd="/", text=True))
+
+    rows = []
+    for rnd in range(3):
+        for code, tree in (("baseline", baseline), ("current", None)):
+            rows += [dict(r, code=code, round=rnd + 1) for r in sub(tree)]
+    current = [r for r in rows if r["code"] == "current" and r["round"] == 3]
+    return current, campus_fmpy(steps), rows
 
 
 SCALE_COLS = (["dis_threshold", "measure", "nodes", "entities", "init_s", "median_ms", "p90_ms", "max_ms", "mean_ms",
@@ -165,17 +264,28 @@ SCALE_COLS = (["dis_threshold", "measure", "nodes", "entities", "init_s", "media
               {"init_s": "{:.2f}", "median_ms": "{:.1f}", "p90_ms": "{:.1f}", "max_ms": "{:.1f}", "mean_ms": "{:.1f}",
                "cpu_median_ms": "{:.1f}", "cpu_max_ms": "{:.1f}", "load": "{:.1f}",
                "rt_factor": "{:.2f}", "messages": "{:.0f}", "mbytes": "{:.2f}", "rms": "{:.4f}"})
-CAMPUS_COLS = (["scene", "steps", "median_ms", "p90_ms", "cpu_median_ms", "cpu_mean_ms", "load", "at_rest"],
+CAMPUS_COLS = (["scene", "steps", "median_ms", "p90_ms", "cpu_median_ms", "cpu_mean_ms", "load", "at_rest", "unchanged"],
                {"median_ms": "{:.3f}", "p90_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "cpu_mean_ms": "{:.3f}",
                 "load": "{:.1f}"})
+FMPY_COLS = (["scene", "steps", "dostep_median_ms", "dostep_cpu_median_ms", "get_median_ms"],
+             {"dostep_median_ms": "{:.3f}", "dostep_cpu_median_ms": "{:.3f}", "get_median_ms": "{:.3f}"})
+AB_COLS = (["scene", "code", "round", "median_ms", "cpu_median_ms", "load", "unchanged"],
+           {"median_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "load": "{:.1f}"})
 
 
-def only(parts, quick: bool) -> None:
+def only(parts, quick: bool, baseline: str = "") -> None:
     """Run some parts only and write their tables (the README is then edited by hand)."""
     head = f"<!-- {' '.join(sys.argv)} at {commit()} on {machine()} -->\n"
     if "campus" in parts:
-        (OUT / "campus.md").write_text(head + table(bench_campus(quick), *CAMPUS_COLS))
-        print((OUT / "campus.md").read_text())
+        cur, fm, ab = bench_campus(quick, baseline)
+        text = (head + "In process (FMU class `do_step`: model + wrapper):\n\n" + table(cur, *CAMPUS_COLS)
+                + "\nThrough FMPy (built network.fmu, `FMU2Slave.doStep`; `get`: reading every output):\n\n"
+                + table(fm, *FMPY_COLS))
+        if ab:
+            text += (f"\nAlternated with the baseline tree `{baseline}` (fresh process per run):\n\n"
+                     + table(ab, *AB_COLS))
+        (OUT / "campus.md").write_text(text)
+        print(text)
     if "scale" in parts:
         (OUT / "scale.md").write_text(head + table(bench_scale(quick), *SCALE_COLS))
         print((OUT / "scale.md").read_text())
@@ -193,10 +303,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer points and steps (about a minute)")
     ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus")
+    ap.add_argument("--baseline", default="", help="campus: directory with another commit's immersim/models and "
+                    "immersim/fmus (git archive COMMIT models fmus | tar -x -C DIR/immersim; touch DIR/immersim/__init__.py), "
+                    "alternated with this tree")
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
     if args.only:
-        only(set(args.only.split(",")), args.quick)
+        only(set(args.only.split(",")), args.quick, args.baseline)
         return
     import matplotlib
     matplotlib.use("Agg")
