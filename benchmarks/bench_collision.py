@@ -559,8 +559,8 @@ def _loop_text(run_output):
     return [f"The run that wrote the log (`immersim run scenarios/campus_drive.toml`, same commit and machine) "
             f"reported: `{line}`, i.e. {loop_ms:.3f} ms per step for the whole loop and {coll_ms:.3f} ms for the "
             f"collision unit (FMU calls included) over {n} steps. Issue 6's 100x real time needs <= 0.33 ms per "
-            f"step for the loop: **{'met' if loop_ms <= 0.33 else 'NOT met'}** (the collision unit alone "
-            f"{'fits' if coll_ms <= 0.33 else 'does not fit'} in it).", ""]
+            f"step for the loop: **{'met' if loop_ms <= 0.33 else 'NOT met'}** (the collision unit alone takes "
+            f"{coll_ms:.3f} ms of those 0.33 ms).", ""]
 
 
 def campus_main(log, baseline, baseline_max_distance=FMU_MAX_DISTANCE, run_output=None):
@@ -600,8 +600,8 @@ def campus_main(log, baseline, baseline_max_distance=FMU_MAX_DISTANCE, run_outpu
         f"100x real time: the collision model alone takes {100 * cpu_ms / 0.33:.0f} % of it (CPU). Far pairs (every member's AABB at least max_distance away) cost nothing while a face-motion "
         "bound says they are still far; the median step is the bookkeeping of 8 moving bodies. The mean is the "
         "physics of the steps where an avatar is within 2 m of its tank (one chunk query each), contacts, and "
-        "conservative advancement for the missile's impact (the max: about ten exact missile-vs-tank distances, "
-        "each visiting the chunks of the turret top's triangle fan, which all share its centre vertex).",
+        "conservative advancement for the missile's impact (the max: about ten exact missile-vs-tank distances of "
+        "about 1 ms; the missile, 192 triangles, keeps the whole-mesh query, as do its approach steps at 2-4 ms).",
         "",
         *(_loop_text(run_output) if run_output else []),
         "At rest (no input changed), one `fmi2DoStep` through FMPy:",
