@@ -16,6 +16,8 @@ CLASS_INDEX = {"lan": 0, "wan": 1}
 #: one call (``Generator.exponential`` with one mean per message: the same draws in the same
 #: order as one call per class)
 MERGE_DRAWS = True
+#: ... for batches of at most this many messages (a scalar mean is the faster draw for large ones)
+MERGE_MAX = 512
 
 
 def sample_latency(rng: np.random.Generator, link: LinkClass, n: int) -> np.ndarray:
@@ -90,7 +92,7 @@ class TransmitPlan:
         # one draw for every class (exponential jitter, no loss): the per-message jitter means
         # in class order, the same sequence of draws as one call per class
         self.merged = None
-        if MERGE_DRAWS and len(self.classes) > 1 and all(
+        if MERGE_DRAWS and len(self.classes) > 1 and n <= MERGE_MAX and all(
                 link.distribution == "exponential" and link.jitter_ms > 0.0 and link.loss <= 0.0
                 for link, _, _ in self.classes):
             idx = np.concatenate([np.arange(n)[sel] for _, sel, _ in self.classes])
