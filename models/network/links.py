@@ -13,8 +13,9 @@ from .config import LinkClass
 
 CLASS_INDEX = {"lan": 0, "wan": 1}
 #: a batch over several link classes with exponential jitter and no loss draws its jitter in
-#: one call (``Generator.exponential`` with one mean per message: the same draws in the same
-#: order as one call per class)
+#: one call (``Generator.exponential(mean, m)`` is ``mean * standard_exponential(m)`` draw by
+#: draw, so one ``standard_exponential`` times the per-message means gives the same draws in
+#: the same order as one call per class)
 MERGE_DRAWS = True
 #: ... for batches of at most this many messages (a scalar mean is the faster draw for large ones)
 MERGE_MAX = 512
@@ -127,7 +128,7 @@ class TransmitPlan:
             return arrival, lost
         if self.merged is not None:
             idx, mean, base = self.merged
-            arrival[idx] = scale * np.maximum(base + rng.exponential(mean), 0.0)
+            arrival[idx] = scale * np.maximum(base + rng.standard_exponential(len(mean)) * mean, 0.0)
         else:
             for link, sel, m in self.classes:
                 arrival[sel] = scale * sample_latency(rng, link, m)
