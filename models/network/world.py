@@ -62,6 +62,8 @@ class World:
         self.eturn = rng.uniform(-0.2, 0.2, E)   # rad/s
         self.ez = np.full(E, cfg.entity_radius)
         self._fixed_key = None     # see at_fixed_point
+        self._ksteer_memo = None   # (steering bytes, steering gains tan(steer max) / wheelbase)
+        self._turn_memo = None     # (sub-step h, decay, cos and sin of the entities' turn per sub-step)
         self._state_memo = None    # (avatar key, P, V, A) of a scene without entities at rest
 
     # -- views ----------------------------------------------------------------------------
@@ -183,9 +185,14 @@ class World:
             return
         cfg = self.cfg
         n, h = self._substeps(dt)
-        k_steer = np.tan(self.steer * cfg.max_steer_rad) / cfg.wheelbase
         if len(self.speed) <= SCALAR_AVATARS:
-            return self._advance_avatars_scalar(n, h, k_steer)
+            key = self.steer.tobytes()
+            memo = self._ksteer_memo
+            if memo is None or memo[0] != key:   # the steering gains, kept while the steering stays
+                k = np.tan(self.steer * cfg.max_steer_rad) / cfg.wheelbase
+                memo = self._ksteer_memo = (key, k.tolist())
+            return self._advance_avatars_scalar(n, h, memo[1])
+        k_steer = np.tan(self.steer * cfg.max_steer_rad) / cfg.wheelbase
         # no throttle and no speed: a sub-step leaves speed and position as they are; once it
         # also leaves the (normalised) heading unchanged, every further one repeats it exactly
         still = not self.throttle.any() and not self.speed.any()
@@ -210,16 +217,15 @@ class World:
             if still and np.array_equal(self.yaw, yaw0):
                 break
 
-    def _advance_avatars_scalar(self, n: int, h: float, k_steer: np.ndarray) -> None:
+    def _advance_avatars_scalar(self, n: int, h: float, ks: list) -> None:
         """:meth:`_advance_avatars` for a few avatars in Python floats: the same operations in
         the same order (IEEE double either way), without ~30 numpy calls per sub-step."""
         cfg = self.cfg
         S, ms, acc, drag = cfg.scene_size, cfg.max_speed, cfg.max_accel, cfg.drag
         pi, two_pi = np.pi, 2 * np.pi
-        thr, ks = self.throttle.tolist(), k_steer.tolist()
+        thr = self.throttle.tolist()
         sp, yaw = self.speed.tolist(), self.yaw.tolist()
         x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
-        accel, yaw_rate = self.accel.tolist(), self.yaw_rate.tolist()
         still = not any(thr) and not any(sp)
         first = True
         for _ in range(n):
@@ -247,7 +253,7 @@ class World:
             if still and yaw == yaw0:
                 break
             first = False
-        self.apos = np.array([x, y]).T.copy()
+        self.apos = np.array(list(zip(x, y))) if x else np.zeros((0, 2))
         self.yaw, self.speed = np.array(yaw), np.array(sp)
         self.accel, self.yaw_rate = np.array(accel), np.array(yaw_rate)
         # a first sub-step that changed nothing is a fixed point: the next advance may be skipped
@@ -260,10 +266,15 @@ class World:
             return
         cfg = self.cfg
         n, h = self._substeps(dt)
+        if len(self.epos) <= SCALAR_ENTITIES:
+            memo = self._turn_memo
+            key = (h, self.eturn.tobytes())
+            if memo is None or memo[0] != key:   # per sub-step length (the same every frame)
+                memo = self._turn_memo = (key, float(np.exp(-cfg.entity_drag * h)), np.cos(self.eturn * h).tolist(),
+                                          np.sin(self.eturn * h).tolist())
+            return self._advance_entities_scalar(n, h, memo[1], memo[2], memo[3])
         decay = np.exp(-cfg.entity_drag * h)
         ct, st = np.cos(self.eturn * h), np.sin(self.eturn * h)
-        if len(self.epos) <= SCALAR_ENTITIES:
-            return self._advance_entities_scalar(n, h, float(decay), ct.tolist(), st.tolist())
         for _ in range(n):
             vx, vy = self.evel[:, 0], self.evel[:, 1]
             nv = np.empty_like(self.evel)
