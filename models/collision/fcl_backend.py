@@ -126,6 +126,9 @@ class FclBackend(CollisionBackend):
                 if len(m.faces) >= CHUNK_MIN_FACES:
                     self._chunked[key] = ChunkedMesh(m.vertices, m.faces, self.config.chunk_faces)
         self._body_chunks = [self._chunked.get(b.mesh_key) for b in self.scene.bodies]
+        self._faces_list = self._faces.tolist()
+        #: the body may be the other side of a chunked query (few triangles, module docstring)
+        self._chunk_partner = [f <= CHUNK_OTHER_MAX_FACES for f in self._faces_list]
         # the other side of the chunk bound: each body's hull vertices and local AABB
         self._hull = [self._local[b.mesh_key][0] for b in self.scene.bodies]
         self._box_c = [(lo + hi) / 2 for lo, hi in self._frame_box]
@@ -245,10 +248,13 @@ class FclBackend(CollisionBackend):
                 or self._frame_gap(a, b) >= before + self.FRAME_GAP_MARGIN):
             return False
         # the larger BVH first: fcl's traversal is cheaper (member first otherwise, see _collide)
-        a_first = bool(self._faces[a] > self._faces[b])
-        big, small = (a, b) if a_first else (b, a)
-        chunks = self._body_chunks[big] if self._faces[small] <= CHUNK_OTHER_MAX_FACES else None
-        if chunks is None:
+        faces = self._faces_list
+        if faces[a] > faces[b]:
+            a_first, big, small = True, a, b
+        else:
+            a_first, big, small = False, b, a
+        chunks = self._body_chunks[big]
+        if chunks is None or not self._chunk_partner[small]:
             d = fcl.distance(self.objs[big], self.objs[small], self._dreq, res)
         else:  # the same triangle pairs, chunk by chunk (module docstring of .chunks)
             lb = chunk_lower_bounds(chunks, self.T[big], self.T[small], self._hull[small], self._box_c[small],
@@ -454,8 +460,7 @@ class FclBackend(CollisionBackend):
         ob = fcl.CollisionObject(self.geoms[self.scene.bodies[b].mesh_key], fcl_transform(B0))
         req = fcl.DistanceRequest()
         # a static chunked partner: its chunks at its (fixed) pose, a's pose interpolated
-        chunks = (self._body_chunks[b] if not self.is_dynamic[b] and self._faces[a] <= CHUNK_OTHER_MAX_FACES
-                  else None)
+        chunks = self._body_chunks[b] if not self.is_dynamic[b] and self._chunk_partner[a] else None
         if chunks is not None:
             tag, tf = self._chunk_tf(b)
             hull, box_c, box_h = self._hull[a], self._box_c[a], self._box_h[a]
