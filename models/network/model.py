@@ -47,6 +47,9 @@ T_COL = 0  # cache row: record time, then p, v, a as the prediction order uses t
 PENDING = frozenset(("input", "impulse", "join", "leave"))
 MEMO_PAIRS = 4096  # at most this many view pairs: a frame's messages may be reused (see _messages)
 MEASURE_CHUNK = 16384   # copies per chunk of the per-copy display error (fits a core's cache)
+#: a resting scene whose displayed copies all hold records of the resting state skips the
+#: display error (all zeros, see _display)
+REST_DISPLAY = True
 SCALAR_VIEW = 64        # at most this many view pairs: the display error in Python floats
 SMALL_VIEW = 256        # at most this many view pairs: the display error on (k, 2) blocks
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
@@ -163,6 +166,8 @@ class NetworkModel:
         self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, their lists)
         self._not_own_memo: Optional[tuple] = None  # (view owners, viewers, owner != viewer)
         self._cells_memo: Optional[tuple] = None   # (positions array, their cells)
+        self._exact: Optional[tuple] = None        # (positions array, first frame time it was used)
+        self._display_clean: Optional[tuple] = None  # (P, view objects, view owners): errors all 0
         self._pub_memo: Optional[tuple] = None     # ((group version, epoch), published mask, objects)
         self._entity_ids = np.arange(G, self.n_obj)
         self._view_memo: Optional[tuple] = None  # (cells, online groups, view pairs, group version) of the last frame
@@ -434,6 +439,7 @@ class NetworkModel:
             P, V, A = w.positions()[o], w.velocities()[o], w.accelerations()[o]
             rec = self._table(o, self.t, P, V, A)
             self._scatter(self.index(old, o), rec, np.arange(len(o)))
+            self._display_clean = None
             self._newest = max(self._newest, self.t)
             self._epoch += 1
             self.owner[o] = new[changed]
@@ -502,6 +508,8 @@ class NetworkModel:
             self.pub_t[pub_obj] = t
             self.pub_p[pub_obj], self.pub_v[pub_obj], self.pub_a[pub_obj] = P[pub_obj], V[pub_obj], A[pub_obj]
         self.metrics.published += len(pub_obj)
+        if self._exact is None or self._exact[0] is not P:   # a new position array: a new streak
+            self._exact = (P, t)
         # 4. messages by topology, link sampling
         cm = self._cells_memo
         if cm is not None and cm[0] is P:   # the same position array (a scene at rest): the same cells
@@ -521,6 +529,7 @@ class NetworkModel:
             newly = self._entered(cells, online_g, vg, vo)
             if newly.any():
                 self.cache[fi[newly], self.enter_col] = t
+                self._display_clean = None
             else:
                 newly = None
             self._view_prev = (cells, online_g)
@@ -756,6 +765,9 @@ class NetworkModel:
                         fi, ridx = fi[newer], ridx[newer]
                 self._scatter(fi, table, ridx)
                 self._newest = max(self._newest, t_send)
+                ex = self._exact
+                if epoch == -1 or ex is None or t_send < ex[1]:   # not a record of the resting scene
+                    self._display_clean = None
 
     def index(self, viewer, obj):
         """Flat cache index of (viewer group, object)."""
@@ -840,7 +852,16 @@ class NetworkModel:
             vo, vl = self.grid.view_pairs(cells, cells[online])
             vg = online[vl]
         if cfg.measure:
-            self._measure(t, P, vg, vo, fi, og, cells, online_g)
+            clean = self._display_clean
+            if (clean is not None and clean[0] is P and clean[1] is vo and clean[2] is og
+                    and self.world.at_fixed_point()):
+                # a resting scene whose every counted copy holds a record of this state (p the
+                # truth, v = a = 0) and which got no other record since: every error is 0 again
+                m = self.metrics
+                m.inconsistency_max = max(m.inconsistency_max, 0.0)
+                m.inconsistency_rms = 0.0
+            else:
+                self._measure(t, P, vg, vo, fi, og, cells, online_g)
         # displayed avatars at every master (for slaves showing an older frame)
         blk = self.cache[:G * G]                  # avatars are objects 0..G-1: object-major block
         av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
@@ -925,12 +946,15 @@ class NetworkModel:
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
         err2 = []
         n_valid = 0
+        oldest = math.inf
         for c, o, no in zip(rows, objs, not_own):
             ct = c[0]
             if not (no and ct >= c[enter] - 1e-12):   # not a remote copy with a record: counts as 0
                 e = 0.0
             else:
                 n_valid += 1
+                if ct < oldest:
+                    oldest = ct
                 cnt[o] += 1
                 p = pos[o]
                 ex = c[1] - p[0]
@@ -949,6 +973,11 @@ class NetworkModel:
             if e > per_max[o]:
                 per_max[o] = e
         m = self.metrics
+        ex = self._exact
+        self._display_clean = None
+        if (REST_DISPLAY and ex is not None and ex[0] is P and oldest >= ex[1] and not any(err2)
+                and self.world.at_fixed_point()):
+            self._display_clean = (P, vo, og)   # every counted record is one of this resting state
         if n_valid == 0:
             self.per_object_max, self.per_object_rms = np.zeros(n_obj), np.zeros(n_obj)
             m.inconsistency_max = max(m.inconsistency_max, 0.0)

@@ -6,7 +6,8 @@ array code it replaces, bit for bit.
 * the display error (eq. 3-1/3-2) of small views in Python floats and on (k, 2) blocks, the
   contact pre-check in Python floats, and the memo'd messages found by group version /
   ownership epoch / view object, and the link jitter of several classes drawn in one call,
-  avatars at a sub-step fixed point not sub-stepped (and their frame arrays reused), vs the
+  avatars at a sub-step fixed point not sub-stepped (their frame arrays reused, and the
+  display error of a resting scene whose copies hold records of that state skipped), vs the
   array code, messages built every frame, one draw per link class and every sub-step;
 * the FMU wrapper's "outputs unchanged" shortcut (``OUTPUTS_UNCHANGED`` at rest) vs writing
   every output every step, through driving, bounces, idling and a state restore.
@@ -36,7 +37,7 @@ def _plain(monkeypatch):
     monkeypatch.setattr(world_mod, "SCALAR_CONTACT_PAIRS", -1)
     monkeypatch.setattr(links_mod, "MERGE_DRAWS", False)
     monkeypatch.setattr(world_mod, "REST_SKIP", False)
-    for name in ("SCALAR_VIEW", "SMALL_VIEW", "MEMO_PAIRS"):
+    for name in ("SCALAR_VIEW", "SMALL_VIEW", "MEMO_PAIRS", "REST_DISPLAY"):
         monkeypatch.setattr(model_mod, name, -1)
 
 
