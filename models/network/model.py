@@ -22,7 +22,6 @@ import copy
 import heapq
 import math
 import logging
-from dataclasses import replace
 from typing import Dict, List, Optional
 
 import numpy as np
@@ -1048,8 +1047,8 @@ class NetworkModel:
         return self.hist[frame % HIST, grp].copy()
 
     def perceived_key(self, node: int) -> tuple:
-        """What :meth:`perceived_avatars` of ``node`` reads: (history slot, group), and the
-        slot's contents as bytes (equal keys, equal positions)."""
+        """What :meth:`perceived_avatars` of ``node`` returns, as bytes (the history row it
+        reads; equal keys, equal positions)."""
         grp = int(self.reg.group[node])
         frame = self.k if node == self.master[grp] else int(self.shown_frame[node])
         frame = max(frame, self.k - HIST + 1)
