@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import copy
 import heapq
-import math
 import logging
+import math
 from typing import Dict, List, Optional
 
 import numpy as np
