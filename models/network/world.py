@@ -228,24 +228,34 @@ class World:
         x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
         still = not any(thr) and not any(sp)
         first = True
+        cos, sin, nms = math.cos, math.sin, -ms
         for _ in range(n):
             yaw0 = yaw
             x2, y2, yaw2, sp2, accel, yaw_rate = [], [], [], [], [], []
+            wall = False
             for v0, th, k, yw, xi, yi in zip(sp, thr, ks, yaw, x, y):
                 a = acc * th - drag * v0
-                v1 = min(max(v0 + a * h, -ms), ms)
+                v1 = v0 + a * h     # clipped to [-ms, ms] (np.minimum(np.maximum(., -ms), ms))
+                if v1 < nms:
+                    v1 = nms
+                elif v1 > ms:
+                    v1 = ms
                 accel.append((v1 - v0) / h)
                 vm = 0.5 * (v0 + v1)
                 yr = vm * k
                 yaw_rate.append(yr)
                 yaw_m = yw + 0.5 * yr * h
                 step = vm * h
-                x2.append(step * math.cos(yaw_m) + xi)
-                y2.append(step * math.sin(yaw_m) + yi)
+                xn = step * cos(yaw_m) + xi
+                yn = step * sin(yaw_m) + yi
+                x2.append(xn)
+                y2.append(yn)
+                if xn < 0.0 or yn < 0.0 or xn > S or yn > S:
+                    wall = True
                 yaw2.append((yw + yr * h + pi) % two_pi - pi)
                 sp2.append(v1)
             x, y, yaw, sp = x2, y2, yaw2, sp2
-            if min(min(x), min(y)) < 0.0 or max(max(x), max(y)) > S:   # a wall: the array code
+            if wall:   # a wall: the array code
                 self.apos, self.yaw, self.speed = np.array([x, y]).T.copy(), np.array(yaw), np.array(sp)
                 self._avatar_walls()
                 x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
