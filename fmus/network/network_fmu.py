@@ -119,7 +119,6 @@ class network(TableSlave):
             entity_speed=v["entity_speed"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
         self.model = NetworkModel(cfg)
         self._key = None         # see _output_key
-        self._jolted = True
         self._slave = 1 if cfg.render_nodes > 1 else 0
         self._names()
         self._write_outputs()
@@ -146,14 +145,10 @@ class network(TableSlave):
         if v["latency_scale"] < 0:
             raise ValueError(f"{self.instance_name}: input latency_scale = {v['latency_scale']} must be >= 0 (t = {t:g} s)")
         m.latency_scale = v["latency_scale"]
-        w = m.world
-        if self._jolted:
-            w.jolt[:] = 0.0
-            self._jolted = False
+        m.world.jolt[:] = 0.0
         for p, (thr, steer, active, nx, ny) in enumerate(self._in_names):
             m.set_input(p, v[thr], v[steer], t)
             if v[active]:
-                self._jolted = True
                 m.bounce(p, (v[nx], v[ny]))
         m.step(h)
         rest = m.at_rest()
@@ -212,4 +207,3 @@ class network(TableSlave):
     def set_model_state(self, state):
         self.model.set_state(state)
         self._key = None            # the restored outputs are in self.values; rewrite after the next step
-        self._jolted = True
