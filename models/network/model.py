@@ -474,7 +474,8 @@ class NetworkModel:
                     self._push(t + float(L), "impulse", int(e), d.copy(), int(g))
                 self.metrics.remote_contacts += int(remote.sum())
         # 2. ownership (§3.6.2)
-        P, V, A = w.state()
+        # accelerations only where read: order-2 records, the DIS test's last published state
+        P, V, A = w.state(acc=cfg.prediction_order >= 2 or cfg.dis_threshold > 0)
         if cfg.ownership != "none" and cfg.entities:
             cand = np.flatnonzero(online_g)
             cur = self.owner[G:]

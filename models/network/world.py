@@ -97,28 +97,33 @@ class World:
     def accelerations(self) -> np.ndarray:
         return np.concatenate([self.aacc(), self.eacc()])
 
-    def state(self):
+    def state(self, acc: bool = True):
         """Positions, velocities, accelerations (G + E, 2) of all objects, avatars first (as
         :meth:`positions`, :meth:`velocities`, :meth:`accelerations`; one cos/sin of the headings).
 
         Written column by column into fresh arrays (the same element-wise operations as
         :meth:`aacc` and :meth:`eacc`, without ``np.stack``/``np.concatenate``). A scene without
         entities whose avatars rest at a fixed point gets the same arrays again (callers only
-        read them)."""
+        read them). ``acc`` False: A is None (a caller that does not use it)."""
         if REST_SKIP and not len(self.evel) and self._fixed_key is not None:   # at rest, no entities
             memo = self._state_memo
-            if memo is not None and memo[0] == self._avatar_key():
-                return memo[1], memo[2], memo[3]
+            if memo is not None and memo[0] == self._avatar_key() and (memo[3] is not None or not acc):
+                return memo[1], memo[2], memo[3] if acc else None
         c, s = np.cos(self.yaw), np.sin(self.yaw)
         G, E = len(c), len(self.evel)
         n = G + E
-        P, V, A = np.empty((n, 2)), np.empty((n, 2)), np.empty((n, 2))
+        P, V = np.empty((n, 2)), np.empty((n, 2))
         P[:G] = self.apos
         P[G:] = self.epos
         sp = self.speed
         np.multiply(c, sp, out=V[:G, 0])
         np.multiply(s, sp, out=V[:G, 1])
         V[G:] = self.evel
+        if not acc:
+            if self._fixed_key is not None and not E:
+                self._state_memo = (self._avatar_key(), P, V, None)
+            return P, V, None
+        A = np.empty((n, 2))
         lat = sp * self.yaw_rate
         acc = self.accel
         np.subtract(acc * c, lat * s, out=A[:G, 0])
