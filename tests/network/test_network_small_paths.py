@@ -3,12 +3,13 @@ array code it replaces, bit for bit.
 
 * ownership (eq. 3-6, 3-11/3-12, 3-3) in Python floats, with the sphere-of-radius-``a`` cull,
   vs the array code (every rule and reading of the foci, resting and degenerate avatars);
-* the display error (eq. 3-1/3-2) of small views in Python floats and on (k, 2) blocks, the
-  contact pre-check in Python floats, and the memo'd messages found by group version /
-  ownership epoch / view object, and the link jitter of several classes drawn in one call,
-  avatars at a sub-step fixed point not sub-stepped (their frame arrays reused, and the
-  display error of a resting scene whose copies hold records of that state skipped), vs the
-  array code, messages built every frame, one draw per link class and every sub-step;
+* the display error (eq. 3-1/3-2) of small views in Python floats and on (k, 2) blocks, and
+  skipped for a resting scene whose copies hold records of that state;
+* the contact pre-check in Python floats; avatars at a sub-step fixed point not sub-stepped
+  (their frame arrays reused);
+* the memo'd messages found by group version / ownership epoch / view object, and the link
+  jitter of several classes drawn in one call;
+  all vs the array code, messages built every frame, one draw per link class, every sub-step;
 * the FMU wrapper's "outputs unchanged" shortcut (``OUTPUTS_UNCHANGED`` at rest) vs writing
   every output every step, through driving, bounces, idling and a state restore.
 """
@@ -37,7 +38,8 @@ def _plain(monkeypatch):
     monkeypatch.setattr(world_mod, "SCALAR_CONTACT_PAIRS", -1)
     monkeypatch.setattr(links_mod, "MERGE_DRAWS", False)
     monkeypatch.setattr(world_mod, "REST_SKIP", False)
-    for name in ("SCALAR_VIEW", "SMALL_VIEW", "MEMO_PAIRS", "REST_DISPLAY"):
+    monkeypatch.setattr(model_mod, "REST_DISPLAY", False)
+    for name in ("SCALAR_VIEW", "SMALL_VIEW", "MEMO_PAIRS"):
         monkeypatch.setattr(model_mod, name, -1)
 
 
