@@ -86,7 +86,7 @@ class network(TableSlave):
         Var("dropped_frames", "output", "Integer", 0, "", "slave frames dropped at the tick in the step (§3.5.2)"),
         Var("rejected_updates", "output", "Integer", 0, "", "updates from non-owners rejected in the step"),
         Var("online_nodes", "output", "Integer", 0, "", "nodes in the supernode's heartbeat index table"),
-        Var("at_rest", "output", "Boolean", False, "", "stepping on with unchanged inputs changes no output (no input changed, nothing moves, nothing pending, dis_threshold <= 0)"),
+        Var("at_rest", "output", "Boolean", False, "", "stepping on with unchanged inputs changes no output (no input changed, frame traffic as in the step before, nothing moves, nothing pending, dis_threshold <= 0)"),
     )
 
     def _param_error(self, name, msg):

@@ -113,6 +113,11 @@ class NetworkModel:
         self.shown_frame = np.zeros(self.reg.n, np.int64)
         self.inputs = np.zeros((G, 2))
         self.inputs_changed = False
+        # what at_rest() needs of the last step: an input changed in it (the flag above is
+        # cleared at the end of every step), and the frame traffic of the step before
+        self._step_inputs_changed = False
+        self._prev_frame_traffic: Optional[tuple] = None
+        self._traffic_steady = False
         # ownership: avatars by their group; entities initially by the nearest avatar
         self.owner = np.r_[np.arange(G), self._initial_entity_owners()]
         self.pending_contact = np.zeros(E, bool)
@@ -372,6 +377,9 @@ class NetworkModel:
         m.online_nodes = int(np.count_nonzero(self.online))
         m.frame_messages, m.frame_bytes = self._frame_traffic
         self.totals.add(m)
+        self._step_inputs_changed = self.inputs_changed
+        self._traffic_steady = self._frame_traffic == self._prev_frame_traffic
+        self._prev_frame_traffic = self._frame_traffic
         self.inputs_changed = False
         return m
 
@@ -1058,14 +1066,17 @@ class NetworkModel:
     def at_rest(self) -> bool:
         """Stepping on with unchanged inputs would change no per-frame output.
 
-        True when no input changed in the step, nothing moves, no input, collision, join or
-        leave event is queued, every node shows the true state and updates go out every frame
+        True when no input changed in the step, the step's frame traffic equals the step
+        before's (a control packet handled in the step, or forwarded by a master in it, changes
+        a frame's traffic once), nothing moves, no input, collision, join or leave event is
+        queued, every node shows the true state and updates go out every frame
         (``dis_threshold <= 0``; with DIS the 1 s re-publication changes a frame's traffic).
         The per-frame traffic of such a frame (``StepMetrics.frame_messages``/``frame_bytes``:
         STATE, FRAME, REPORT of a scene that does not move) is then the same every frame;
         heartbeats (and the supernode's time-out checks) go on but are not part of it.
         """
-        return (not self.inputs_changed and not self._pending and not self.world.moving()
+        return (not self._step_inputs_changed and self._traffic_steady and not self._pending
+                and not self.world.moving()
                 and self.metrics.inconsistency_max == 0.0 and self.cfg.driven_groups == self.cfg.groups
                 and self.cfg.dis_threshold <= 0)
 

@@ -74,6 +74,8 @@ def test_catch_up_step_equals_idle_steps_one_by_one(fmu, outputs, n_idle):
 def test_moving_scene_is_not_at_rest_and_a_stopped_one_is():
     m = NetworkModel(NetworkConfig(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3))
     m.step(H)
+    assert not m.at_rest()                               # no earlier step to compare its traffic with
+    m.step(H)
     assert m.at_rest()
     m.set_input(0, 0.5, 0.0)
     m.step(H)
@@ -105,3 +107,26 @@ def test_frame_traffic_excludes_heartbeats_and_matches_a_33ms_step():
         n_hb = hb // 44
         assert m.metrics.frame_messages == m.metrics.messages - n_hb
         assert m.metrics.frame_bytes == m.metrics.bytes - hb
+
+
+@pytest.mark.parametrize("topology", ["hybrid_p2p", "full_mesh"])
+def test_a_control_packet_at_standstill_is_not_rest_until_the_traffic_is_steady(topology):
+    """Steering at zero speed moves nothing, but its ControllerPacket changes a frame's traffic:
+    whenever the model claims at_rest, the next step (same inputs) has the same traffic, so a
+    lazy master that repeats the last outputs logs what an eager one does."""
+    m = NetworkModel(NetworkConfig(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3,
+                                   topology=topology))
+    for _ in range(3):
+        m.step(H)
+    assert m.at_rest()
+    m.set_input(0, 0.0, 0.3)
+    seen = []
+    for _ in range(8):
+        m.step(H)
+        seen.append((m.metrics.frame_messages, m.metrics.frame_bytes, m.at_rest()))
+    assert not seen[0][2]
+    assert len({s[:2] for s in seen}) > 1                # the packet did change a frame's traffic
+    for (msg, nbytes, rest), (msg_next, nbytes_next, _) in zip(seen, seen[1:]):
+        if rest:
+            assert (msg_next, nbytes_next) == (msg, nbytes)
+    assert seen[-1][2]                                   # and the scene is at rest again

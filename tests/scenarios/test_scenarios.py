@@ -145,3 +145,21 @@ def test_lazy_stepping_matches_eager_on_idle_scene(tmp_path):
     # the drive after 7 s really happened in both (the lazy units woke up and caught up)
     assert series(lazy_log, "net.avatar[1].x")[-1] > series(lazy_log, "net.avatar[1].x")[0] + 0.5
     assert np.abs(series(lazy_log, "plat.stroke[1]")).max() > 1e-3
+
+
+def test_lazy_stepping_matches_eager_for_a_control_packet_at_standstill(tmp_path):
+    """A steer change at zero speed moves nothing but sends a ControllerPacket: the network must
+    not claim at_rest while that changes a frame's traffic (lazy stepping would repeat it)."""
+    scn = tmp_path / "standstill.toml"
+    scn.write_text('[simulation]\nstop = 3.0\n[[units]]\nname = "net"\nfmu = "network"\n'
+                   '[units.parameters]\nplayers = 2\nrender_nodes = 2\nentities = 0\ntopology = "full_mesh"\n'
+                   '[[inputs]]\ntarget = "net.avatar[1].steer"\nkind = "step"\nat = 1.0\nvalue = 0.3\n')
+    lazy_log, eager_log = tmp_path / "lazy.mcap", tmp_path / "eager.mcap"
+    ex = Execution(scn, lazy_log, overrides={"simulation.lazy": True})
+    ex.run()
+    assert ex.master.slots["net"].skipped_steps > 60
+    run_scenario(scn, eager_log, overrides={"simulation.lazy": False})
+    a, b = read_series(lazy_log, ["*"]), read_series(eager_log, ["*"])
+    assert len(np.unique(b["net.messages"][1])) > 1  # the packet shows in the traffic
+    differ = sorted(k for k in a if not np.array_equal(a[k][1], b[k][1], equal_nan=True))
+    assert not differ, differ
