@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional
 
 from .errors import ImmersimError, LogWriteError
-from .fmu import RealSetter
+from .fmu import RealSetter, forget_python_code
 from .master import Master, Slot
 from .observers import McapObserver, write_parameters
 from .scenario import Scenario, load_scenario
@@ -322,6 +322,7 @@ class Execution:
                 log.error("%s", exc)
         finally:
             self.system.terminate()
+            forget_python_code(Path(self._tmp.name))
             self._tmp.cleanup()
 
 

@@ -17,6 +17,7 @@ Time is handled in integer nanoseconds and converted to seconds only here, at th
 from __future__ import annotations
 
 import ctypes
+import importlib
 import logging
 import math
 import os
@@ -78,6 +79,36 @@ def ns_to_s(t_ns: int) -> float:
 #: parsed model descriptions by (path, mtime, size): a scenario reads each FMU at check time
 #: and again when it instantiates it, often several instances of one FMU
 _MODELS: Dict[tuple, tuple] = {}
+
+
+def forget_python_code(folder: Path) -> int:
+    """Drop the Python modules and ``sys.path`` entries that live under ``folder``.
+
+    A pythonfmu FMU runs in this interpreter: loading it puts its ``resources/`` on ``sys.path``
+    and imports its modules from there. When the run's extraction folder is removed, those module
+    objects would stay in ``sys.modules`` pointing at deleted files, and a later run of the same
+    FMU in this process (a sweep worker, a benchmark) would reuse them and fail on its first
+    lazy import of a sibling module. Call this after the instances are freed, before the folder
+    goes. Returns the number of modules dropped.
+    """
+    import sys
+
+    root = str(Path(folder).resolve())
+
+    def inside(p) -> bool:
+        try:
+            return p is not None and str(Path(p).resolve()).startswith(root + os.sep)
+        except (OSError, ValueError):
+            return False
+
+    names = [n for n, m in list(sys.modules.items())
+             if inside(getattr(m, "__file__", None))
+             or any(inside(p) for p in list(getattr(m, "__path__", None) or []))]
+    for n in names:
+        del sys.modules[n]
+    sys.path[:] = [p for p in sys.path if not inside(p)]
+    importlib.invalidate_caches()
+    return len(names)
 
 
 def clear_caches() -> None:

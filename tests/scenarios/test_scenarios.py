@@ -163,3 +163,19 @@ def test_lazy_stepping_matches_eager_for_a_control_packet_at_standstill(tmp_path
     assert len(np.unique(b["net.messages"][1])) > 1  # the packet shows in the traffic
     differ = sorted(k for k in a if not np.array_equal(a[k][1], b[k][1], equal_nan=True))
     assert not differ, differ
+
+
+def test_two_runs_in_one_process_each_load_the_fmu_code_they_need(tmp_path):
+    """The same FMU in two runs of one process (a sweep worker, a benchmark): the first run's
+    extraction is gone when the second starts, and the second needs a module the first never
+    imported (another backend). No module of a removed extraction may stay importable."""
+    import sys
+
+    for backend in ("fcl", "basis_point"):
+        res = run_scenario(SCEN / "tank_field.toml", tmp_path / f"{backend}.mcap",
+                           overrides={"simulation.stop": 0.33, "coll.backend": backend})
+        assert res.status == "completed" and res.steps_done == 10
+        stale = [n for n, m in sys.modules.items()
+                 if getattr(m, "__file__", None) and "immersim_run_" in m.__file__
+                 and not Path(m.__file__).exists()]
+        assert not stale, stale[:5]
