@@ -321,9 +321,15 @@ class Execution:
             except LogWriteError as exc:  # a failure is already being reported; keep it, note this one
                 log.error("%s", exc)
         finally:
-            self.system.terminate()
-            forget_python_code(Path(self._tmp.name))
-            self._tmp.cleanup()
+            self.close()
+
+    def close(self) -> None:
+        """Free the FMU instances and remove their extraction (with the Python modules loaded
+        from it, see :func:`~immersim.orchestrator.fmu.forget_python_code`). :meth:`run` calls
+        it; call it after using :meth:`_setup` directly."""
+        self.system.terminate()
+        forget_python_code(Path(self._tmp.name))
+        self._tmp.cleanup()
 
 
 @functools.lru_cache(maxsize=1)
