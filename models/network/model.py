@@ -704,8 +704,17 @@ class NetworkModel:
             self._file(self._due(arr), fi, sender, table, ridx, epoch)
 
     def _due(self, arr: np.ndarray) -> np.ndarray:
-        """First frame ``k`` (>= the current one) with ``k T >= arrival`` for arrivals ``arr`` (s)."""
-        return np.maximum(np.ceil(arr / self.cfg.frame_s - 1e-9), self.k).astype(np.int64)
+        """First frame ``k`` (>= the current one) with ``k T >= arrival`` for arrivals ``arr`` (s).
+
+        An arrival that is not finite (a lost message) or beyond any int64 frame (a link of
+        almost no bandwidth) gives -1, "lost", as :meth:`_file` reads it, without casting NaN,
+        inf or an overflowing value to an integer (which numpy warns of, and which gave the
+        negative minimum int64: lost as well)."""
+        k = np.maximum(np.ceil(arr / self.cfg.frame_s - 1e-9), self.k)
+        ok = k < 2.0 ** 62   # False for NaN too
+        if not ok.all():
+            k = np.where(ok, k, -1.0)
+        return k.astype(np.int64)
 
     def _file(self, due: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
               ridx: np.ndarray, epoch: Optional[int] = None, t_send: Optional[float] = None) -> None:
