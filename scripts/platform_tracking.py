@@ -11,6 +11,7 @@ Usage: python scripts/platform_tracking.py [--out results/platform]
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -20,6 +21,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from immersim.models.platform.control import simulate_tracking, sine_reference  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from common import commit, machine  # noqa: E402  (the benchmarks' stamps)
 
 CASES = {
     "single_axis_y": dict(reference=sine_reference(a_y=0.05), q0=None,
@@ -58,35 +62,10 @@ def main() -> None:
             rows.append(f"| {name} | {c} | {err:.3e} | {np.abs(r.F).max():.1f} |")
             print(f"{name:14s} {c:16s} max position error after 2 s: {err:.3e} m")
     head = ["# §6.4.2 tracking, scaled into the workspace (computed torque vs PD)", "",
-            f"Command: `python scripts/platform_tracking.py`; commit `{_commit()}`; {_machine()}.", "",
+            f"Command: `python scripts/platform_tracking.py`; commit `{commit()}`; {machine()}.", "",
             "Target (issue 3): tracking error after the transient < 0.1 mm on the nominal model (computed torque).",
             "Plots: `tracking_single_axis_y.png`, `tracking_yz_ellipse.png`.", ""]
     (out / "tracking.md").write_text("\n".join(head + rows) + "\n")
-
-
-def _commit() -> str:
-    import subprocess
-
-    root = Path(__file__).resolve().parents[1]
-    sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "--", "models", "scripts"], cwd=root,
-                           capture_output=True, text=True).stdout.strip()
-    return sha + ("+dirty" if dirty else "")
-
-
-def _machine() -> str:
-    import os
-    import platform
-
-    cpu = platform.processor()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores, {cpu}, Python {platform.python_version()}"
 
 
 if __name__ == "__main__":

@@ -28,6 +28,32 @@ import numpy as np
 
 from .arrays import sum_by_key, unique_values
 
+
+def squared_dr_error(c: np.ndarray, ct: np.ndarray, x: np.ndarray, y: np.ndarray, t: float,
+                     order: int) -> np.ndarray:
+    """Squared position error (k,) m^2 of dead-reckoned records against the truth (eq. 3-1/3-2
+    with §3.6.3): ``e = (p - truth) + v dt (+ a dt^2 / 2)``, ``dt = t - ct``.
+
+    ``c`` (k, >= 7) holds rows ``t, px, py, vx, vy, ax, ay`` (the record cache's layout), ``ct``
+    their record times (s), ``x, y`` (k,) the true positions (m). One sequence of in-place
+    operations serves the per-copy and the per-record-group evaluations, so both give
+    bit-identical errors.
+    """
+    ex = c[:, 1] - x
+    ey = c[:, 2] - y
+    if order >= 1:
+        dt = t - ct
+        ex += c[:, 3] * dt
+        ey += c[:, 4] * dt
+        if order >= 2:
+            h = 0.5 * dt * dt
+            ex += c[:, 5] * h
+            ey += c[:, 6] * h
+    ex *= ex
+    ey *= ey
+    ex += ey
+    return ex
+
 #: a frame that touched more than this share of the copies is evaluated per copy
 TOUCHED_SHARE = 0.25
 
@@ -181,19 +207,7 @@ class DisplayGroups:
         c = self.rows
         ct = c[:, 0]
         # the same arithmetic as the per-copy evaluation, so each group's error is bit-identical
-        ex = c[:, 1] - np.take(P[:, 0], o)
-        ey = c[:, 2] - np.take(P[:, 1], o)
-        if order >= 1:
-            dt = t - ct
-            ex += c[:, 3] * dt
-            ey += c[:, 4] * dt
-            if order >= 2:
-                h = 0.5 * dt * dt
-                ex += c[:, 5] * h
-                ey += c[:, 6] * h
-        ex *= ex
-        ey *= ey
-        ex += ey
+        ex = squared_dr_error(c, ct, np.take(P[:, 0], o), np.take(P[:, 1], o), t, order)
         per_max = np.zeros(n_obj)
         np.maximum.at(per_max, o, ex)
         wf = w.astype(float)

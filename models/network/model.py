@@ -29,7 +29,7 @@ import numpy as np
 from . import links as lk
 from .config import NetworkConfig
 from .consistency import SceneGrid, assign_owners, dead_reckon
-from .display import DisplayGroups
+from .display import DisplayGroups, squared_dr_error
 from .ids import PastryOverlay
 from .metrics import StepMetrics, Totals, inconsistency_sq
 from .nodes import H, NodeRegistry, Traffic, TrafficPlan, build_messages, control_bytes
@@ -1034,20 +1034,7 @@ class NetworkModel:
         c = np.take(self.cache, fi, axis=0)       # one row (cache line) per copy
         ct = c[:, T_COL]
         remote = (og != vg) & (ct >= c[:, self.enter_col] - 1e-12)
-        ex = c[:, 1] - np.take(px, vo)
-        ey = c[:, 2] - np.take(py, vo)
-        if order >= 1:
-            dt = t - ct
-            ex += c[:, 3] * dt
-            ey += c[:, 4] * dt
-            if order >= 2:
-                h = 0.5 * dt * dt
-                ex += c[:, 5] * h
-                ey += c[:, 6] * h
-        ex *= ex
-        ey *= ey
-        ex += ey
-        return ex, remote
+        return squared_dr_error(c, ct, np.take(px, vo), np.take(py, vo), t, order), remote
 
     # -- queries ------------------------------------------------------------------------------------
     def perceived_avatar(self, node: int, g: int) -> np.ndarray:
