@@ -184,11 +184,11 @@ def campus_fmpy(steps: int):
     C boundary included) and of reading every output back (getReal/getInteger/getBoolean, what
     a master does each step)."""
     import shutil
-    import tempfile
-    import zipfile
 
     from fmpy import read_model_description
-    from fmpy.fmi2 import FMU2Slave
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from common import fmpy_slave
 
     from immersim.orchestrator.build import build_unit, default_build_dir
 
@@ -199,12 +199,7 @@ def campus_fmpy(steps: int):
             for t in ("Real", "Integer", "Boolean")}
     res = []
     for label, entities, drive in CAMPUS:
-        tmp = tempfile.mkdtemp(prefix="bench_net_")
-        zipfile.ZipFile(path).extractall(tmp)
-        fmu = FMU2Slave(guid=md.guid, unzipDirectory=tmp, modelIdentifier=md.coSimulation.modelIdentifier,
-                        instanceName="bench")
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
+        fmu, tmp = fmpy_slave(path, md, "bench_net_")
         fmu.enterInitializationMode()
         fmu.setInteger([vr["players"], vr["render_nodes"], vr["entities"], vr["seed"], vr["prediction_order"]],
                        [3, 3, entities, 0, 1])

@@ -21,6 +21,7 @@ import csv
 import os
 import platform as _platform
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -95,21 +96,16 @@ def model_step_time(n_steps: int, reps: int = 5):
 def fmu_step_time(n_steps: int):
     """(median wall, mean process CPU) of one FMU doStep (plus input setting) under FMPy, s."""
     from fmpy import read_model_description
-    from fmpy.fmi2 import FMU2Slave
-    import tempfile
-    import zipfile
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from common import fmpy_slave
 
     from immersim.orchestrator.build import build_unit, default_build_dir
 
     path = build_unit(Path(__file__).resolve().parents[1] / "fmus" / "platform", default_build_dir())
     md = read_model_description(str(path))
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    tmp = tempfile.mkdtemp(prefix="bench_platform_")
-    zipfile.ZipFile(path).extractall(tmp)
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=tmp, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="bench")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
+    fmu, tmp = fmpy_slave(path, md, "bench_platform_")
     fmu.enterInitializationMode()
     fmu.exitInitializationMode()
     ins = [vr[n] for n in ("cue.f_x", "cue.f_y", "cue.w_z")]

@@ -51,3 +51,21 @@ def interleaved(fns: Dict[str, Callable[[], float]], repeats: int) -> Dict[str, 
 
 def median(xs: List[float]) -> float:
     return statistics.median(xs)
+
+
+def fmpy_slave(path: Path, md, prefix: str = "bench_"):
+    """Extract ``path`` into a fresh temporary folder and instantiate it with FMPy's
+    ``FMU2Slave`` (model description ``md``), set up at t = 0 and ready for initialization
+    mode. Returns ``(fmu, folder)``; the caller frees the instance and removes the folder."""
+    import tempfile
+    import zipfile
+
+    from fmpy.fmi2 import FMU2Slave
+
+    tmp = tempfile.mkdtemp(prefix=prefix)
+    zipfile.ZipFile(path).extractall(tmp)
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=tmp, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName="bench")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    return fmu, tmp
