@@ -56,15 +56,11 @@ def table(path: Path, skip=("run", "reason", "mcap", "t_end_s")) -> tuple:
 def contact_facts(folder: Path, rows: list) -> dict:
     """Per backend (from each run's MCAP): the first contact step of pairs 1..3, the bounce
     (jolt) of each avatar, and whether a pair was in contact in the initial output."""
-    sys.path.insert(0, str(ROOT))
     from immersim.orchestrator.mcapio import read_series
 
     out = {}
-    for r in rows:
-        mcap = Path(r["mcap"]) if os.path.isabs(r["mcap"]) else ROOT / r["mcap"]
-        if not mcap.exists():
-            mcap = folder / Path(r["mcap"]).name
-        s = read_series(mcap, ["coll.pair[[]?].in_contact", "net.avatar[[]?].jolt"])
+    for r in rows:  # the sweep writes each run's MCAP beside its summary.csv
+        s = read_series(folder / Path(r["mcap"]).name, ["coll.pair[[]?].in_contact", "net.avatar[[]?].jolt"])
         first, jolt, at0 = [], [], []
         for p in (1, 2, 3):
             c = s[f"coll.pair[{p}].in_contact"][1] > 0

@@ -126,8 +126,6 @@ def test_campus_closed_loop_collision_bounce_and_jolt(tmp_path):
     assert np.abs(s - s0)[:, k + 1:].max() > 2e-3
 
 
-
-
 def test_lazy_stepping_matches_eager_on_idle_scene(tmp_path):
     ov = {"simulation.stop": 8.0}
     lazy_log, eager_log = tmp_path / "lazy.mcap", tmp_path / "eager.mcap"
