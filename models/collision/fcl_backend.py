@@ -54,7 +54,7 @@ _EYE3 = np.eye(3)
 def bvh_model(vertices: np.ndarray, faces: np.ndarray) -> "fcl.BVHModel":
     """An fcl BVH (OBBRSS) of a triangle mesh."""
     g = fcl.BVHModel()
-    g.beginModel(len(vertices), len(faces))
+    g.beginModel(len(faces), len(vertices))  # (num_tris, num_vertices)
     g.addSubModel(np.asarray(vertices, float), np.asarray(faces, np.int64))
     g.endModel()
     return g
