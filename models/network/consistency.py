@@ -43,6 +43,29 @@ class SceneGrid:
         ib, jb = np.divmod(b, self.C)
         return (np.abs(ia - ib) <= 1) & (np.abs(ja - jb) <= 1)
 
+    def not_in_view(self, old_cells: np.ndarray, old_online: np.ndarray, cells: np.ndarray,
+                    vg: np.ndarray, vo: np.ndarray) -> np.ndarray:
+        """Indices of the view pairs (viewer group ``vg``, object ``vo``) of cells ``cells``
+        that were not in view with the cells ``old_cells`` (objects) and online groups
+        ``old_online`` (G,) bool of another frame: pairs that entered the view since then (or,
+        with the frames swapped, pairs that left it).
+
+        A pair is in view iff its viewer is online and the object's cell is in the 9-cell
+        neighbourhood of the viewer avatar's cell (§3.3; every online viewer sees every object
+        without the grid). Only pairs whose object or viewer changed cell, or whose viewer was
+        offline, can differ, so the neighbourhood test runs on those alone.
+        """
+        if not self.enabled:
+            return np.flatnonzero(~np.take(old_online, vg))
+        moved = cells != old_cells
+        changed_v = moved[:len(old_online)] | ~old_online
+        cand = np.flatnonzero(np.take(moved, vo) | np.take(changed_v, vg))
+        if len(cand):
+            g, o = vg[cand], vo[cand]
+            was = np.take(old_online, g) & self.adjacent(np.take(old_cells, o), np.take(old_cells, g))
+            cand = cand[~was]
+        return cand
+
     def view_pairs(self, viewer_cells: np.ndarray, object_cells: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         """All (viewer, object) pairs with the object in the viewer's 9-cell neighbourhood.
 

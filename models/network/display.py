@@ -131,24 +131,7 @@ class DisplayGroups:
 
     def _view_changes(self, grid, pc, pon, pvo, pvg, pfi, cells, online, vo, vg, fi) -> List[np.ndarray]:
         """Flat indices of the pairs that entered the view (in ``fi``) and left it (in ``pfi``)."""
-        G = self.G
-        if not grid.enabled:   # everyone sees everything: only viewers going on- or offline matter
-            return [fi[~np.take(pon, vg)], pfi[~np.take(online, pvg)]]
-        moved = cells != pc
-        out = []
-        came = moved[:G] | ~pon
-        cand = np.flatnonzero(np.take(moved, vo) | np.take(came, vg))
-        if len(cand):
-            g, o = vg[cand], vo[cand]
-            was = np.take(pon, g) & grid.adjacent(np.take(pc, o), np.take(pc, g))
-            out.append(fi[cand[~was]])
-        went = moved[:G] | ~online
-        cand = np.flatnonzero(np.take(moved, pvo) | np.take(went, pvg))
-        if len(cand):
-            g, o = pvg[cand], pvo[cand]
-            still = np.take(online, g) & grid.adjacent(np.take(cells, o), np.take(cells, g))
-            out.append(pfi[cand[~still]])
-        return out
+        return [fi[grid.not_in_view(pc, pon, cells, vg, vo)], pfi[grid.not_in_view(cells, online, pc, pvg, pvo)]]
 
     def _apply(self, model, T: np.ndarray, cells: np.ndarray, online: np.ndarray) -> None:
         """Recount the copies ``T`` (unique flat indices) and move them between groups."""

@@ -813,27 +813,12 @@ class NetworkModel:
                                          or bool(self.grid.adjacent(cells[obj], cells[viewer])))
 
     def _entered(self, cells: np.ndarray, online_g: np.ndarray, vg: np.ndarray, vo: np.ndarray) -> np.ndarray:
-        """Which of this frame's view pairs (``vg``, ``vo``) were not in view at the last frame.
-
-        A pair was in view at frame ``k - 1`` iff its viewer was online then and the object's
-        cell was in the 9-cell neighbourhood of the viewer avatar's cell (§3.3). Only pairs
-        whose object or viewer changed cell (or whose viewer came online) can have entered,
-        so the neighbourhood test runs on those alone.
-        """
-        if self._view_prev is None:
-            return np.zeros(len(vg), bool)
-        pc, pon = self._view_prev
-        G = self.cfg.groups
-        if not self.grid.enabled:
-            return ~np.take(pon, vg)
-        moved = cells != pc
-        changed_v = moved[:G] | ~pon
-        cand = np.flatnonzero(np.take(moved, vo) | np.take(changed_v, vg))
+        """Which of this frame's view pairs (``vg``, ``vo``) were not in view at the last frame
+        (:meth:`SceneGrid.not_in_view`), as a mask."""
         newly = np.zeros(len(vg), bool)
-        if len(cand):
-            g, o = vg[cand], vo[cand]
-            was = np.take(pon, g) & self.grid.adjacent(np.take(pc, o), np.take(pc, g))
-            newly[cand] = ~was
+        if self._view_prev is not None:
+            pc, pon = self._view_prev
+            newly[self.grid.not_in_view(pc, pon, cells, vg, vo)] = True
         return newly
 
     def _flip_frames(self, t: float) -> None:
