@@ -47,7 +47,7 @@ from typing import Optional
 import casadi as ca
 import numpy as np
 
-from .codegen import FastFunction, _work_sizes, compile_library
+from .codegen import RK4_LOOP_C, FastFunction, _work_sizes, compile_library
 from .control import NC
 from .cueing import NWM, NWS, washout_sx
 from .dynamics import NP, functions, param_dict
@@ -161,7 +161,7 @@ def post_function(rhs: ca.Function) -> ca.Function:
 
 
 DRIVER_C = r"""
-/* one platform macro step: pre, n RK4 substeps, post (see macrostep.py) */
+/* one platform macro step: pre, n RK4 substeps (the RK4 loop above), post (see macrostep.py) */
 CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w) {{
   const casadi_real *st = arg[0], *s = arg[1], *ctrl = arg[2], *wm = arg[3], *p = arg[4], *c = arg[5];
   casadi_real *nx = res[0], *out = res[1], *inside = res[2];
@@ -190,13 +190,7 @@ CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casa
   }}
   for (i = 0; i < {nu}; ++i) nx[{ou} + i] = u[i];
   hs = ctrl[1] / n;
-  for (i = 0; i < {nx}; ++i) nx[i] = st[i];
-  for (k = 0; k < n; ++k) {{
-    for (i = 0; i < {nx}; ++i) xin[i] = nx[i];
-    a[0] = xin; a[1] = u; a[2] = p; a[3] = c; a[4] = &hs;
-    r[0] = nx;
-    if ({sub}(a, r, iw, w, 0)) return 1;
-  }}
+  if ({loop}(st, u, p, c, hs, n, nx, iw, w)) return 1;  /* codegen.RK4_LOOP_C */
   a[0] = nx; a[1] = u; a[2] = p; a[3] = c; a[4] = nx + {oraw}; a[5] = nx + {oreach}; a[6] = &clamped;
   a[7] = ctrl; a[8] = nx + {ow};
   r[0] = out;
@@ -217,9 +211,11 @@ def _library(rhs: ca.Function):
     name = f"{rhs.name()}_macro"
     fns = (pre, check, sub, post)
     sz_arg, sz_res = max(max(f.sz_arg() for f in fns), 9), max(max(f.sz_res() for f in fns), 4)
-    c_src = DRIVER_C.format(name=name, pre=pre.name(), check=check.name(), sub=sub.name(), post=post.name(),
-                            nx=NX, nu=NU, iters=CLAMP_ITERS, sz_arg=sz_arg, sz_res=sz_res,
-                            ow=W.start, ou=U.start, oraw=RAW.start, oreach=REACH.start)
+    loop = f"{name}_rk4_loop"
+    c_src = RK4_LOOP_C.format(name=loop, sub=sub.name(), nx=NX, sz_arg=sz_arg, sz_res=sz_res)
+    c_src += DRIVER_C.format(name=name, pre=pre.name(), check=check.name(), loop=loop, post=post.name(),
+                             nx=NX, nu=NU, iters=CLAMP_ITERS, sz_arg=sz_arg, sz_res=sz_res,
+                             ow=W.start, ou=U.start, oraw=RAW.start, oreach=REACH.start)
     return compile_library(name, list(fns), c_src), fns, (name, sz_arg, sz_res)
 
 
