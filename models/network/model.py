@@ -50,7 +50,6 @@ MEASURE_CHUNK = 16384   # copies per chunk of the per-copy display error (fits a
 #: display error (all zeros, see _display)
 REST_DISPLAY = True
 SCALAR_VIEW = 64        # at most this many view pairs: the display error in Python floats
-SMALL_VIEW = 256        # at most this many view pairs: the display error on (k, 2) blocks
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
 
 
@@ -168,7 +167,6 @@ class NetworkModel:
         self._group_version = 0                  # bumped whenever a group's master or slaves are set
         self._slaves_memo: Optional[tuple] = None  # (group version, slave nodes, arange(G))
         self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, their lists)
-        self._not_own_memo: Optional[tuple] = None  # (view owners, viewers, owner != viewer)
         self._cells_memo: Optional[tuple] = None   # (positions array, their cells)
         self._exact: Optional[tuple] = None        # (positions array, first frame time it was used)
         self._display_clean: Optional[tuple] = None  # (P, view objects, view owners): errors all 0
@@ -914,9 +912,7 @@ class NetworkModel:
         if n <= SCALAR_VIEW:
             return self._measure_scalar(t, P, vo, vg, fi, og)
         px, py = P[:, 0], P[:, 1]
-        if n <= SMALL_VIEW:
-            err2, remote = self._copy_errors_small(t, fi, vo, vg, og, P)
-        elif n <= MEASURE_CHUNK:
+        if n <= MEASURE_CHUNK:
             err2, remote = self._copy_errors(t, fi, vo, vg, og, px, py)
         else:
             # in chunks that stay in the CPU cache: one row (cache line) gathered per copy,
@@ -990,26 +986,6 @@ class NetworkModel:
         self.per_object_rms = np.array([sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
         m.inconsistency_max = max(m.inconsistency_max, sqrt(max(err2)))
         m.inconsistency_rms = sqrt(float(np.add.reduce(np.array(err2))) / n_valid)
-
-    def _copy_errors_small(self, t, fi, vo, vg, og, P):
-        """:meth:`_copy_errors` of a small view on (k, 2) blocks (fewer numpy calls; the same
-        element-wise operations), with the non-owner mask kept while view and owners stay."""
-        memo = self._not_own_memo
-        if memo is None or memo[0] is not og or memo[1] is not vg:
-            memo = self._not_own_memo = (og, vg, og != vg)
-        order = self.cfg.prediction_order
-        c = np.take(self.cache, fi, axis=0)
-        ct = c[:, T_COL]
-        remote = memo[2] & (ct >= c[:, self.enter_col] - 1e-12)
-        d = c[:, 1:3] - P[vo]
-        if order >= 1:
-            dt = t - ct
-            d += c[:, 3:5] * dt[:, None]
-            if order >= 2:
-                h = 0.5 * dt * dt
-                d += c[:, 5:7] * h[:, None]
-        d *= d
-        return d[:, 0] + d[:, 1], remote
 
     def _copy_errors(self, t, fi, vo, vg, og, px, py):
         """Squared display errors (k,) m^2 of copies ``fi`` at frame time ``t`` and whether each

@@ -3,7 +3,7 @@ array code it replaces, bit for bit.
 
 * ownership (eq. 3-6, 3-11/3-12, 3-3) in Python floats, with the sphere-of-radius-``a`` cull,
   vs the array code (every rule and reading of the foci, resting and degenerate avatars);
-* the display error (eq. 3-1/3-2) of small views in Python floats and on (k, 2) blocks, and
+* the display error (eq. 3-1/3-2) of small views in Python floats, and
   skipped for a resting scene whose copies hold records of that state;
 * the contact pre-check in Python floats; avatars at a sub-step fixed point not sub-stepped
   (their frame arrays reused);
@@ -39,7 +39,7 @@ def _plain(monkeypatch):
     monkeypatch.setattr(links_mod, "MERGE_DRAWS", False)
     monkeypatch.setattr(world_mod, "REST_SKIP", False)
     monkeypatch.setattr(model_mod, "REST_DISPLAY", False)
-    for name in ("SCALAR_VIEW", "SMALL_VIEW", "MEMO_PAIRS"):
+    for name in ("SCALAR_VIEW", "MEMO_PAIRS"):
         monkeypatch.setattr(model_mod, name, -1)
 
 
