@@ -4,6 +4,14 @@ from __future__ import annotations
 import numpy as np
 
 
+def _run_starts(s: np.ndarray) -> np.ndarray:
+    """Mask (n,) of the first element of each run of equal values in the sorted, non-empty ``s``."""
+    new = np.empty(len(s), bool)
+    new[0] = True
+    np.not_equal(s[1:], s[:-1], out=new[1:])
+    return new
+
+
 def sorted_unique(a: np.ndarray):
     """``np.unique(a, return_index=True, return_inverse=True)`` for int arrays, by a stable sort.
 
@@ -16,9 +24,7 @@ def sorted_unique(a: np.ndarray):
         return a[:0], np.zeros(0, np.int64), np.zeros(0, np.int64)
     perm = np.argsort(a, kind="stable")
     s = a[perm]
-    new = np.empty(n, bool)
-    new[0] = True
-    np.not_equal(s[1:], s[:-1], out=new[1:])
+    new = _run_starts(s)
     inv = np.empty(n, np.int64)
     inv[perm] = np.cumsum(new) - 1
     return s[new], perm[new], inv
@@ -29,10 +35,7 @@ def unique_values(a: np.ndarray) -> np.ndarray:
     if len(a) == 0:
         return a[:0]
     s = np.sort(a, kind="stable")
-    keep = np.empty(len(s), bool)
-    keep[0] = True
-    np.not_equal(s[1:], s[:-1], out=keep[1:])
-    return s[keep]
+    return s[_run_starts(s)]
 
 
 def sum_by_key(keys: np.ndarray, w: np.ndarray):
@@ -42,8 +45,10 @@ def sum_by_key(keys: np.ndarray, w: np.ndarray):
         return keys[:0], np.zeros(0, np.int64), w[:0]
     perm = np.argsort(keys, kind="stable")
     s = keys[perm]
-    new = np.empty(len(s), bool)
-    new[0] = True
-    np.not_equal(s[1:], s[:-1], out=new[1:])
-    starts = np.flatnonzero(new)
+    starts = np.flatnonzero(_run_starts(s))
     return s[starts], perm[starts], np.add.reduceat(w[perm], starts)
+
+
+def concat_ranges(lo: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``lo[0] .. lo[0] + n[0] - 1, lo[1] .. lo[1] + n[1] - 1, ...`` as one int array."""
+    return np.arange(int(n.sum())) + np.repeat(lo - (np.cumsum(n) - n), n)

@@ -11,6 +11,8 @@ from typing import Tuple
 
 import numpy as np
 
+from .arrays import concat_ranges
+
 
 # -- scene grid §3.3 -------------------------------------------------------------------------
 class SceneGrid:
@@ -84,11 +86,7 @@ class SceneGrid:
         valid = cells >= 0
         cells, owner = cells[valid], owner[valid]
         lens = counts[cells]
-        total = int(lens.sum())
-        viewer = np.repeat(owner, lens)
-        offs = np.cumsum(lens) - lens
-        pos = np.arange(total) + np.repeat(starts[cells] - offs, lens)
-        return viewer, order[pos]
+        return np.repeat(owner, lens), order[concat_ranges(starts[cells], lens)]
 
 
 #: below this many (avatar, entity) pairs, brute force beats building k-d trees every frame
@@ -125,7 +123,7 @@ class PointIndex:
         hi = np.searchsorted(self.xs, q[:, 0] + rad, side="right")
         n = hi - lo
         qi = np.repeat(np.arange(len(q)), n)
-        pi = self.order[np.arange(int(n.sum())) + np.repeat(lo - (np.cumsum(n) - n), n)]
+        pi = self.order[concat_ranges(lo, n)]
         ok = np.abs(self.pts[pi, 1] - q[qi, 1]) <= rad[qi]
         return qi[ok], pi[ok]
 

@@ -29,7 +29,7 @@ from typing import List, Optional
 import numpy as np
 
 from . import links as lk
-from .arrays import sorted_unique
+from .arrays import sorted_unique, unique_values
 from .config import NetworkConfig
 from .ids import node_id
 from .pdu import HEADER, PduType, controller_bytes, record_bytes, report_bytes
@@ -238,7 +238,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
             rec_msg.append(idx[inv]), rec_view.append(vg), rec_obj.append(vo)
         else:  # client_server: owner -> server, server -> viewer
             srv = reg.supernode
-            sent = sorted_unique(vo)[0]
+            sent = unique_values(vo)
             n_pub = np.bincount(owner[sent], minlength=G)
             senders = np.flatnonzero((n_pub > 0) & (master >= 0))
             hop1 = np.full(G, -1)
@@ -258,7 +258,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
                 idx = b.add(compose, master[sg], sl, LAN, fb, PduType.FRAME)
                 b.add(t, sl, master[sg], LAN, H + rep, PduType.REPORT)
             else:
-                gs = sorted_unique(sg)[0]
+                gs = unique_values(sg)
                 h1 = np.full(G, -1)
                 h1[gs] = b.add(compose, master[gs], reg.supernode, WAN, H + frame_size[gs] * rec, PduType.FRAME)
                 idx = b.add(compose, np.full(len(sl), reg.supernode), sl, WAN, fb, PduType.RELAY, h1[sg])
