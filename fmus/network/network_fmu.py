@@ -6,12 +6,10 @@ ControllerPackets to the group's master and act when they arrive; collision resp
 (``contact[p].*``) bounce or stop avatar ``p`` at the start of the step. The model itself is
 :class:`immersim.models.network.NetworkModel`.
 """
-import numpy as np
 
 from immersim.fmus.common import OUTPUTS_UNCHANGED, TableSlave, Var
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.config import OWNERSHIP_RULES, TOPOLOGIES
-from immersim.models.network.world import G_ACC
 
 CAPACITY = 4
 N_ENTITY_OUT = 16
@@ -175,18 +173,7 @@ class network(TableSlave):
     def _write_outputs(self, h=None, rest=None):
         v, m = self.values, self.model
         w = m.world
-        # per avatar: x, y, z, yaw, vx, vy, specific force (accel, v * yaw rate, g), angular
-        # rate (0, 0, yaw rate), jolt, jolt / h; Python floats (the same products as the arrays')
-        x, y = w.apos[:, 0].tolist(), w.apos[:, 1].tolist()
-        yaw, sp = w.yaw.tolist(), w.speed.tolist()
-        c, s = np.cos(w.yaw).tolist(), np.sin(w.yaw).tolist()
-        acc, yr, jolt = w.accel.tolist(), w.yaw_rate.tolist(), w.jolt.tolist()
-        out = []
-        for i in range(len(yaw)):
-            j = jolt[i]
-            out += (x[i], y[i], 0.0, yaw[i], c[i] * sp[i], s[i] * sp[i], acc[i], sp[i] * yr[i], G_ACC,
-                    0.0, 0.0, yr[i], j, j / h if h else 0.0)
-        v.update(zip(self._avatar_names, out))
+        v.update(zip(self._avatar_names, w.avatar_outputs(h)))   # AVATAR_FIELDS per avatar
         v.update(zip(self._perceived_names, m.perceived_avatars(self._slave).ravel().tolist()))
         n = len(self._entity_names) // 3
         if n:

@@ -139,14 +139,20 @@ class World:
             self._state_memo = (self._avatar_key(), P, V, A)
         return P, V, A
 
-    def specific_force(self) -> np.ndarray:
-        """Body-frame specific force of every avatar (G, 3), m/s^2, gravity included on z."""
-        return np.stack((self.accel, self.speed * self.yaw_rate, np.full(len(self.speed), G_ACC)), axis=1)
-
-    def angular_rate(self) -> np.ndarray:
-        """Body-frame angular rate (G, 3), rad/s."""
-        out = np.zeros((len(self.speed), 3))
-        out[:, 2] = self.yaw_rate
+    def avatar_outputs(self, h=None) -> list:
+        """Per avatar ``x, y, z, yaw, vx, vy``, the body-frame specific force (m/s^2, gravity
+        included on z: ``accel, v * yaw rate, g``), the body-frame angular rate (rad/s:
+        ``0, 0, yaw rate``), the jolt (m/s) and ``jolt / h`` (m/s^2, 0 without ``h``): 14
+        Python floats per avatar in one flat list (the same products as :attr:`avel`)."""
+        x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
+        yaw, sp = self.yaw.tolist(), self.speed.tolist()
+        c, s = np.cos(self.yaw).tolist(), np.sin(self.yaw).tolist()
+        acc, yr, jolt = self.accel.tolist(), self.yaw_rate.tolist(), self.jolt.tolist()
+        out = []
+        for i in range(len(yaw)):
+            j = jolt[i]
+            out += (x[i], y[i], 0.0, yaw[i], c[i] * sp[i], s[i] * sp[i], acc[i], sp[i] * yr[i], G_ACC,
+                    0.0, 0.0, yr[i], j, j / h if h else 0.0)
         return out
 
     def moving(self, eps: float = 1e-9) -> bool:
