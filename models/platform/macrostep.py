@@ -238,6 +238,8 @@ class MacroStep:
         Packed state before the step and as computed by it (committed by the caller).
     s, ctrl, wm, p, c : ndarray
         Inputs of the step, see the module docstring.
+    pre, check, post : FastFunction
+        The CasADi Functions of the module docstring, for the composed path.
     out : ndarray (NOUT,)
         Packed outputs of the last computed step.
     inside : ndarray (1,)
@@ -248,9 +250,11 @@ class MacroStep:
         if compiled:
             lib, fns, driver_c = _library(rhs)
         else:
-            lib, fns, driver_c = None, (pre_function(f"{rhs.name()}_pre"), None, None, post_function(rhs)), None
-        pre, post = fns[0], fns[3]
+            lib, fns, driver_c = None, (pre_function(f"{rhs.name()}_pre"), check_function(f"{rhs.name()}_check"),
+                                        None, post_function(rhs)), None
+        pre, check, post = fns[0], fns[1], fns[3]
         self.pre = FastFunction(pre, lib)
+        self.check = FastFunction(check, lib)
         self.post = FastFunction(post, lib)
         self.compiled = self.pre.compiled and self.post.compiled
         self.state, self.next = np.zeros(NSTATE), np.zeros(NSTATE)

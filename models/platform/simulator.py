@@ -8,7 +8,6 @@ path (``pre``, :class:`.integrators.StepIntegrator`, ``post``) with the same ari
 """
 from __future__ import annotations
 
-import functools
 import logging
 from dataclasses import dataclass, field
 
@@ -16,19 +15,13 @@ import numpy as np
 
 from . import macrostep as ms
 from .control import CONTROLS, MODELS, ControlParams, prefiltered_loop
-from .codegen import FastFunction, compile_library
 from .cueing import WashoutParams, washout_matrices
-from .dynamics import functions
 from .integrators import IntegratorConfig, StepIntegrator
-from .kinematics import OutsideWorkspaceError, clamp_to_workspace, within_limits
+from .kinematics import OutsideWorkspaceError, clamp_to_workspace
 from .params import PlatformParams
 
 log = logging.getLogger(__name__)
 
-
-@functools.lru_cache(maxsize=None)
-def _ik_library():
-    return compile_library("platform_ik", [functions()["ik"]])
 
 _X_FINITE, _STROKE_FINITE, _AT_REST = ms.OUT["x_finite"], ms.OUT["stroke_finite"], ms.OUT["at_rest"]
 CUEING = ("washout", "pose")
@@ -125,7 +118,6 @@ class PlatformSim:
         m.ctrl[:] = (cfg.cueing == "washout", 0.0, int(ic.substeps), cfg.cos_beta_min, cfg.on_workspace == "clamp")
         m.state[ms.REACH] = 1.0
         self._h = None
-        self._ik = FastFunction(functions()["ik"], _ik_library())
         self.skipped_steps = 0
         # home at rest is an equilibrium only under a controller (gravity compensated); with direct
         # actuator forces zero inputs let the platform fall, so no step may be skipped
@@ -201,10 +193,9 @@ class PlatformSim:
         m.run_post(clamped)
 
     def _inside(self, pose) -> tuple:
-        """(inside, strokes, reach) of one pose with the compiled IK."""
-        dl, reach = self._ik(pose, self.p)
-        reach_ok, stroke_ok = within_limits(dl, reach, self.cfg.params)
-        return bool(reach_ok and stroke_ok), dl, reach
+        """(inside, reach ratios) of one pose: the driver's workspace check (:func:`.macrostep.check_function`)."""
+        inside, reach = self.macro.check(pose, self.p)
+        return bool(inside[0]), reach
 
     def _limit(self, ref: np.ndarray, t: float):
         """(reference inside the workspace, clamped?, its reach ratios) of a reference found outside."""
@@ -213,4 +204,4 @@ class PlatformSim:
                 f"pose reference {np.array2string(ref, precision=4)} at t = {t:g} s is outside the workspace "
                 f"(strokes {self.cfg.params.stroke_min:g}..{self.cfg.params.stroke_max:g} m, rod reach)")
         ref, clamped = clamp_to_workspace(ref, self.cfg.params, inside=lambda pose: self._inside(pose)[0])
-        return ref, clamped, self._inside(ref)[2]
+        return ref, clamped, self._inside(ref)[1]
