@@ -621,8 +621,7 @@ class RealSetter:
         self._vrs = (ctypes.c_uint * len(names))(*[inst.var(n).vr for n in names])
         self._buf = (ctypes.c_double * len(names))()
         self._n = ctypes.c_size_t(len(names))
-        self._fmi2 = inst.fmi_version.startswith("2")
-        if self._fmi2:
+        if inst._fmi2:
             self.set = self._fmi2_setter()  # a closure: no attribute look-ups per call
 
     def _fmi2_setter(self) -> Callable[[Sequence[float]], None]:
@@ -639,18 +638,10 @@ class RealSetter:
         return set_values
 
     def set(self, values: Sequence[float]) -> None:
-        """Set the values (in the order of ``names``) with one ``fmi2SetReal``."""
+        """Set the values (in the order of ``names``) with one call; an FMI 2.0 instance
+        replaces this method by the :meth:`_fmi2_setter` closure (one ``fmi2SetReal``)."""
         inst = self.inst
-        if self._fmi2:
-            self._buf[:] = values
-            try:
-                status = inst._set_real(inst._c_component, self._vrs, self._n, self._buf)
-            except Exception as exc:
-                raise inst._raised("fmi2SetReal", exc) from None
-            if status > 1:
-                inst._check("fmi2SetReal", status)
-        else:
-            inst._guard("fmi3SetFloat64", lambda: inst.fmu.setFloat64(list(self._vrs), list(values)))
+        inst._guard("fmi3SetFloat64", lambda: inst.fmu.setFloat64(list(self._vrs), list(values)))
 
 
 def is_finite(value: Any) -> bool:
