@@ -24,7 +24,6 @@ from time import perf_counter_ns
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-from .errors import NonFiniteOutputError
 from .fmu import FmuInstance, RealSetter, ValueReader
 from .graph import gauss_seidel_order
 from .manipulators import Fault, signal
@@ -67,12 +66,8 @@ class Slot:
         """Read the unit's values; a NaN/inf Real raises NonFiniteOutputError (naming unit,
         variable and time) before it is used or logged."""
         values = self.reader.read()
-        if not self.reader.check_finite:
-            bad = self.reader.nonfinite(values)
-            if bad is not None:
-                raise NonFiniteOutputError(
-                    f"unit {self.name}: output {bad} = {values[self.read_names.index(bad)]} "
-                    f"at t = {self.inst.t_ns / 1e9:.9g} s is not finite")
+        if not self.reader.check_finite:  # a reader made without the check: the same error
+            self.reader._raise_nonfinite(values)
         self.prev, self.cur = self.cur, values
 
 
