@@ -19,7 +19,7 @@ from .fmu import RealSetter, forget_python_code
 from .master import Master, Slot
 from .observers import McapObserver, write_parameters
 from .scenario import Scenario, load_scenario
-from .system import System, check_system, sha256
+from .system import System, check_system, fmu_hashes
 
 log = logging.getLogger(__name__)
 
@@ -188,9 +188,7 @@ class Execution:
         sc, system = self.scenario, self.system
         obs = self.observer = McapObserver(self.output)
         obs.add_metadata("scenario", {"file": str(sc.file), "text": sc.text})
-        used = {u: p for u, p in system.paths.items() if u in system.needed}
-        hashes = {p: sha256(p) for p in set(used.values())}  # several instances of one file: hashed once
-        obs.add_metadata("fmus", {u: f"{p} sha256={hashes[p]}" for u, p in used.items()})
+        obs.add_metadata("fmus", {u: f"{system.paths[u]} sha256={h}" for u, h in fmu_hashes(system).items()})
         obs.add_metadata("immersim", {
             "version": _version(), "algorithm": sc.algorithm, "extrapolation": sc.extrapolation,
             "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),

@@ -175,4 +175,7 @@ def check_system(scenario: Scenario) -> System:
 
 
 def fmu_hashes(system: System) -> Dict[str, str]:
-    return {u: sha256(p) for u, p in system.paths.items() if u in system.needed}
+    """sha256 of each loaded unit's FMU file (several instances of one file: hashed once)."""
+    used = {u: p for u, p in system.paths.items() if u in system.needed}
+    hashes = {p: sha256(p) for p in set(used.values())}
+    return {u: hashes[p] for u, p in used.items()}
