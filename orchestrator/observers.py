@@ -81,8 +81,8 @@ class ChannelEncoder:
 
 
 def _fast_writer_class():
-    """An ``mcap.writer.Writer`` whose ``add_message`` packs the record header with one
-    ``struct`` call instead of five, keeping the chunk index and statistics exactly as the
+    """An ``mcap.writer.Writer`` whose ``add_step`` (and ``add_message``, a one-message step)
+    packs the record header with one ``struct`` call instead of five, keeping the chunk index and statistics exactly as the
     library does (``tests/orchestrator/test_mcap_writer.py`` checks the bytes are identical).
     Falls back to the library's method when its internals are not the expected ones."""
     import struct
@@ -109,30 +109,9 @@ def _fast_writer_class():
     class FastWriter(Writer):
         def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
                         sequence: int = 0) -> None:
-            try:
-                stats = self._Writer__statistics
-                cb = self._Writer__chunk_builder
-                buf = cb.record_writer._buffer
-            except AttributeError:
+            if publish_time != log_time:  # not ours: the library's method
                 return super().add_message(channel_id, log_time, data, publish_time, sequence)
-            if stats.message_count == 0 or log_time < stats.message_start_time:
-                stats.message_start_time = log_time
-            if log_time > stats.message_end_time:
-                stats.message_end_time = log_time
-            stats.channel_message_counts[channel_id] += 1
-            stats.message_count += 1
-            if cb.num_messages == 0 or log_time < cb.message_start_time:
-                cb.message_start_time = log_time
-            if log_time > cb.message_end_time:
-                cb.message_end_time = log_time
-            index = cb.message_indices.get(channel_id)
-            if not index:
-                index = cb.message_indices[channel_id] = FastMessageIndex(channel_id)
-            index.flat += (log_time, buf.tell())
-            cb.num_messages += 1
-            buf.write(header.pack(0x05, 22 + len(data), channel_id, sequence, log_time, publish_time))
-            buf.write(data)
-            self._Writer__maybe_finalize_chunk()
+            self.add_step(log_time, sequence, ((channel_id, data),))  # a one-message step
 
         def add_step(self, log_time: int, sequence: int, items: Sequence[Tuple[int, bytes]]) -> None:
             """The messages of one macro step (``(channel id, data)`` pairs, all at ``log_time``),
@@ -266,16 +245,6 @@ class McapObserver:
                 self._last_flush = now
         except OSError as exc:
             raise self._error(exc, t_ns) from None
-
-    def step_done(self, t_ns: int = 0) -> None:
-        """Called after each macro step: flush to disk now and then."""
-        now = time.monotonic()
-        if now - self._last_flush > self.flush_seconds:
-            try:
-                self.writer.flush()
-            except OSError as exc:
-                raise self._error(exc, t_ns) from None
-            self._last_flush = now
 
     def _error(self, exc: OSError, t_ns: int) -> LogWriteError:
         return LogWriteError(f"cannot write the log {self.path} at t = {t_ns / 1e9:.9g} s: {exc.strerror or exc}")
