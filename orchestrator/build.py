@@ -110,6 +110,8 @@ def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: 
     """
     from pythonfmu.builder import FmuBuilder
 
+    from .fmu import forget_python_code
+
     unit_dir = Path(unit_dir).resolve()
     dest_dir = Path(dest_dir) if dest_dir is not None else default_build_dir()
     dest_dir.mkdir(parents=True, exist_ok=True)
@@ -146,9 +148,7 @@ def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: 
             raise BuildError(f"unit {unit_dir.name}: pythonfmu build of {sources.script} failed: {exc}") from exc
         finally:
             sys.path[:] = saved_path
-            sys.modules.pop(script.stem, None)
-            for name in [m for m in sys.modules if m == package or m.startswith(package + ".")]:
-                del sys.modules[name]  # imported by the build from the stage, which is about to go
+            forget_python_code(stage)  # the modules the build imported from the stage, about to go
         if built.stem != unit_dir.name:
             raise BuildError(
                 f"unit {unit_dir.name}: the wrapper's modelName is {built.stem!r}; it must equal the folder name")
