@@ -111,7 +111,7 @@ class TableSlave(Fmi2Slave):
         self._vr_name: List[str] = [self.vars[vr].name for vr in range(len(self.vars))]
         self._vr_type: List[str] = [types.get(name, "") for name in self._vr_name]
         self._get_cache: Dict[str, Dict[tuple, Callable]] = {"Real": {}, "Integer": {}, "Boolean": {}}
-        self._set_cache: Dict[Tuple[str, tuple], List[str]] = {}
+        self._set_cache: Dict[tuple, List[str]] = {}  # set_real: Real only
         self._inputs_getter = _tuple_getter(self._real_inputs)
         self._outputs_getter = _tuple_getter(self._real_outputs)
         #: a non-finite value may be among the inputs (set since the last passed input check)
@@ -275,10 +275,10 @@ class TableSlave(Fmi2Slave):
         return list(map(bool, get(self.values)))
 
     def set_real(self, vrs: List[int], values_in: List[float]) -> None:
-        key = ("Real", tuple(vrs))
+        key = tuple(vrs)
         names = self._set_cache.get(key)
         if names is None:
-            names = self._names_of("Real", key[1])
+            names = self._names_of("Real", key)
             if len(self._set_cache) >= _CACHE_LIMIT:
                 self._set_cache.clear()
             self._set_cache[key] = names
