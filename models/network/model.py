@@ -212,7 +212,7 @@ class NetworkModel:
 
     def _publish_initial(self) -> None:
         """Frame 0: every node starts from the same scene file (the shared initial state)."""
-        P, V, A = self.world.positions(), self.world.velocities(), self.world.accelerations()
+        P, V, A = self.world.state()
         self._uid = 0
         rec = self._table(np.arange(self.n_obj), 0.0, P, V, A)
         n = self.rid_col + 1
@@ -441,7 +441,7 @@ class NetworkModel:
             o, old = objs[changed], self.owner[objs[changed]]
             # the old owner knew the exact state when it let go: its cache starts from it
             w = self.world
-            P, V, A = w.positions()[o], w.velocities()[o], w.accelerations()[o]
+            P, V, A = (x[o] for x in w.state())
             rec = self._table(o, self.t, P, V, A)
             self._scatter(self.index(old, o), rec, np.arange(len(o)))
             self._display_clean = None

@@ -76,35 +76,19 @@ class World:
         out *= self.speed[:, None]
         return out
 
-    def aacc(self) -> np.ndarray:
-        """Avatar acceleration in the world frame (G, 2), m/s^2."""
-        c, s = np.cos(self.yaw), np.sin(self.yaw)
-        lat = self.speed * self.yaw_rate
-        return np.stack((self.accel * c - lat * s, self.accel * s + lat * c), axis=1)
-
-    def eacc(self) -> np.ndarray:
-        """Entity acceleration (E, 2), m/s^2."""
-        v = self.evel
-        return self.eturn[:, None] * np.stack((-v[:, 1], v[:, 0]), axis=1) - self.cfg.entity_drag * v
-
     def positions(self) -> np.ndarray:
         """All objects (avatars then entities), (G + E, 2)."""
         return np.concatenate([self.apos, self.epos])
 
-    def velocities(self) -> np.ndarray:
-        return np.concatenate([self.avel, self.evel])
-
-    def accelerations(self) -> np.ndarray:
-        return np.concatenate([self.aacc(), self.eacc()])
-
     def state(self, acc: bool = True):
-        """Positions, velocities, accelerations (G + E, 2) of all objects, avatars first (as
-        :meth:`positions`, :meth:`velocities`, :meth:`accelerations`; one cos/sin of the headings).
+        """Positions (m), velocities (m/s), accelerations (m/s^2), each (G + E, 2), of all
+        objects, avatars first (P as :meth:`positions`, V of the avatars as :attr:`avel`).
 
-        Written column by column into fresh arrays (the same element-wise operations as
-        :meth:`aacc` and :meth:`eacc`, without ``np.stack``/``np.concatenate``). A scene without
-        entities whose avatars rest at a fixed point gets the same arrays again (callers only
-        read them). ``acc`` False: A is None (a caller that does not use it)."""
+        Avatars: ``v = speed (cos yaw, sin yaw)``, world-frame ``a = accel (cos, sin) + speed *
+        yaw rate (-sin, cos)``; entities: ``a = eturn (-vy, vx) - drag v``. Written column by
+        column into fresh arrays (one cos/sin of the headings). A scene without entities whose
+        avatars rest at a fixed point gets the same arrays again (callers only read them).
+        ``acc`` False: A is None (a caller that does not use it)."""
         if REST_SKIP and not len(self.evel) and self._fixed_key is not None:   # at rest, no entities
             memo = self._state_memo
             if memo is not None and memo[0] == self._avatar_key() and (memo[3] is not None or not acc):
@@ -132,7 +116,7 @@ class World:
             v = self.evel
             vx, vy = v[:, 0], v[:, 1]
             drag = self.cfg.entity_drag
-            # eturn * (-vy) - drag vx, eturn * vx - drag vy (eacc, element by element)
+            # eturn * (-vy) - drag vx, eturn * vx - drag vy
             np.subtract(self.eturn * -vy, drag * vx, out=A[G:, 0])
             np.subtract(self.eturn * vx, drag * vy, out=A[G:, 1])
         elif self._fixed_key is not None:
