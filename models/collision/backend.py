@@ -304,6 +304,7 @@ class CollisionBackend(ABC):
         # query's move for the bodies that moved in it): scalar code for the per-step bounds
         self._T_rows: Dict[int, list] = {i: self.T[i].tolist() for i in self._dyn_list}
         self._prev_rows: Dict[int, list] = {}
+        self._toi_need: Dict[int, bool] = {}  # _needs_toi's answers in the current query
         self._pair_bodies = [sorted(d) for d in self._pair_dyn]
         self._far: List[Optional[Tuple[float, float]]] = [None] * len(self.pairs)
         self._last_gap: Optional[float] = None
@@ -395,6 +396,7 @@ class CollisionBackend(ABC):
         far_skip = self._far_skip
         shift, rmax, T_rows = self._shift, self._rmax, self._T_rows
         prev_rows = self._prev_rows = {}
+        self._toi_need = {}
         if changed:
             mats = []
             for i, row in changed:
@@ -464,11 +466,18 @@ class CollisionBackend(ABC):
         moved_by = sum(shift[i] for i in self._pair_bodies[k]) - shift0
         if gap - _SQRT3 * moved_by < self.config.max_distance + self.FAR_MARGIN:
             return False
-        return not (pair.a in moved and self._needs_toi(pair.a))
+        a = pair.a
+        if a not in moved:
+            return True
+        need = self._toi_need.get(a)  # decided already in this query (a body in two pairs)
+        if need is None:
+            need = self._toi_need[a] = self._needs_toi(a)
+        return not need
 
     def _needs_toi(self, a: int) -> bool:
-        """Whether ``a``'s motion over the step calls for a time of impact with no contact at
-        either end (backends with continuous collision override it)."""
+        """Whether the motion of ``a`` (moved in this query: ``_prev_rows[a]`` is its transform
+        before, ``_T_rows[a]`` after) calls for a time of impact with no contact at either end
+        (backends with continuous collision override it)."""
         return False
 
     def _report_normal(self, pair: PairSpec, res: PairResult, prev: Optional[PairResult]) -> None:

@@ -88,8 +88,6 @@ class FclBackend(CollisionBackend):
             self._by_pose.setdefault(self._key(self.objs[i]), []).append(int(i))
         self._member_mask = np.zeros(self.n, bool)
         self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
-        self._toi_need: Dict[int, bool] = {}  # _needs_toi's answers in the current query
-        self._toi_need_query = None
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
@@ -194,16 +192,7 @@ class FclBackend(CollisionBackend):
         threshold is decided by :meth:`_travel` itself."""
         if not self.config.ccd:
             return False
-        T0 = self._prev_rows.get(a)  # the body's transform before this query's move
-        if T0 is None:
-            return bool((self.prev_T[a] != self.T[a]).any()
-                        and self._travel(a) > self.config.ccd_fast * self._thin[a])
-        if self._toi_need_query is not self._prev_rows:  # a new query: forget the last one's
-            self._toi_need, self._toi_need_query = {}, self._prev_rows
-        known = self._toi_need.get(a)  # decided already in this query (a body in two pairs)
-        if known is not None:
-            return known
-        T1 = self._T_rows[a]
+        T0, T1 = self._prev_rows[a], self._T_rows[a]  # before and after this query's move
         if T0 == T1:
             return False
         threshold = self.config.ccd_fast * self._thin[a]
@@ -215,11 +204,8 @@ class FclBackend(CollisionBackend):
         angle = math.acos(min(1.0, max(-1.0, (c - 1.0) / 2.0)))
         estimate = math.sqrt(dx * dx + dy * dy + dz * dz) + angle * self._radius[a]
         if abs(estimate - threshold) > 1e-9 * max(threshold, 1e-300) + 1e-12:
-            need = estimate > threshold
-        else:
-            need = bool(self._travel(a) > threshold)
-        self._toi_need[a] = need
-        return need
+            return estimate > threshold
+        return bool(self._travel(a) > threshold)
 
     # -- narrow phase -------------------------------------------------------------------
     def _collide(self, a: int, b: int, obj_b=None) -> PairResult | None:
