@@ -29,6 +29,14 @@ def inconsistency(obj: np.ndarray, shown: np.ndarray, truth: np.ndarray, n_obj: 
     return inconsistency_sq(obj, dx * dx + dy * dy, n_obj, mask)
 
 
+def object_runs(obj: np.ndarray, n_obj: int):
+    """Runs of the non-decreasing object indices ``obj`` (k,): copies per object (n_obj,),
+    the objects present, and where each present object's run starts."""
+    seen = np.bincount(obj, minlength=n_obj)
+    present = np.flatnonzero(seen)
+    return seen, present, (np.cumsum(seen) - seen)[present]
+
+
 def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None, sorted_obj: bool = False,
                      segments=None):
     """As :func:`inconsistency`, from squared errors ``err2`` (k,) m^2 of the copies.
@@ -37,7 +45,8 @@ def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None, s
     grid's view pairs do), so the per-object maxima are segment reductions. The result is
     the same either way (a maximum does not depend on the order; the sums are the same
     sequential ``bincount`` sums). ``segments``: ``(bincount(obj), objects present, start of
-    each present object's run)`` when the caller keeps them (sorted ``obj`` only).
+    each present object's run)``, :func:`object_runs`, when the caller keeps them (sorted
+    ``obj`` only).
     """
     n_valid = len(obj) if mask is None else int(np.count_nonzero(mask))
     if n_valid == 0:
@@ -47,12 +56,7 @@ def inconsistency_sq(obj: np.ndarray, err2: np.ndarray, n_obj: int, mask=None, s
         err2 = np.where(mask, err2, 0.0)
     per_max = np.zeros(n_obj)
     if sorted_obj:
-        if segments is None:
-            seen = np.bincount(obj, minlength=n_obj)
-            present = np.flatnonzero(seen)
-            starts = (np.cumsum(seen) - seen)[present]
-        else:
-            seen, present, starts = segments
+        seen, present, starts = object_runs(obj, n_obj) if segments is None else segments
         per_max[present] = np.maximum.reduceat(err2, starts)
         if mask is None:
             cnt = seen

@@ -31,7 +31,7 @@ from .config import NetworkConfig
 from .consistency import SceneGrid, assign_owners, dead_reckon
 from .display import DisplayGroups, squared_dr_error
 from .ids import PastryOverlay
-from .metrics import StepMetrics, Totals, inconsistency_sq
+from .metrics import StepMetrics, Totals, inconsistency_sq, object_runs
 from .nodes import H, NodeRegistry, Traffic, TrafficPlan, build_messages, control_bytes
 from .pdu import PduType, record_bytes
 from .supernode import CONTROLLER, RENDER, Supernode
@@ -646,17 +646,14 @@ class NetworkModel:
         vg = viewers[vg_local]
         out = (vo, vg, self.index(vg, vo), np.bincount(vg, minlength=self.cfg.groups))
         self._view_memo = (cells, online_g, out, self._group_version)
-        self._segments = None
         return out
 
     def _object_segments(self, vo: np.ndarray):
         """Copies per object (n_obj,), objects with copies, and where their runs start in the
-        object-sorted view pairs ``vo`` (kept with the view; :func:`metrics.inconsistency_sq`)."""
+        object-sorted view pairs ``vo`` (:func:`metrics.object_runs`, kept with the view)."""
         seg = self._segments
         if seg is None or seg[0] is not vo:
-            seen = np.bincount(vo, minlength=self.n_obj)
-            present = np.flatnonzero(seen)
-            seg = self._segments = (vo, (seen, present, (np.cumsum(seen) - seen)[present]))
+            seg = self._segments = (vo, object_runs(vo, self.n_obj))
         return seg[1]
 
     def _transmit(self, tr: Traffic):
