@@ -111,9 +111,11 @@ class PlatformSim:
         self.p = cfg.params.vector()
         self.c = cfg.control.vector()
         rhs = prefiltered_loop(cfg.control_mode, cfg.model)
-        self.integ = StepIntegrator(rhs, cfg.integrator)
         ic = cfg.integrator
         self.macro = m = ms.MacroStep(rhs, compiled=ic.compiled, driver=ic.method == "rk4")
+        # the composed path's integrator; the driver integrates the step itself (with it the
+        # composed path only runs to raise on a reference outside the workspace)
+        self.integ = None if m.has_driver else StepIntegrator(rhs, ic)
         m.p[:], m.c[:] = self.p, self.c
         m.ctrl[:] = (cfg.cueing == "washout", 0.0, int(ic.substeps), cfg.cos_beta_min, cfg.on_workspace == "clamp")
         m.state[ms.REACH] = 1.0
