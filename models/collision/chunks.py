@@ -18,7 +18,8 @@ origin ``p = R_b^T (t_o - t_b)`` in the chunked body's frame) is the larger of t
 separating-box gaps (the boxes contain the geometry, so each gap is a lower bound of the
 distance; eq. 5-1's bounding-volume cull with boxes in both frames):
 
-``g_1 = || max(|c - (p + M c_o)| - h - |M| e, 0) ||``  (the other body's box in the chunk's frame)
+``g_1 = || max(|c - c_1| - h - e_1, 0) ||``  (the other body's box in the chunk's frame: the AABB,
+centre ``c_1``, half extents ``e_1``, of its hull vertices ``p + M v``, tighter than ``p + M c_o``, ``|M| e``)
 
 ``g_2 = || max(|M^T (c - p) - c_o| - |M|^T h - e, 0) ||``  (the chunk's box in the other's frame)
 
@@ -109,7 +110,7 @@ class ChunkedMesh:
 
 
 def chunk_lower_bounds(chunks: ChunkedMesh, T_big: np.ndarray, T_other: np.ndarray, other_hull: np.ndarray,
-                       other_centre: np.ndarray, other_half: np.ndarray) -> np.ndarray:
+                       other_centre: np.ndarray, other_half: np.ndarray) -> tuple:
     """Lower bounds (m) of the distance of each chunk to the other body (module docstring).
 
     Parameters
@@ -146,7 +147,7 @@ def chunk_lower_bounds(chunks: ChunkedMesh, T_big: np.ndarray, T_other: np.ndarr
     return np.sqrt(np.maximum(b1, b2)), b1 + b2
 
 
-def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", lb, 
+def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", lb,
                      other: "fcl.CollisionObject", big_first: bool, req: "fcl.DistanceRequest",
                      res: "fcl.DistanceResult") -> float:
     """Exact distance of the chunked body to ``other`` into ``res`` (keeps the smallest).
