@@ -150,17 +150,17 @@ class network(TableSlave):
                 m.bounce(p, (v[nx], v[ny]))
         m.step(h)
         rest = m.at_rest()
-        key = self._output_key(h, rest) if rest else None
+        key = self._output_key(h) if rest else None
         if key is not None and key == self._key:   # at rest: every output would get its old value
             return OUTPUTS_UNCHANGED
         self._write_outputs(h, rest)
         self._key = key
         return None
 
-    def _output_key(self, h, rest):
+    def _output_key(self, h):
         """Everything the outputs are computed from (world arrays, the perceived avatars'
-        frame, the step's metrics, ``at_rest``), as bytes and numbers; equal keys give equal
-        outputs (None when the shortcut is off). Only taken at rest, where it may repeat."""
+        frame, the step's metrics), as bytes and numbers; equal keys give equal outputs (None
+        when the shortcut is off). Only taken at rest (``at_rest`` True), where it may repeat."""
         if not self.SKIP_UNCHANGED:
             return None
         m = self.model
@@ -168,7 +168,7 @@ class network(TableSlave):
         return (h, w.apos.tobytes(), w.yaw.tobytes(), w.speed.tobytes(), w.accel.tobytes(), w.yaw_rate.tobytes(),
                 w.jolt.tobytes(), w.epos.tobytes(), m.perceived_key(self._slave),
                 s.inconsistency_max, s.inconsistency_rms, s.desync_frames, s.frame_messages, s.frame_bytes,
-                s.handovers, s.dropped_frames, s.rejected_updates, s.online_nodes, rest)
+                s.handovers, s.dropped_frames, s.rejected_updates, s.online_nodes)
 
     def _write_outputs(self, h=None, rest=None):
         v, m = self.values, self.model
