@@ -93,11 +93,23 @@ def forget_python_code(folder: Path) -> int:
     """
     import sys
 
-    root = str(Path(folder).resolve())
+    prefix = str(Path(folder).resolve()) + os.sep
+    realpath, split = os.path.realpath, os.path.split
+    dirs: Dict[str, str] = {}  # real path of each folder met: most modules share folders
+
+    def resolved(p) -> str:
+        """``os.path.realpath(p)``, resolving the folder part once per folder."""
+        head, tail = split(p)
+        if tail in ("", ".", "..") or os.path.islink(p):
+            return realpath(p)
+        real = dirs.get(head)
+        if real is None:
+            real = dirs[head] = realpath(head)
+        return os.path.join(real, tail)
 
     def inside(p) -> bool:
         try:
-            return p is not None and str(Path(p).resolve()).startswith(root + os.sep)
+            return p is not None and resolved(os.fspath(p)).startswith(prefix)
         except (OSError, ValueError):
             return False
 
