@@ -118,10 +118,9 @@ class Master:
             if "at_rest" in slot.read_names and scenario.lazy:
                 slot.rest_idx = slot.index("at_rest")
 
-    def _gather(self, slot: Slot, t_ns: int) -> Optional[tuple]:
-        """The inputs of ``slot`` for the step starting at ``t_ns`` (not yet applied)."""
-        if not slot.has_inputs:
-            return None
+    def _gather(self, slot: Slot, t_ns: int) -> tuple:
+        """The inputs of ``slot`` for the step starting at ``t_ns`` (not yet applied); only
+        for a slot that ``has_inputs`` (:meth:`step` passes None for the others)."""
         vals = slot.in_vals
         for i, src, j, delayed, gain, offset, linear in slot.float_feeds:
             y = src.cur[j]
@@ -143,9 +142,7 @@ class Master:
         others = tuple((name, src.cur[j]) for name, src, j in slot.other_feeds)
         return tuple(vals), others, tuple(forced)
 
-    def _apply(self, slot: Slot, inputs: Optional[tuple]) -> None:
-        if inputs is None:
-            return
+    def _apply(self, slot: Slot, inputs: tuple) -> None:
         vals, others, forced = inputs
         if slot.setter is not None:
             slot.setter.set(vals)
