@@ -29,6 +29,7 @@ from common import ROOT, interleaved, median, stamp  # noqa: E402
 
 import immersim.orchestrator.master as master_module  # noqa: E402
 from immersim.orchestrator.execution import Execution, RunResult  # noqa: E402
+from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 CAMPUS = ROOT / "scenarios" / "campus_drive.toml"
 IDLE = ROOT / "scenarios" / "campus_idle.toml"
@@ -298,5 +299,5 @@ ANALYSIS = """\
   saves calls, not work; `RunResult.timing` counts the final catch-up in `Master.finish()`.
 """
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
+    exit_now(main() or 0)

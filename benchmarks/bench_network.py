@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "network"
@@ -418,5 +419,5 @@ Plots: `inconsistency_vs_latency.png`, `traffic_vs_nodes.png`.
     print(readme)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
+    exit_now(main() or 0)

@@ -34,6 +34,7 @@ import numpy as np  # noqa: E402
 from immersim.models.platform.control import ControlParams, prefiltered_loop  # noqa: E402
 from immersim.models.platform.integrators import IntegratorConfig, StepIntegrator  # noqa: E402
 from immersim.models.platform.params import PlatformParams  # noqa: E402
+from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 H = 0.033
 
@@ -263,5 +264,5 @@ Files: `bench.csv` (all rows), `work_precision.png`; `tracking_*.png` and `track
           f"CVODE ratio {ratio:.0f}x")
 
 
-if __name__ == "__main__":
-    main()
+if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
+    exit_now(main() or 0)

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import csv
 import logging
-import os
 import random
 import re
 import signal
@@ -44,6 +43,7 @@ from hypothesis import strategies as st  # noqa: E402
 
 import stresslib as sl  # noqa: E402
 from test_random_scenarios import cue_amplitudes, network_params, platform_params  # noqa: E402
+from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 OUT = ROOT / "results" / "stress"
 CLI = [sys.executable, "-m", "immersim.orchestrator.cli"]
@@ -322,13 +322,8 @@ def main(argv=None) -> int:
           (f" --only {' '.join(args.only)}" if args.only else "")
     write_report(args.quick, cmd, groups)
     print(f"wrote {OUT / 'README.md'}")
-    # Workaround: after ~150 FMU instances this process may abort in interpreter teardown
-    # ("corrupted double-linked list", glibc heap check in pythonfmu/FMU unloading), which would
-    # turn a finished benchmark into a failed one for make bench. Everything is written; leave now.
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(0)
+    return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
+    exit_now(main() or 0)
