@@ -166,7 +166,7 @@ class NetworkModel:
         self._owner_snap: Optional[tuple] = None  # (epoch, copy of the owners): senders of filed records
         self._group_version = 0                  # bumped whenever a group's master or slaves are set
         self._slaves_memo: Optional[tuple] = None  # (group version, slave nodes, arange(G))
-        self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, their lists)
+        self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, flat indices, remote copies)
         self._cells_memo: Optional[tuple] = None   # (positions array, their cells)
         self._exact: Optional[tuple] = None        # (positions array, first frame time it was used)
         self._display_clean: Optional[tuple] = None  # (P, view objects, view owners): errors all 0
@@ -860,23 +860,53 @@ class NetworkModel:
             else:
                 self._measure(t, P, vg, vo, fi, og, cells, online_g)
         # displayed avatars at every master (for slaves showing an older frame)
-        blk = self.cache[:G * G]                  # avatars are objects 0..G-1: object-major block
-        av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
         slot = self.hist[self.k % HIST]
-        slot[...] = av.reshape(G, G, 2).transpose(1, 0, 2)
-        sl, diag = self._slave_nodes()
-        slot[diag, diag] = P[:G]                  # a master shows its own avatar as it is
-        if len(sl):
-            self.metrics.desync_frames = max(self.metrics.desync_frames, self.k - int(self.shown_frame[sl].min()))
+        sl, diag, sl_list = self._slave_nodes()
+        if G * G <= SCALAR_VIEW:
+            slot.flat = self._shown_avatars_scalar(t, P)
+        else:
+            blk = self.cache[:G * G]                  # avatars are objects 0..G-1: object-major block
+            av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
+            slot[...] = av.reshape(G, G, 2).transpose(1, 0, 2)
+            slot[diag, diag] = P[:G]                  # a master shows its own avatar as it is
+        if sl_list:
+            sf = self.shown_frame.tolist()
+            self.metrics.desync_frames = max(self.metrics.desync_frames, self.k - min([sf[i] for i in sl_list]))
+
+    def _shown_avatars_scalar(self, t: float, P: np.ndarray) -> list:
+        """The avatars every master shows at frame time ``t`` (s), as the flat (viewer, avatar,
+        xy) list of a history slot (m): each master's cached avatar records dead-reckoned
+        (:func:`consistency.dead_reckon`, the same operations in Python floats), its own avatar
+        the truth ``P[g]``."""
+        G, order = self.cfg.groups, self.cfg.prediction_order
+        out = [0.0] * (2 * G * G)
+        for i, c in enumerate(self.cache[:G * G, :self._ncol].tolist()):   # row i: object i // G, viewer i % G
+            o, v = divmod(i, G)
+            if order == 0:
+                x, y = c[1], c[2]
+            else:
+                dt = t - c[T_COL]
+                if order == 1:
+                    x, y = c[1] + c[3] * dt, c[2] + c[4] * dt
+                else:
+                    hd = 0.5 * dt
+                    x, y = c[1] + dt * (c[3] + hd * c[5]), c[2] + dt * (c[4] + hd * c[6])
+            j = 2 * (v * G + o)
+            out[j], out[j + 1] = x, y
+        for g, (x, y) in enumerate(P[:G].tolist()):   # a master shows its own avatar as it is
+            j = 2 * (g * G + g)
+            out[j], out[j + 1] = x, y
+        return out
 
     def _slave_nodes(self):
-        """Every slave render node (k,) and ``arange(G)``, kept while the groups stay."""
+        """Every slave render node (k,), ``arange(G)`` and the slaves as a list, kept while the
+        groups stay."""
         memo = self._slaves_memo
         if memo is None or memo[0] != self._group_version:
             sl = (np.concatenate([s for s in self.slaves if len(s)]) if any(len(s) for s in self.slaves)
                   else np.zeros(0, int))
-            memo = self._slaves_memo = (self._group_version, sl, np.arange(self.cfg.groups))
-        return memo[1], memo[2]
+            memo = self._slaves_memo = (self._group_version, sl, np.arange(self.cfg.groups), sl.tolist())
+        return memo[1], memo[2], memo[3]
 
     def _measure(self, t, P, vg, vo, fi, og, cells, online_g) -> None:
         """Display error of every remote copy at frame time ``t`` (eq. 3-1/3-2).
@@ -931,39 +961,39 @@ class NetworkModel:
         :func:`metrics.inconsistency_sq` in the same order; the total is numpy's sum of the
         same squared errors)."""
         memo = self._scalar_view_memo
-        if memo is None or memo[0] is not og or memo[1] is not vo:
-            memo = self._scalar_view_memo = (og, vo, vo.tolist(), (og != vg).tolist())
-        objs, not_own = memo[2], memo[3]
+        if memo is None or memo[0] is not og or memo[1] is not vo or memo[2] is not fi:
+            # the copies shown by non-owners (only they can count): position, object, flat index
+            remote = np.flatnonzero(og != vg)
+            memo = self._scalar_view_memo = (og, vo, fi, remote.tolist(), vo[remote].tolist(), fi[remote])
         order, enter = self.cfg.prediction_order, self.enter_col
-        rows = np.take(self.cache, fi, axis=0).tolist()
+        rows = np.take(self.cache, memo[5], axis=0).tolist()
         pos = P.tolist()
         n_obj = self.n_obj
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
-        err2 = []
+        err2 = [0.0] * len(fi)    # the own copies (and remote ones without a record) count as 0
         n_valid = 0
         oldest = math.inf
-        for c, o, no in zip(rows, objs, not_own):
+        for i, o, c in zip(memo[3], memo[4], rows):
             ct = c[0]
-            if not (no and ct >= c[enter] - 1e-12):   # not a remote copy with a record: counts as 0
-                e = 0.0
-            else:
-                n_valid += 1
-                if ct < oldest:
-                    oldest = ct
-                cnt[o] += 1
-                p = pos[o]
-                ex = c[1] - p[0]
-                ey = c[2] - p[1]
-                if order >= 1:
-                    dt = t - ct
-                    ex += c[3] * dt
-                    ey += c[4] * dt
-                    if order >= 2:
-                        h = 0.5 * dt * dt
-                        ex += c[5] * h
-                        ey += c[6] * h
-                e = ex * ex + ey * ey
-            err2.append(e)
+            if not ct >= c[enter] - 1e-12:   # no record since it subscribed
+                continue
+            n_valid += 1
+            if ct < oldest:
+                oldest = ct
+            cnt[o] += 1
+            p = pos[o]
+            ex = c[1] - p[0]
+            ey = c[2] - p[1]
+            if order >= 1:
+                dt = t - ct
+                ex += c[3] * dt
+                ey += c[4] * dt
+                if order >= 2:
+                    h = 0.5 * dt * dt
+                    ex += c[5] * h
+                    ey += c[6] * h
+            e = ex * ex + ey * ey
+            err2[i] = e
             s2[o] += e
             if e > per_max[o]:
                 per_max[o] = e
@@ -979,8 +1009,8 @@ class NetworkModel:
             m.inconsistency_rms = 0.0
             return
         sqrt = math.sqrt
-        self.per_object_max = np.array([sqrt(x) for x in per_max])
-        self.per_object_rms = np.array([sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
+        per = np.array([sqrt(x) for x in per_max] + [sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
+        self.per_object_max, self.per_object_rms = per[:n_obj], per[n_obj:]
         m.inconsistency_max = max(m.inconsistency_max, sqrt(max(err2)))
         m.inconsistency_rms = sqrt(float(np.add.reduce(np.array(err2))) / n_valid)
 

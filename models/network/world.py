@@ -36,6 +36,44 @@ REST_SKIP = True
 SCALAR_CONTACT_PAIRS = 64
 
 
+def _clip_unit(x) -> float:
+    """``float(np.clip(x, -1.0, 1.0))`` of a number, in Python (NaN stays NaN)."""
+    x = float(x)
+    return -1.0 if x < -1.0 else 1.0 if x > 1.0 else x
+
+
+def _any_within(a: list, b: list, r2: float) -> bool:
+    """Some point of ``a`` and some point of ``b`` (lists of ``[x, y]``) are at most
+    ``sqrt(r2)`` apart: ``(bx - ax)^2 + (by - ay)^2 <= r2`` (the differences squared as products)."""
+    for ax, ay in a:
+        for bx, by in b:
+            dx = bx - ax
+            dy = by - ay
+            if dx * dx + dy * dy <= r2:
+                return True
+    return False
+
+
+def _reflect_avatars(apos: np.ndarray, yaw: np.ndarray, speed: np.ndarray, S: float):
+    """Avatars (positions (n, 2) m, headings (n,) rad, speeds (n,) m/s) reflected off the walls
+    of the scene ``[0, S]^2``: positions clipped, the velocity component across a wall reversed
+    (heading and speed from the new velocity). Rows inside the scene are returned unchanged;
+    ``yaw`` and ``speed`` are modified in place."""
+    out = (apos < 0.0) | (apos > S)
+    if not out.any():
+        return apos, yaw, speed
+    apos = np.clip(apos, 0.0, S)
+    vel = np.empty((len(yaw), 2))
+    np.cos(yaw, out=vel[:, 0])
+    np.sin(yaw, out=vel[:, 1])
+    vel *= speed[:, None]
+    vel[out] *= -1.0
+    rows = out.any(axis=1)
+    yaw[rows] = np.arctan2(vel[rows, 1], vel[rows, 0])
+    speed[rows] = np.abs(speed[rows])
+    return apos, yaw, speed
+
+
 class World:
     """Vectorised state of ``G`` avatars and ``E`` free entities (SI units, z up)."""
 
@@ -161,7 +199,7 @@ class World:
         self.t = max(self.ta, self.te)
 
     def _substeps(self, dt: float):
-        n = max(1, int(np.ceil(dt / (self.cfg.frame_s / self.cfg.substeps) - 1e-9)))
+        n = max(1, math.ceil(dt / (self.cfg.frame_s / self.cfg.substeps) - 1e-9))
         return n, dt / n
 
     def _avatar_key(self) -> tuple:
@@ -214,53 +252,65 @@ class World:
 
     def _advance_avatars_scalar(self, n: int, h: float, ks: list) -> None:
         """:meth:`_advance_avatars` for a few avatars in Python floats: the same operations in
-        the same order (IEEE double either way), without ~30 numpy calls per sub-step."""
+        the same order (IEEE double either way), without ~30 numpy calls per sub-step.
+
+        Avatars do not interact within an advance, so each one runs its sub-steps in turn
+        (the array code's sub-step loop outside, the avatars inside, gives the same values).
+        A resting fleet stops where the array code does: at rest (no throttle, no speed) an
+        avatar whose heading a sub-step leaves unchanged repeats that sub-step exactly, so it
+        stops there by itself, and the fleet is at a fixed point when every avatar stopped
+        after its first sub-step. A wall hit goes through the array code
+        (:func:`_reflect_avatars`) for that avatar."""
         cfg = self.cfg
         S, ms, acc, drag = cfg.scene_size, cfg.max_speed, cfg.max_accel, cfg.drag
         pi, two_pi = np.pi, 2 * np.pi
         thr = self.throttle.tolist()
         sp, yaw = self.speed.tolist(), self.yaw.tolist()
-        x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
+        xy = self.apos.tolist()
         still = not any(thr) and not any(sp)
         first = True
         cos, sin, nms = math.cos, math.sin, -ms
-        for _ in range(n):
-            yaw0 = yaw
-            x2, y2, yaw2, sp2, accel, yaw_rate = [], [], [], [], [], []
-            wall = False
-            for v0, th, k, yw, xi, yi in zip(sp, thr, ks, yaw, x, y):
+        G = len(sp)
+        out = [0.0] * (6 * G)     # x, y per avatar, then yaw, speed, accel, yaw rate per avatar
+        for i, (v0, th, k, yw, (xi, yi)) in enumerate(zip(sp, thr, ks, yaw, xy)):
+            a0 = yr = 0.0
+            for j in range(n):
                 a = acc * th - drag * v0
                 v1 = v0 + a * h     # clipped to [-ms, ms] (np.minimum(np.maximum(., -ms), ms))
                 if v1 < nms:
                     v1 = nms
                 elif v1 > ms:
                     v1 = ms
-                accel.append((v1 - v0) / h)
+                a0 = (v1 - v0) / h
                 vm = 0.5 * (v0 + v1)
                 yr = vm * k
-                yaw_rate.append(yr)
                 yaw_m = yw + 0.5 * yr * h
                 step = vm * h
                 xn = step * cos(yaw_m) + xi
                 yn = step * sin(yaw_m) + yi
-                x2.append(xn)
-                y2.append(yn)
-                if xn < 0.0 or yn < 0.0 or xn > S or yn > S:
-                    wall = True
-                yaw2.append((yw + yr * h + pi) % two_pi - pi)
-                sp2.append(v1)
-            x, y, yaw, sp = x2, y2, yaw2, sp2
-            if wall:   # a wall: the array code
-                self.apos, self.yaw, self.speed = np.array([x, y]).T.copy(), np.array(yaw), np.array(sp)
-                self._avatar_walls()
-                x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
-                yaw, sp = self.yaw.tolist(), self.speed.tolist()
-            if still and yaw == yaw0:
-                break
-            first = False
-        self.apos = np.array(list(zip(x, y))) if x else np.zeros((0, 2))
-        self.yaw, self.speed = np.array(yaw), np.array(sp)
-        self.accel, self.yaw_rate = np.array(accel), np.array(yaw_rate)
+                yw2 = (yw + yr * h + pi) % two_pi - pi
+                if xn < 0.0 or yn < 0.0 or xn > S or yn > S:    # a wall: the array code
+                    p, w, v = _reflect_avatars(np.array([[xn, yn]]), np.array([yw2]), np.array([v1]), S)
+                    (xn, yn), = p.tolist()
+                    yw2, v1 = float(w[0]), float(v[0])
+                fixed = still and yw2 == yw
+                xi, yi, yw, v0 = xn, yn, yw2, v1
+                if fixed:
+                    break
+            else:
+                j = n             # every sub-step ran
+            if not (still and j == 0):
+                first = False
+            out[2 * i] = xi
+            out[2 * i + 1] = yi
+            out[2 * G + i] = yw
+            out[3 * G + i] = v0
+            out[4 * G + i] = a0
+            out[5 * G + i] = yr
+        arr = np.array(out)
+        self.apos = arr[:2 * G].reshape(G, 2)
+        self.yaw, self.speed = arr[2 * G:3 * G], arr[3 * G:4 * G]
+        self.accel, self.yaw_rate = arr[4 * G:5 * G], arr[5 * G:]
         # a first sub-step that changed nothing is a fixed point: the next advance may be skipped
         # (its sub-steps would compute the same values; the step length does not enter them at rest)
         self._fixed_key = self._avatar_key() if still and first else None
@@ -291,14 +341,12 @@ class World:
 
     def _advance_entities_scalar(self, n: int, h: float, decay: float, ct: list, st: list) -> None:
         """:meth:`_advance_entities` for a few entities in Python floats (same operations in the
-        same order, walls included)."""
+        same order, walls included; entities do not interact, so each runs its sub-steps in turn)."""
         S = self.cfg.scene_size
         S2, hh = 2 * S, 0.5 * h
-        px, py = self.epos[:, 0].tolist(), self.epos[:, 1].tolist()
-        vx, vy = self.evel[:, 0].tolist(), self.evel[:, 1].tolist()
-        for _ in range(n):
-            qx, qy, wx, wy = [], [], [], []
-            for x, y, ax, ay, c, s in zip(px, py, vx, vy, ct, st):
+        qx, qy, wx, wy = [], [], [], []
+        for (x, y), (ax, ay), c, s in zip(self.epos.tolist(), self.evel.tolist(), ct, st):
+            for _ in range(n):
                 bx = (c * ax - s * ay) * decay
                 by = (s * ax + c * ay) * decay
                 x = x + hh * (ax + bx)
@@ -311,13 +359,13 @@ class World:
                     y, by = -y, by * -1.0
                 elif y > S:
                     y, by = S2 - y, by * -1.0
-                qx.append(x)
-                qy.append(y)
-                wx.append(bx)
-                wy.append(by)
-            px, py, vx, vy = qx, qy, wx, wy
-        self.epos[:, 0], self.epos[:, 1] = px, py
-        self.evel = np.array([vx, vy]).T.copy()
+                ax, ay = bx, by
+            qx.append(x)
+            qy.append(y)
+            wx.append(ax)
+            wy.append(ay)
+        self.epos[:, 0], self.epos[:, 1] = qx, qy
+        self.evel = np.array([wx, wy]).T.copy()
 
     def _entity_walls(self) -> None:
         S = self.cfg.scene_size
@@ -331,23 +379,15 @@ class World:
             v[lo | hi] *= -1.0
 
     def _avatar_walls(self) -> None:
-        S = self.cfg.scene_size
-        if len(self.apos) == 0 or (self.apos.min() >= 0.0 and self.apos.max() <= S):
+        if len(self.apos) == 0 or (self.apos.min() >= 0.0 and self.apos.max() <= self.cfg.scene_size):
             return
-        out = (self.apos < 0.0) | (self.apos > S)
-        if out.any():
-            self.apos = np.clip(self.apos, 0.0, S)
-            vel = self.avel
-            vel[out] *= -1.0
-            rows = out.any(axis=1)
-            self.yaw[rows] = np.arctan2(vel[rows, 1], vel[rows, 0])
-            self.speed[rows] = np.abs(self.speed[rows])
+        self.apos, self.yaw, self.speed = _reflect_avatars(self.apos, self.yaw, self.speed, self.cfg.scene_size)
 
     # -- inputs -----------------------------------------------------------------------------
     def set_input(self, g: int, throttle: float, steer: float) -> None:
         """ControllerPacket of avatar ``g`` takes effect (clipped to [-1, 1])."""
-        self.throttle[g] = float(np.clip(throttle, -1.0, 1.0))
-        self.steer[g] = float(np.clip(steer, -1.0, 1.0))
+        self.throttle[g] = _clip_unit(throttle)
+        self.steer[g] = _clip_unit(steer)
 
     def bounce_avatar(self, g: int, normal, restitution: float) -> float:
         """Collision response of avatar ``g`` on a contact with unit normal ``normal`` (2,).
@@ -414,10 +454,7 @@ class World:
         elif etree is None and G * E <= SCALAR_CONTACT_PAIRS:
             # tiny scenes: the same brute-force check in Python floats (the same differences,
             # squares and bound)
-            r2 = r * r * (1.0 + 1e-9)
-            ep = self.epos.tolist()
-            if not any((ex - ax) * (ex - ax) + (ey - ay) * (ey - ay) <= r2
-                       for ax, ay in self.apos.tolist() for ex, ey in ep):
+            if not _any_within(self.apos.tolist(), self.epos.tolist(), r * r * (1.0 + 1e-9)):
                 return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
         elif etree is None and G * E <= 4096:
             # small scenes: a brute-force distance check finds the (rare) frames with a contact;
