@@ -15,6 +15,9 @@ from .arrays import concat_ranges
 
 
 # -- scene grid §3.3 -------------------------------------------------------------------------
+#: up to this many positions :meth:`SceneGrid.cell` runs in Python (cheaper than 7 numpy calls)
+SCALAR_CELLS = 64
+LIMIT_CELL = 2.0 ** 62   # |x / size * C| below this: the int64 cast is exact truncation
 class SceneGrid:
     """``C x C`` grid over a square scene of side ``size``; 9-cell neighbourhoods (fig. 3-5a).
 
@@ -36,8 +39,29 @@ class SceneGrid:
 
     def cell(self, pos: np.ndarray) -> np.ndarray:
         """Cell index of each position (n, 2) -> (n,) int."""
+        if len(pos) <= SCALAR_CELLS and pos.shape[1:] == (2,):
+            out = self._cell_scalar(pos.tolist())
+            if out is not None:
+                return np.array(out, np.int64)
         ij = np.minimum(np.maximum((pos / self.size * self.C).astype(np.int64), 0), self.C - 1)
         return ij[:, 0] * self.C + ij[:, 1]
+
+    def _cell_scalar(self, pos: list):
+        """:meth:`cell` of a few positions (a list of ``[x, y]``, m) in Python: the same
+        quotient ``x / size * C`` truncated toward zero and clipped to the grid. None when a
+        coordinate is not finite or too large for the int64 cast (the array code's semantics)."""
+        size, C = self.size, self.C
+        hi = C - 1
+        out = []
+        for x, y in pos:
+            u, v = x / size * C, y / size * C
+            if not (-LIMIT_CELL < u < LIMIT_CELL and -LIMIT_CELL < v < LIMIT_CELL):
+                return None
+            i, j = int(u), int(v)
+            i = 0 if i < 0 else hi if i > hi else i
+            j = 0 if j < 0 else hi if j > hi else j
+            out.append(i * C + j)
+        return out
 
     def adjacent(self, a, b):
         """Cell ``b`` is in the 9-cell neighbourhood of cell ``a`` (symmetric), elementwise."""
@@ -201,6 +225,7 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     ``cKDTree`` or a :class:`PointIndex` of ``entity_pos``), so the cost is linear; with a
     :class:`PointIndex` the Mahalanobis candidates are the entities in the box of half-width
     ``a`` around each centre (``d <= 1`` implies ``|x - c| <= a``: the same owners).
+    The result may be ``current`` itself when no entity changes owner (small scenes).
     """
     if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
         return current
@@ -253,12 +278,11 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
     3-11/3-12, 3-3): the same operations in the same order as :func:`ellipsoid_axes` and
     :func:`mahalanobis_ellipsoid` (IEEE double either way: squares as products, square roots
     correctly rounded), the winner of each entity the lowest (distance, avatar). None for a
-    degenerate ellipsoid (``a = 0`` or ``b = 0``: the array code's NaN/inf semantics)."""
-    ax, ay = avatar_pos[:, 0].tolist(), avatar_pos[:, 1].tolist()
-    vx, vy = avatar_vel[:, 0].tolist(), avatar_vel[:, 1].tolist()
+    degenerate ellipsoid (``a = 0`` or ``b = 0``: the array code's NaN/inf semantics);
+    ``current`` itself when no entity changes owner."""
     cx, cy, ux, uy, a2, b2, reach = [], [], [], [], [], [], []
-    for i in range(len(ax)):
-        speed = math.sqrt(vx[i] * vx[i] + vy[i] * vy[i])
+    for (axi, ayi), (vxi, vyi) in zip(avatar_pos.tolist(), avatar_vel.tolist()):
+        speed = math.sqrt(vxi * vxi + vyi * vyi)
         D = speed * frame_s
         a = max(D * scale, min_axis)
         focal = D * scale if foci == "reach" else D
@@ -268,15 +292,15 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
             return None
         b = math.sqrt(b2_i)
         if speed > 0:
-            u0, u1 = vx[i] / speed, vy[i] / speed
+            u0, u1 = vxi / speed, vyi / speed
         else:
             u0, u1 = 1.0, 0.0
         if rule == "mahalanobis":
-            cx.append(ax[i] + hf * u0)
-            cy.append(ay[i] + hf * u1)
+            cx.append(axi + hf * u0)
+            cy.append(ayi + hf * u1)
         else:
-            cx.append(ax[i])
-            cy.append(ay[i])
+            cx.append(axi)
+            cy.append(ayi)
         ux.append(u0)
         uy.append(u1)
         a2.append(a * a)
@@ -285,13 +309,11 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
     # b <= a: the ellipsoid (and the reach sphere) lie in the sphere of radius a, so a pair
     # with |r|^2 > a^2 (1 + 1e-9) has d > 1 (d > a) whatever the rounding: skipped
     far = [x * (1.0 + 1e-9) for x in a2]
-    out = current.copy()
-    ex, ey = entity_pos[:, 0].tolist(), entity_pos[:, 1].tolist()
     G = len(cx)
     maha = rule == "mahalanobis"
-    for j in range(len(ex)):
+    moved = []        # (entity, new owner) where the owner changes
+    for j, ((x, y), cur) in enumerate(zip(entity_pos.tolist(), current.tolist())):
         best, who = None, -1
-        x, y = ex[j], ey[j]
         for i in range(G):
             rx, ry = x - cx[i], y - cy[i]
             rr = rx * rx + ry * ry
@@ -312,8 +334,13 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
                     continue
             if best is None or d < best:
                 best, who = d, i
-        if who >= 0:
-            out[j] = who
+        if who >= 0 and who != cur:
+            moved.append((j, who))
+    if not moved:
+        return current
+    out = current.copy()
+    for j, who in moved:
+        out[j] = who
     return out
 
 

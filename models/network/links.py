@@ -19,6 +19,8 @@ CLASS_INDEX = {"lan": 0, "wan": 1}
 MERGE_DRAWS = True
 #: ... for batches of at most this many messages (a scalar mean is the faster draw for large ones)
 MERGE_MAX = 512
+#: a merged batch of at most this many messages is timed in Python floats (:meth:`TransmitPlan.run_floats`)
+FLOAT_BATCH = 64
 
 
 def sample_latency(rng: np.random.Generator, link: LinkClass, n: int) -> np.ndarray:
@@ -118,6 +120,15 @@ class TransmitPlan:
             self.csum = np.cumsum(tx_sorted)
             self.base = (self.csum - tx_sorted)[first][self.grp]
             self.s_first, self.s_last = s_sorted[first], s_sorted[last]
+        self.floats = None   # the plan as Python lists (small merged batches, see run_floats)
+        if self.merged is not None and n <= FLOAT_BATCH:
+            lat = list(zip(*(a.tolist() for a in self.merged)))      # (message, mean, base) per draw
+            ser = None
+            if self.serial:
+                ser = (self.order.tolist(), np.flatnonzero(first).tolist(), self.grp.tolist(), self.csum.tolist(),
+                       self.base.tolist(), self.s_first.tolist(), self.s_last.tolist(),
+                       np.flatnonzero(last).tolist())
+            self.floats = (lat, ser)
 
     def run(self, rng: np.random.Generator, send_t: np.ndarray, busy_until: np.ndarray, scale: float = 1.0):
         """Arrival times (n,) s and loss flags (n,) of the batch sent at ``send_t`` (n,) s."""
@@ -145,3 +156,35 @@ class TransmitPlan:
         else:
             arrival += send_t
         return arrival, lost
+
+    def run_floats(self, rng: np.random.Generator, send: list, busy_until: np.ndarray, scale: float = 1.0) -> list:
+        """:meth:`run` of a small merged batch (``floats`` not None: lossless, exponential
+        jitter) in Python floats: the same draws (one ``standard_exponential`` call) and the
+        same operations in the same order. ``send`` (n,) s as a list; returns the arrival
+        times (n,) s as a list (nothing is lost)."""
+        lat, ser = self.floats
+        n = self.n
+        arrival = [0.0] * n
+        if n == 0:
+            return arrival
+        for (i, mean, base), d in zip(lat, rng.standard_exponential(len(lat)).tolist()):
+            x = base + d * mean
+            arrival[i] = scale * (0.0 if x < 0.0 else x)      # np.maximum(x, 0.0)
+        if ser is None:
+            return [a + t for a, t in zip(arrival, send)]
+        order, first, grp, csum, base, s_first, s_last, last = ser
+        ts = [send[i] for i in order]
+        busy = busy_until.tolist()
+        start0 = []
+        for q, s in zip(first, s_first):
+            a, b = ts[q], busy[s]
+            start0.append(a if a >= b else b)                 # np.maximum(a, b)
+        end = []
+        for g, tq, c, b0 in zip(grp, ts, csum, base):
+            a = start0[g]
+            end.append((a if a >= tq else tq) + c - b0)
+        for q, i in enumerate(order):
+            arrival[i] += end[q]
+        for q, s in zip(last, s_last):
+            busy_until[s] = end[q]
+        return arrival

@@ -53,6 +53,16 @@ SCALAR_VIEW = 64        # at most this many view pairs: the display error in Pyt
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
 
 
+def _due_frame(a: float, T: float, k: int) -> int:
+    """First frame (>= ``k``) whose time (frame ``T`` s) is >= the arrival ``a`` (s), or -1 for an
+    arrival that is not finite or beyond any int64 frame: :meth:`NetworkModel._due` of one
+    arrival, in Python (``max(ceil(a / T - 1e-9), k)``)."""
+    x = a / T - 1e-9
+    if not x < 4611686018427387904.0:    # 2^62 (False for NaN too)
+        return -1
+    return k if x <= k else math.ceil(x)
+
+
 def _aligned_rows(n: int, w: int) -> np.ndarray:
     """Zeroed C-contiguous (n, w) float64 array whose rows start on 64-byte boundaries."""
     buf = np.zeros(n * w + 8)
@@ -496,7 +506,8 @@ class NetworkModel:
                 claimed = new_local != cur_local
                 new = cur.copy()
                 new[claimed] = cand[new_local[claimed]]
-            self._handover(self._entity_ids, new)
+            if new is not cur:   # (assign_owners may return cur itself: nobody changed owner)
+                self._handover(self._entity_ids, new)
         # 3. publishing: every frame, or DIS threshold / heartbeat
         if cfg.dis_threshold > 0:
             has_owner = online_g[self.owner]
@@ -540,16 +551,23 @@ class NetworkModel:
                 newly = None
             self._view_prev = (cells, online_g)
         tr, memo = self._messages(t, pub, pub_obj, view, newly, og)
-        arrival, lost = self._transmit(tr)
+        arr_l = self._transmit_floats(tr)    # a small lossless batch in Python floats (or None)
+        if arr_l is None:
+            arrival, lost = self._transmit(tr)
         if len(tr.rec_msg):
             # the frame at which each record is due is its message's (-1: the message, or the
             # first hop a relayed record waits for, was lost)
-            due_msg = self._due(arrival)
-            due_msg[lost] = -1
-            due = np.take(due_msg, tr.rec_msg)
-            if tr.plan.wait is not None:
-                hop = tr.rec_hop1
-                due[(hop >= 0) & np.take(lost, np.maximum(hop, 0))] = -1
+            if arr_l is not None:
+                k, T = self.k, cfg.frame_s
+                due_msg = [_due_frame(a, T, k) for a in arr_l]
+                due = [due_msg[i] for i in tr.plan.lists()[0]]
+            else:
+                due_msg = self._due(arrival)
+                due_msg[lost] = -1
+                due = np.take(due_msg, tr.rec_msg)
+                if tr.plan.wait is not None:
+                    hop = tr.rec_hop1
+                    due[(hop >= 0) & np.take(lost, np.maximum(hop, 0))] = -1
             # one record table per frame (objects x cache width, rows like the cache's); pairs
             # refer to it by object; the senders are the owners now (one snapshot per epoch)
             table = self._table(self._obj_ids, t, P, V, A)
@@ -564,9 +582,13 @@ class NetworkModel:
                 snap = self._owner_snap = (self._epoch, self.owner.copy())
             self._file(due, rec_fi, snap[1], table, tr.rec_obj, t_send=float(t))
         if len(tr.frame_msg):
-            arr_l, lost_l, nxt = arrival.tolist(), lost.tolist(), self.k + 1
-            self._frames += [(math.inf if lost_l[i] else arr_l[i], node, nxt)
-                             for i, node in zip(tr.frame_msg.tolist(), tr.frame_slave.tolist())]
+            nxt = self.k + 1
+            if arr_l is not None:   # nothing lost
+                self._frames += [(arr_l[i], node, nxt) for i, node in tr.plan.lists()[1]]
+            else:
+                arr_l, lost_l = arrival.tolist(), lost.tolist()
+                self._frames += [(math.inf if lost_l[i] else arr_l[i], node, nxt)
+                                 for i, node in zip(tr.frame_msg.tolist(), tr.frame_slave.tolist())]
         # 5. deliveries up to now, slave frame flips (§3.5.2)
         self._deliver(t)
         self._flip_frames(t)
@@ -656,12 +678,9 @@ class NetworkModel:
             seg = self._segments = (vo, object_runs(vo, self.n_obj))
         return seg[1]
 
-    def _transmit(self, tr: Traffic):
-        """Arrival times and losses of a frame's messages (first hops, then relayed hops)."""
-        plan = tr.plan
-        n = plan.n
-        arrival, lost = np.zeros(n), np.zeros(n, bool)
-        nb = plan.nbytes
+    def _count_batch(self, plan: TrafficPlan) -> None:
+        """Count a frame's messages (:meth:`_transmit`): step, interval and per-type totals."""
+        n, nb = plan.n, plan.nbytes
         self.metrics.messages += n
         self.metrics.bytes += nb
         self._iv[0] += n
@@ -669,6 +688,23 @@ class NetworkModel:
         bt = self.totals.by_type
         for name, b in plan.by_type:
             bt[name] = bt.get(name, 0) + b
+
+    def _transmit_floats(self, tr: Traffic) -> Optional[list]:
+        """:meth:`_transmit` of a small batch of first hops on lossless links
+        (:meth:`links.TransmitPlan.run_floats`): the arrival times (n,) s as a list, nothing
+        lost; None for any other batch."""
+        plan = tr.plan
+        if plan.second is not None or plan.hop1.floats is None:
+            return None
+        self._count_batch(plan)
+        return plan.hop1.run_floats(self.rng, tr.send_t.tolist(), self.busy, self.latency_scale)
+
+    def _transmit(self, tr: Traffic):
+        """Arrival times and losses of a frame's messages (first hops, then relayed hops)."""
+        plan = tr.plan
+        n = plan.n
+        arrival, lost = np.zeros(n), np.zeros(n, bool)
+        self._count_batch(plan)
         first = plan.first
         a1, l1 = plan.hop1.run(self.rng, tr.send_t[first], self.busy, self.latency_scale)
         arrival[first], lost[first] = a1, l1
@@ -713,13 +749,13 @@ class NetworkModel:
 
     def _file(self, due: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
               ridx: np.ndarray, epoch: Optional[int] = None, t_send: Optional[float] = None) -> None:
-        """File records under the frame they are due (``due`` (k,), -1: lost, dropped), in
+        """File records under the frame they are due (``due`` (k,) array or list, -1: lost, dropped), in
         send order; see :meth:`_add_inflight`. ``t_send``: the newest record time of
         ``table`` when the caller knows it (a frame's table: the frame time)."""
         if not len(due):
             return
-        if len(due) <= 64:   # a few records: the extremes in Python
-            dl = due.tolist()
+        if isinstance(due, list) or len(due) <= 64:   # a few records: the extremes in Python
+            dl = due if isinstance(due, list) else due.tolist()
             hi = max(dl)
             if hi < 0:
                 return
@@ -740,6 +776,8 @@ class NetworkModel:
         if lo == hi and not some_lost:
             self._inflight.setdefault(lo, []).append((fi, sender, table, ridx, meta))
             return
+        if isinstance(due, list):
+            due = np.array(due, np.int64)
         if hi - lo <= 3:
             for key in range(lo, hi + 1):
                 sel = due == key
@@ -823,13 +861,19 @@ class NetworkModel:
         if not fr:
             return
         k = self.k
-        if min(f for _, _, f in fr) > k:
-            return
         lim = t + 1e-12
-        show = [node for a, node, f in fr if f == k and a <= lim]
-        if show:
-            self.shown_frame[show] = k
-        later = [x for x in fr if x[2] > k]
+        show, later = [], []
+        for x in fr:
+            f = x[2]
+            if f > k:
+                later.append(x)
+            elif f == k and x[0] <= lim:
+                show.append(x[1])
+        if len(later) == len(fr):   # every FRAME is due later
+            return
+        sf = self.shown_frame
+        for node in show:
+            sf[node] = k
         self.metrics.dropped_frames += len(fr) - len(later) - len(show)
         self._frames = later
 

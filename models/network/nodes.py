@@ -121,6 +121,16 @@ class TrafficPlan:
             wait = tr.rec_hop1 >= 0
             self.wait = (tr.rec_hop1[wait], tr.rec_msg[wait]) if wait.any() else None
             self.hop2 = lk.TransmitPlan(links, tr.sender[second], tr.link[second], tr.nbytes[second])
+        self._deliveries = (tr.rec_msg, tr.frame_msg, tr.frame_slave)
+        self._lists: Optional[tuple] = None
+
+    def lists(self) -> tuple:
+        """The records' messages and the (message, slave) pairs of the frame deliveries as
+        Python lists (built on first use, for the small-batch path of the model)."""
+        if self._lists is None:
+            rec_msg, frame_msg, frame_slave = self._deliveries
+            self._lists = (rec_msg.tolist(), list(zip(frame_msg.tolist(), frame_slave.tolist())))
+        return self._lists
 
 
 class _Builder:
