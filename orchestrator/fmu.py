@@ -46,7 +46,8 @@ _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 #: the FMI 2.0 functions called every step; they are called through prototypes without
 #: ``argtypes`` and with pre-built ctypes arguments (component pointer, counts, buffers, the
 #: time as a reused c_double), which skips ctypes' per-argument ``from_param`` conversions
-_FAST_FUNCTIONS = ("fmi2GetReal", "fmi2SetReal", "fmi2GetInteger", "fmi2GetBoolean", "fmi2DoStep")
+_FAST_FUNCTIONS = ("fmi2GetReal", "fmi2SetReal", "fmi2GetInteger", "fmi2GetBoolean", "fmi2SetInteger",
+                   "fmi2SetBoolean", "fmi2DoStep")
 
 
 @dataclass(frozen=True)
@@ -477,6 +478,9 @@ class FmuInstance:
     def real_setter(self, names: Sequence[str]) -> "RealSetter":
         return RealSetter(self, list(names))
 
+    def discrete_setter(self, names: Sequence[str]) -> "DiscreteSetter":
+        return DiscreteSetter(self, list(names))
+
 
 class ValueReader:
     """Reads a fixed set of variables with one FMI call per type family.
@@ -654,6 +658,49 @@ class RealSetter:
         replaces this method by the :meth:`_fmi2_setter` closure (one ``fmi2SetReal``)."""
         inst = self.inst
         inst._guard("fmi3SetFloat64", lambda: inst.fmu.setFloat64(list(self._vrs), list(values)))
+
+
+class DiscreteSetter:
+    """Sets a fixed list of Integer and Boolean variables (FMI 2.0: one ``fmi2SetInteger`` and
+    one ``fmi2SetBoolean``), e.g. the connected Boolean inputs of a step; other variables and
+    FMI 3.0 go through :meth:`FmuInstance.set_values`.
+
+    Parameters
+    ----------
+    inst : FmuInstance
+    names : list of str
+        :meth:`set` takes the values in this order.
+    """
+
+    def __init__(self, inst: FmuInstance, names: List[str]) -> None:
+        self.inst = inst
+        self.names = names
+        fams = [inst.var(n).family for n in names]
+        #: (FMI function name, fast function, positions in ``names``, value references, count, buffer)
+        self._groups = []
+        self._fast = inst._fmi2 and all(f in ("int", "bool") for f in fams)
+        if self._fast:
+            for fam, fn in (("int", "fmi2SetInteger"), ("bool", "fmi2SetBoolean")):
+                pos = [i for i, f in enumerate(fams) if f == fam]
+                if pos:
+                    self._groups.append((fn, inst._fast_function(fn), pos,
+                                         (ctypes.c_uint * len(pos))(*[inst.var(names[i]).vr for i in pos]),
+                                         ctypes.c_size_t(len(pos)), (ctypes.c_int * len(pos))()))
+
+    def set(self, values: Sequence[Any]) -> None:
+        """Set the values (in the order of ``names``); Booleans as 0/1, Integers as int."""
+        if not self._fast:
+            self.inst.set_values(dict(zip(self.names, values)))
+            return
+        inst, comp = self.inst, self.inst._c_component
+        for name, fn, pos, vrs, n, buf in self._groups:
+            buf[:] = [int(values[i]) for i in pos]
+            try:
+                status = fn(comp, vrs, n, buf)
+            except Exception as exc:
+                raise inst._raised(name, exc) from None
+            if status > 1:
+                inst._check(name, status)
 
 
 def is_finite(value: Any) -> bool:

@@ -24,7 +24,7 @@ from time import perf_counter_ns
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-from .fmu import FmuInstance, RealSetter, ValueReader
+from .fmu import DiscreteSetter, FmuInstance, RealSetter, ValueReader
 from .graph import gauss_seidel_order
 from .manipulators import Fault, signal
 from .scenario import Connection, Scenario
@@ -48,6 +48,7 @@ class Slot:
     # (input index, source slot, source index, delayed?, gain, offset, linear?)
     float_feeds: List[Tuple[int, "Slot", int, bool, float, float, bool]] = field(default_factory=list)
     other_feeds: List[Tuple[str, "Slot", int]] = field(default_factory=list)
+    other_setter: Optional[DiscreteSetter] = None  # sets the other_feeds' values (Integer, Boolean)
     signals: List[Tuple[int, Callable[[float], float]]] = field(default_factory=list)
     faults: List[Tuple[Fault, Optional[int]]] = field(default_factory=list)
     stepped: bool = False
@@ -114,6 +115,8 @@ class Master:
                 idx = slot.real_inputs.index(fs.var) if fs.var in slot.real_inputs else None
                 slot.faults.append((Fault(fs), idx))
         for slot in slots.values():
+            if slot.other_feeds:
+                slot.other_setter = slot.inst.discrete_setter([name for name, _, _ in slot.other_feeds])
             slot.has_inputs = bool(slot.float_feeds or slot.other_feeds or slot.signals or slot.faults)
             if "at_rest" in slot.read_names and scenario.lazy:
                 slot.rest_idx = slot.index("at_rest")
@@ -139,7 +142,7 @@ class Master:
                     forced.append((fault.spec.var, fault.spec.value))
                 else:
                     vals[idx] = float(fault.spec.value)
-        others = tuple((name, src.cur[j]) for name, src, j in slot.other_feeds)
+        others = tuple([src.cur[j] for _, src, j in slot.other_feeds])   # in the order of other_setter
         return tuple(vals), others, tuple(forced)
 
     def _apply(self, slot: Slot, inputs: tuple) -> None:
@@ -147,7 +150,7 @@ class Master:
         if slot.setter is not None:
             slot.setter.set(vals)
         if others:
-            slot.inst.set_values(dict(others))
+            slot.other_setter.set(others)
         if forced:
             slot.inst.set_values(dict(forced))
         slot.applied = inputs
