@@ -42,6 +42,7 @@ from __future__ import annotations
 import fnmatch
 import logging
 import math
+import struct
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -264,9 +265,16 @@ class CollisionBackend(ABC):
         self.dyn = np.asarray(scene.dynamic, dtype=int)
         self.is_dynamic = np.zeros(self.n, bool)
         self.is_dynamic[self.dyn] = True
-        self.poses = scene.poses()
-        self.T = scene.transforms(self.poses)
-        self.prev_T = self.T.copy()
+        # the arrays behind the properties poses / T / prev_T: their dynamic rows are written
+        # from the list forms (_dyn_poses, _T_rows, _prev_rows) only when read (_sync_rows)
+        self._poses = scene.poses()
+        self._T = scene.transforms(self._poses)
+        self._prev_T = self._T.copy()
+        self._qn = 0  # queries so far (the clock of the lazy rows)
+        self._row_at = [0] * self.n  # query at which a body's T / prev_T rows were last written
+        self._moved_at = [-1] * self.n  # query in which a body last moved
+        self._prev_is_T = True  # the current query is the first: prev_T = T (no motion)
+        self._poses_pending = False
         # per mesh: local vertices, bounding-sphere centre and radius (eq. 5-1)
         self._local: Dict[str, Tuple[np.ndarray, np.ndarray, float]] = {}
         for key, mesh in scene.meshes.items():
@@ -290,7 +298,7 @@ class CollisionBackend(ABC):
         self._pair_dyn = [np.flatnonzero(self.is_dynamic[np.append(p.members, p.a)]) for p in self.pairs]
         self._pair_dyn = [set(np.append(p.members, p.a)[idx].tolist()) for p, idx in zip(self.pairs, self._pair_dyn)]
         self._dyn_list = self.dyn.tolist()
-        self._dyn_poses = {i: self.poses[i].tolist() for i in self._dyn_list}
+        self._dyn_poses = {i: tuple(self._poses[i].tolist()) for i in self._dyn_list}
         self._cache: List[Optional[PairResult]] = [None] * len(self.pairs)
         self._previous: Optional[PairResult] = None
         self._last: Optional[QueryResult] = None
@@ -302,8 +310,10 @@ class CollisionBackend(ABC):
         self._shift = [0.0] * self.n
         # the transforms of the dynamic bodies as nested lists (current, and before this
         # query's move for the bodies that moved in it): scalar code for the per-step bounds
-        self._T_rows: Dict[int, list] = {i: self.T[i].tolist() for i in self._dyn_list}
+        self._T_rows: Dict[int, list] = {i: self._T[i].tolist() for i in self._dyn_list}
         self._prev_rows: Dict[int, list] = {}
+        # per dynamic body: the bits of the (roll, pitch, yaw) its _T_rows rotation was made of
+        self._rot_key: Dict[int, Optional[bytes]] = {i: _PACK3(*self._poses[i, 3:].tolist()) for i in self._dyn_list}
         self._toi_need: Dict[int, bool] = {}  # _needs_toi's answers in the current query
         self._pair_bodies = [sorted(d) for d in self._pair_dyn]
         self._far: List[Optional[Tuple[float, float]]] = [None] * len(self.pairs)
@@ -316,13 +326,75 @@ class CollisionBackend(ABC):
     def _setup(self) -> None:
         """Build backend structures (called once at the end of ``__init__``)."""
 
-    def _moved(self, idx: np.ndarray) -> None:
-        """Bodies ``idx`` got new transforms in ``self.T`` (update backend structures)."""
+    def _moved(self, idx: List[int]) -> None:
+        """Bodies ``idx`` got new transforms (update backend structures; the rows of ``_T`` /
+        ``_prev_T`` are written later, :meth:`_sync_rows`)."""
 
     @abstractmethod
     def _evaluate(self, pair: PairSpec, dt: float) -> Tuple[PairResult, int, int]:
         """Evaluate one pair at the current transforms (``self.prev_T`` holds the start of the
-        step). Returns the result, the number of candidate pairs and of narrow-phase tests."""
+        step). Returns the result, the number of candidate pairs and of narrow-phase tests.
+
+        The rows of ``_T`` / ``_prev_T`` of the pair's dynamic bodies are current (the query
+        has called :meth:`_sync_rows` for them); other bodies' rows are read through the
+        properties ``T`` / ``prev_T``."""
+
+    # -- transforms -----------------------------------------------------------------------
+    @property
+    def T(self) -> np.ndarray:
+        """World transforms of all bodies, shape (n, 4, 4) (at the current query's poses)."""
+        self._sync_rows(self._dyn_list)
+        return self._T
+
+    @property
+    def prev_T(self) -> np.ndarray:
+        """World transforms at the start of the current query's step, shape (n, 4, 4) (the
+        first query's and a rest step's equal ``T``)."""
+        self._sync_rows(self._dyn_list)
+        return self._prev_T
+
+    @property
+    def poses(self) -> np.ndarray:
+        """Poses ``(x, y, z, roll, pitch, yaw)`` of all bodies, shape (n, 6) (m, rad)."""
+        if self._poses_pending:
+            self._poses_pending = False
+            dyn_poses = self._dyn_poses
+            for i in self._dyn_list:
+                self._poses[i] = dyn_poses[i]
+        return self._poses
+
+    def _sync_rows(self, bodies) -> None:
+        """Write the rows of ``_T`` / ``_prev_T`` of ``bodies`` from the list forms where they
+        lag behind: a body that moved since its rows were written, or moved in the query that
+        wrote them (its ``prev_T`` row is its ``T`` row in every later query until it moves)."""
+        qn, at, moved_at = self._qn, self._row_at, self._moved_at
+        for i in bodies:
+            s = at[i]
+            if s == qn or s > moved_at[i]:
+                continue
+            rows = self._T_rows[i]
+            self._T[i] = rows
+            self._prev_T[i] = rows if self._prev_is_T else self._prev_rows.get(i, rows)
+            at[i] = qn
+
+    def _move(self, i: int, row: tuple) -> list:
+        """Body ``i`` moves to pose ``row``: its new transform as nested lists (the rotation of
+        the last one when roll, pitch and yaw are the same bits: the same numbers
+        :func:`pose_rows` would compute), with the far-pair skip's face-shift bound."""
+        key = _PACK3(row[3], row[4], row[5])
+        old = self._T_rows[i]
+        if key == self._rot_key[i]:
+            r0, r1, r2 = old[0], old[1], old[2]
+            M = [[r0[0], r0[1], r0[2], float(row[0])], [r1[0], r1[1], r1[2], float(row[1])],
+                 [r2[0], r2[1], r2[2], float(row[2])], [0.0, 0.0, 0.0, 1.0]]
+            same = True
+        else:
+            M = pose_rows(row)
+            self._rot_key[i] = key
+            same = False
+        if self._far_skip:
+            self._shift[i] += _face_shift(old, M, self._rmax[i], same)
+        return M
 
     # -- bounds ---------------------------------------------------------------------------
     def ensure_bounds(self, idx) -> None:
@@ -332,12 +404,13 @@ class CollisionBackend(ABC):
         if len(stale):
             self._update_bounds(stale)
 
-    def _update_bounds(self, idx: np.ndarray) -> None:
+    def _update_bounds(self, idx) -> None:
         self._stale[idx] = False
+        self._sync_rows(idx)
         for i in idx:
             key = self.scene.bodies[i].mesh_key
             v, c, _ = self._local[key]
-            T = self.T[i]
+            T = self._T[i]
             # static bodies share rotated boxes by rotation; a dynamic body keeps its last one
             # (a body that only translates never rotates its vertices again)
             rkey = (key, T[:3, :3].tobytes()) if self.is_dynamic[i] else (key, T[:3, :3].round(12).tobytes())
@@ -367,6 +440,27 @@ class CollisionBackend(ABC):
         return np.linalg.norm(np.maximum(lo, hi), axis=1)
 
     # -- the query ----------------------------------------------------------------------
+    def _pose_rows(self, poses) -> list:
+        """The poses of the dynamic bodies as one 6-tuple per body (scene order), checked finite.
+
+        A flat tuple of ``6 n_dynamic`` numbers (what the FMU passes) is sliced as it is when
+        its sum is finite (then every entry is) and no entry reaches 1e300 in magnitude (no
+        partial sum of the array path can overflow); anything else goes through numpy."""
+        n6 = 6 * len(self._dyn_list)
+        if type(poses) is tuple and len(poses) == n6:
+            try:
+                fast = math.isfinite(sum(poses)) and max(poses) < 1e300 and min(poses) > -1e300
+            except (TypeError, ValueError, OverflowError):
+                fast = False
+            if fast:
+                return [poses[k:k + 6] for k in range(0, n6, 6)]
+        arr = np.asarray(poses, dtype=float).reshape(len(self.dyn), 6)
+        if not math.isfinite(float(arr.sum())):
+            i, k = np.argwhere(~np.isfinite(arr))[0]
+            raise ValueError(f"pose of dynamic body {self.scene.bodies[self.dyn[i]].name!r} "
+                             f"({'x y z roll pitch yaw'.split()[k]}) = {arr[i, k]} is not finite")
+        return [tuple(r) for r in arr.tolist()]
+
     def query(self, poses: Sequence[Sequence[float]], dt: float = 0.033) -> QueryResult:
         """Advance to new poses of the dynamic bodies and evaluate every monitored pair.
 
@@ -377,46 +471,35 @@ class CollisionBackend(ABC):
         dt : float
             Step length (s): time of impact and closing speed refer to it.
         """
-        poses = np.asarray(poses, dtype=float).reshape(len(self.dyn), 6)
-        if not math.isfinite(float(poses.sum())):
-            i, k = np.argwhere(~np.isfinite(poses))[0]
-            raise ValueError(f"pose of dynamic body {self.scene.bodies[self.dyn[i]].name!r} "
-                             f"({'x y z roll pitch yaw'.split()[k]}) = {poses[i, k]} is not finite")
-        rows = poses.tolist()
+        rows = self._pose_rows(poses)
         dyn_poses = self._dyn_poses
         changed = [(i, row) for i, row in zip(self._dyn_list, rows) if row != dyn_poses[i]]
-        moved = [i for i, _ in changed]
-        if self._last is not None and not moved:
+        self._qn += 1
+        self._prev_rows = prev_rows = {}
+        if self._last is not None and not changed:
             # nothing moved: the last contacts hold, nothing was tested, nothing is closing
-            self.prev_T[self.dyn] = self.T[self.dyn]
+            # (prev_T = T: no body moved in this query)
             rest = [_at_rest(r) for r in self._last.pairs]
             self._last = QueryResult(rest, self.n, 0, 0, True)
             return self._last
-        self.prev_T[self.dyn] = self.T[self.dyn]  # static rows never change
-        far_skip = self._far_skip
-        shift, rmax, T_rows = self._shift, self._rmax, self._T_rows
-        prev_rows = self._prev_rows = {}
+        # the first query's poses are the initial poses: the move from the scene spec's
+        # pose to them is no motion (no time of impact, closing speed or honeycomb threshold)
+        self._prev_is_T = self._last is None
         self._toi_need = {}
-        if changed:
-            mats = []
-            for i, row in changed:
-                dyn_poses[i] = row
-                M = pose_rows(row)
-                mats.append(M)
-                if far_skip:  # the far-pair skip's bookkeeping
-                    old = prev_rows[i] = T_rows[i]
-                    shift[i] += _face_shift(old, M, rmax[i])
-                    T_rows[i] = M
-            moved_arr = np.asarray(moved, dtype=int)
-            self.poses[moved_arr] = [row for _, row in changed]
-            self.T[moved_arr] = mats
-        if self._last is None:
-            # the first query's poses are the initial poses: the move from the scene spec's
-            # pose to them is no motion (no time of impact, closing speed or honeycomb threshold)
-            self.prev_T[self.dyn] = self.T[self.dyn]
-        if moved:
-            self._stale[moved_arr] = True
-            self._moved(moved_arr)
+        T_rows, moved_at, stale, qn = self._T_rows, self._moved_at, self._stale, self._qn
+        moved = []
+        for i, row in changed:
+            dyn_poses[i] = row
+            prev_rows[i] = T_rows[i]
+            T_rows[i] = self._move(i, row)
+            moved_at[i] = qn
+            stale[i] = True
+            moved.append(i)
+        self._poses_pending = True
+        far_skip = self._far_skip
+        if not far_skip:  # every moved pair is evaluated: write the rows at once
+            self._sync_rows(moved)
+        self._moved(moved)
         moved_set = set(moved)
         out, n_cand, n_narrow = [], 0, 0
         for k, pair in enumerate(self.pairs):
@@ -429,6 +512,7 @@ class CollisionBackend(ABC):
                 out.append(cached)  # the far result: no candidate, no test (class docstring)
                 continue
             self._last_gap = None
+            self._sync_rows(self._pair_bodies[k])
             if len(pair.members) == 0:
                 res, c, m = PairResult(), 0, 0
             else:
@@ -513,7 +597,8 @@ class CollisionBackend(ABC):
         b = res.partner
         if not (self.is_dynamic[a] or self.is_dynamic[b]):
             return 0.0
-        rel = (self.T[a, :3, 3] - self.prev_T[a, :3, 3]) - (self.T[b, :3, 3] - self.prev_T[b, :3, 3])
+        T, P = self._T, self._prev_T  # a and its partner are the pair's bodies: rows current
+        rel = (T[a, :3, 3] - P[a, :3, 3]) - (T[b, :3, 3] - P[b, :3, 3])
         n = res.normal  # from b to a: approaching when a moves against it
         return -float(rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]) / dt
 
@@ -530,28 +615,39 @@ class CollisionBackend(ABC):
         import copy
 
         state = copy.deepcopy(state)
-        self.poses, self.T, self.prev_T = state["poses"], state["T"], state["prev_T"]
+        self._poses, self._T, self._prev_T = state["poses"], state["T"], state["prev_T"]
+        self._poses_pending = False
         self.aabb, self.sphere_c = state["aabb"], state["sphere_c"]
         self._stale[self.dyn] = True
         self._cache, self._last = state["cache"], state["last"]
-        self._dyn_poses = {i: self.poses[i].tolist() for i in self._dyn_list}
-        self._T_rows = {i: self.T[i].tolist() for i in self._dyn_list}
+        self._dyn_poses = {i: tuple(self._poses[i].tolist()) for i in self._dyn_list}
+        self._T_rows = {i: self._T[i].tolist() for i in self._dyn_list}
+        self._rot_key = {i: None for i in self._dyn_list}
         self._prev_rows = {}
+        # the arrays hold the state's rows now; the next query writes them again (as if the
+        # bodies had moved now: prev_T = T unless they move)
+        for i in self._dyn_list:
+            self._row_at[i] = self._moved_at[i] = self._qn
         self._far = [None] * len(self.pairs)
-        self._moved(self.dyn)
+        self._moved(self._dyn_list)
 
 
 _SQRT3 = math.sqrt(3.0)
+#: the bits of (roll, pitch, yaw): the key of a body's last rotation (``-0.0`` is not ``0.0``)
+_PACK3 = struct.Struct("3d").pack
 
 
-def _face_shift(T0: list, T1: list, rmax: float) -> float:
+def _face_shift(T0: list, T1: list, rmax: float, same_rotation: bool = False) -> float:
     """Bound (m) on how far any face of a body's world AABB moves from pose ``T0`` to ``T1``
     (4x4 nested lists): ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is
     ``max_v (R v)_k + t_k`` over the hull vertices ``v`` (``|v| <= rmax``), and
-    ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <= ||R1 - R0||_F rmax``."""
+    ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <= ||R1 - R0||_F rmax``. ``same_rotation``: the
+    rotation entries of ``T1`` are those of ``T0`` (the rotation term is exactly 0)."""
+    t2 = (T1[0][3] - T0[0][3]) ** 2 + (T1[1][3] - T0[1][3]) ** 2 + (T1[2][3] - T0[2][3]) ** 2
+    if same_rotation:
+        return math.sqrt(t2)
     (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = T0[0], T0[1], T0[2]
     (p0, p1, p2, p3), (q0, q1, q2, q3), (r0, r1, r2, r3) = T1[0], T1[1], T1[2]
-    t2 = (p3 - a3) ** 2 + (q3 - b3) ** 2 + (r3 - c3) ** 2
     rot2 = ((p0 - a0) ** 2 + (p1 - a1) ** 2 + (p2 - a2) ** 2 + (q0 - b0) ** 2 + (q1 - b1) ** 2
             + (q2 - b2) ** 2 + (r0 - c0) ** 2 + (r1 - c1) ** 2 + (r2 - c2) ** 2)
     return math.sqrt(t2) + math.sqrt(rot2) * rmax

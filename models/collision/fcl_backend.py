@@ -155,9 +155,9 @@ class FclBackend(CollisionBackend):
             return False
         return on_overlap
 
-    def _moved(self, idx: np.ndarray) -> None:
+    def _moved(self, idx: List[int]) -> None:
         stale, version = self._fcl_stale, self._tf_version
-        for i in idx.tolist():
+        for i in idx:
             stale[i] = True
             version[i] += 1
 
@@ -166,7 +166,7 @@ class FclBackend(CollisionBackend):
         tag = (i, self._tf_version[i])
         cached = self._tf_cache.get(i)
         if cached is None or cached[0] != tag:
-            cached = self._tf_cache[i] = (tag, fcl_transform(self.T[i]))
+            cached = self._tf_cache[i] = (tag, fcl_transform(self._T[i]))
         return cached
 
     def _sync(self, bodies: List[int]) -> None:
@@ -174,13 +174,13 @@ class FclBackend(CollisionBackend):
         stale = self._fcl_stale
         for i in bodies:
             if stale[i]:
-                self.objs[i].setTransform(fcl_transform(self.T[i]))
+                self.objs[i].setTransform(fcl_transform(self._T[i]))
                 stale[i] = False
 
     def _travel(self, a: int) -> float:
         """Bound (m) on the travel of any surface point of ``a`` over the step (translation +
         rotation angle x radius about the origin): what decides a fast mover."""
-        T0, T1 = self.prev_T[a], self.T[a]
+        T0, T1 = self._prev_T[a], self._T[a]
         return (np.linalg.norm(T1[:3, 3] - T0[:3, 3])
                 + rotation_angle(T1[:3, :3] @ T0[:3, :3].T) * self._radius[a])
 
@@ -243,11 +243,11 @@ class FclBackend(CollisionBackend):
         if chunks is None or not self._chunk_partner[small]:
             d = fcl.distance(self.objs[big], self.objs[small], self._dreq, res)
         else:  # the same triangle pairs, chunk by chunk (module docstring of .chunks)
-            lb = chunk_lower_bounds(chunks, self.T[big], self.T[small], self._hull[small], self._box_c[small],
+            lb = chunk_lower_bounds(chunks, self._T[big], self._T[small], self._hull[small], self._box_c[small],
                                     self._box_h[small])
             tag, tf = self._chunk_tf(big)
             d = chunked_distance(chunks, tag, tf, lb, self.objs[small], True, self._dreq, res)
-        self._exact[(a, b)] = (d, self.T[a].copy(), self.T[b].copy())
+        self._exact[(a, b)] = (d, self._T[a].copy(), self._T[b].copy())
         if res.min_distance < before:
             self._a_first = a_first
             return True
@@ -266,7 +266,7 @@ class FclBackend(CollisionBackend):
             return -math.inf
         d, A0, B0 = last
         mu = 0.0
-        for X0, X1, r in ((A0, self.T[a], self._radius[a]), (B0, self.T[b], self._radius[b])):
+        for X0, X1, r in ((A0, self._T[a], self._radius[a]), (B0, self._T[b], self._radius[b])):
             # |(R1 - R0) p + t1 - t0| <= |t1 - t0| + ||R1 - R0||_F |p|  (Frobenius >= spectral norm)
             m = (X1 - X0).ravel().tolist()
             t2 = m[3] * m[3] + m[7] * m[7] + m[11] * m[11]
@@ -289,13 +289,13 @@ class FclBackend(CollisionBackend):
         failed and an exact query would follow."""
         best = -math.inf
         for f, o in ((a, b), (b, a)):
-            Tf = self.T[f]
+            Tf = self._T[f]
             R = Tf[:3, :3]
             if self.sphere_r[o] > self.sphere_r[f]:
                 continue  # a larger body's box in a smaller one's frame is rarely tighter
             if self._unrotated[f] or (self.is_dynamic[f] and (R == _EYE3).all()):
                 continue  # in the world axes its frame box is its world AABB: nothing to gain
-            To = self.T[o]
+            To = self._T[o]
             # the corners of o's local box in f's frame: R_f^T (R_o v + t_o - t_f)
             pts = self._frame_corners[o] @ (R.T @ To[:3, :3]).T + R.T @ (To[:3, 3] - Tf[:3, 3])
             lo, hi = self._frame_box[f]
@@ -358,7 +358,7 @@ class FclBackend(CollisionBackend):
             results = self._nearest(a, small, gaps, counts)
         # no member within max_distance: the base class reports distance = max_distance
         res = aggregate(results, self.config.max_distance)
-        if self.config.ccd and (self.prev_T[a] != self.T[a]).any():
+        if self.config.ccd and (self._prev_T[a] != self._T[a]).any():
             travel = self._travel(a)
             prev = self._previous
             held = res.in_contact and prev is not None and prev.in_contact
@@ -408,7 +408,7 @@ class FclBackend(CollisionBackend):
 
     # -- time of impact -------------------------------------------------------------------
     def _time_of_impact(self, a, stat, dyn, counts, dt) -> float:
-        T0, T1 = self.prev_T[a], self.T[a]
+        T0, T1 = self._prev_T[a], self._T[a]
         # swept AABB of a over the step (padded by the rotation's chord at the bounding radius)
         ang = rotation_angle(T1[:3, :3] @ T0[:3, :3].T)
         pad = 2 * self._radius[a] * math.sin(min(ang, math.pi) / 2)
@@ -439,7 +439,7 @@ class FclBackend(CollisionBackend):
         """Conservative advancement of pair (a, b) over the step; first contact fraction.
 
         ``d0``: the distance at the start of the step when already known (saves a query)."""
-        A0, A1, B0, B1 = self.prev_T[a], self.T[a], self.prev_T[b], self.T[b]
+        A0, A1, B0, B1 = self._prev_T[a], self._T[a], self._prev_T[b], self._T[b]
         mu = (np.linalg.norm(A1[:3, 3] - A0[:3, 3]) + rotation_angle(A1[:3, :3] @ A0[:3, :3].T) * self._radius[a]
               + np.linalg.norm(B1[:3, 3] - B0[:3, 3]) + rotation_angle(B1[:3, :3] @ B0[:3, :3].T) * self._radius[b])
         oa = fcl.CollisionObject(self.geoms[self.scene.bodies[a].mesh_key], fcl_transform(A0))
