@@ -186,7 +186,7 @@ class Execution:
 
     def _open_log(self, master: Master) -> None:
         sc, system = self.scenario, self.system
-        obs = self.observer = McapObserver(self.output)
+        obs = self.observer = McapObserver(self.output, encoding=sc.log.encoding)
         obs.add_metadata("scenario", {"file": str(sc.file), "text": sc.text})
         obs.add_metadata("fmus", {u: f"{system.paths[u]} sha256={h}" for u, h in fmu_hashes(system).items()})
         obs.add_metadata("immersim", {

@@ -5,7 +5,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 import logging
-from typing import Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -26,6 +26,7 @@ class Channel:
     count: int = 0
     first_ns: int = 0
     last_ns: int = 0
+    encoding: str = "json"
 
     @property
     def signals(self) -> List[str]:
@@ -97,6 +98,18 @@ def _messages(path: Path, topics: Optional[List[str]] = None):
         return msgs, metadata, True
 
 
+def _schema_of(schema, channel) -> Tuple[Dict, Callable[[bytes], Dict]]:
+    """The JSON schema of a channel and the decoder of its messages (JSON objects, or the
+    "ros1" packing of :func:`~immersim.orchestrator.observers.ros1_struct`)."""
+    if channel.message_encoding == "ros1" and "jsonschema" in channel.metadata:
+        from .observers import ros1_struct
+
+        js = json.loads(channel.metadata["jsonschema"])
+        names, unpack = list(js["properties"]), ros1_struct(js).unpack
+        return js, lambda data: dict(zip(names, unpack(data)))
+    return json.loads(schema.data), json.loads
+
+
 def read_info(path: Path | str) -> LogInfo:
     """Channels, signals, message counts, time span and metadata of a log (also of a log that
     ends early: then ``truncated`` is set and the complete records are counted)."""
@@ -106,8 +119,9 @@ def read_info(path: Path | str) -> LogInfo:
     for schema, channel, message in msgs:
         ch = info.channels.get(channel.topic)
         if ch is None:
-            ch = info.channels[channel.topic] = Channel(channel.topic, json.loads(schema.data),
-                                                        first_ns=message.log_time)
+            ch = info.channels[channel.topic] = Channel(channel.topic, _schema_of(schema, channel)[0],
+                                                        first_ns=message.log_time,
+                                                        encoding=channel.message_encoding)
         ch.count += 1
         ch.last_ns = message.log_time
     return info
@@ -137,8 +151,12 @@ def read_series(path: Path | str, patterns: List[str]) -> Dict[str, Tuple[np.nda
     times: Dict[str, List[int]] = {t: [] for t in wanted}
     vals: Dict[Tuple[str, str], List[float]] = {(t, v): [] for t, vs in wanted.items() for v in vs}
     msgs, _, _ = _messages(path, list(wanted))
-    for _schema, channel, message in msgs:
-        obj = json.loads(message.data)
+    decoders: Dict[int, Callable[[bytes], Dict]] = {}
+    for schema, channel, message in msgs:
+        decode = decoders.get(channel.id)
+        if decode is None:
+            decode = decoders[channel.id] = _schema_of(schema, channel)[1]
+        obj = decode(message.data)
         times[channel.topic].append(message.log_time)
         for v in wanted[channel.topic]:
             x = obj.get(v)

@@ -11,18 +11,21 @@ Layout of the file (see ``immersim info``):
   steps, last time, reason).
 
 Messages are JSON objects with the variable names as keys, encoded by orjson (the same text
-as ``json.dumps`` for these values, several times faster). The logging cost of a step is one
-encoding per channel and one write of the step's records into the current chunk
-(:meth:`McapObserver.write_step`).
+as ``json.dumps`` for these values, several times faster), or, with ``[log] encoding = "ros1"``,
+packed ROS 1 messages (:func:`ros1_struct`, :func:`ros1_definition`; the JSON schema rides
+along as channel metadata). The logging cost of a step is one encoding per channel and one
+write of the step's records into the current chunk (:meth:`McapObserver.write_step`).
 """
 from __future__ import annotations
 
 import json
 import logging
 import math
+import re
+import struct
 import time
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import orjson
 
@@ -78,6 +81,44 @@ class ChannelEncoder:
             return _dumps(dict(zip(self.names, values)))
         except TypeError:  # orjson.JSONEncodeError subclasses TypeError
             return (self._template % tuple(_json_value(v) for v in values)).encode()
+
+
+#: ROS 1 field type and ``struct`` code of each JSON schema type ("ros1" encoding); a
+#: variable of another type (a String) has no fixed-size field: its channel is written as JSON
+_ROS1 = {"number": ("float64", "d"), "integer": ("int32", "i"), "boolean": ("bool", "?")}
+
+
+def ros1_struct(schema: Dict[str, Any]) -> Optional[struct.Struct]:
+    """How a channel's messages are packed in the "ros1" encoding: the variables of its JSON
+    schema (:func:`json_schema`) in order, little-endian, as ROS 1 serialises a message of
+    fixed-size fields. None when some variable has no fixed-size ROS 1 type."""
+    codes = []
+    for prop in schema["properties"].values():
+        kind = _ROS1.get(prop["type"])
+        if kind is None:
+            return None
+        codes.append(kind[1])
+    return struct.Struct("<" + "".join(codes))
+
+
+def ros1_definition(schema: Dict[str, Any]) -> str:
+    """ROS 1 message definition (``ros1msg``) of a channel: one field per variable, named after
+    it with every run of characters a ROS field name cannot hold replaced by ``_`` (made unique),
+    the variable's own name, unit and description in the field's comment."""
+    used, lines = set(), []
+    for name, prop in schema["properties"].items():
+        fld = re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_") or "v"
+        if not fld[0].isalpha():
+            fld = "v_" + fld
+        base, k = fld, 2
+        while fld in used:
+            fld, k = f"{base}_{k}", k + 1
+        used.add(fld)
+        note = name + (f" [{prop['unit']}]" if prop.get("unit") else "")
+        if prop.get("description"):
+            note += ": " + " ".join(str(prop["description"]).split())
+        lines.append(f"{_ROS1[prop['type']][0]} {fld}  # {note}")
+    return "\n".join(lines) + "\n"
 
 
 def _fast_writer_class():
@@ -178,7 +219,10 @@ class McapObserver:
     #: (results/orchestrator/README.md compares); both are standard MCAP
     COMPRESSION = "lz4"
 
-    def __init__(self, path: Path | str, flush_seconds: float = 1.0) -> None:
+    def __init__(self, path: Path | str, flush_seconds: float = 1.0, encoding: str = "json") -> None:
+        if encoding not in ("json", "ros1"):
+            raise ValueError(f"log encoding {encoding!r} is not json or ros1")
+        self.encoding = encoding
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -208,11 +252,23 @@ class McapObserver:
         (channel id, encoder)
             The channel id :meth:`write_step` takes and the function encoding its values.
         """
-        schema = json.dumps(json_schema(topic, infos)).encode()
-        sid = self.writer.register_schema(name=topic, encoding="jsonschema", data=schema)
-        cid = self.channels[topic] = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-        self.encoders[topic] = ChannelEncoder(infos)
-        return cid, self.encoders[topic].encode
+        schema = json_schema(topic, infos)
+        text = json.dumps(schema)
+        packer = ros1_struct(schema) if self.encoding == "ros1" else None
+        self.encoders[topic] = enc = ChannelEncoder(infos)
+        if packer is None:
+            sid = self.writer.register_schema(name=topic, encoding="jsonschema", data=text.encode())
+            cid = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+            encode = enc.encode
+        else:  # the JSON schema rides along as channel metadata: names, units, descriptions
+            sid = self.writer.register_schema(name="immersim/" + re.sub(r"[^A-Za-z0-9_]+", "_", topic),
+                                              encoding="ros1msg", data=ros1_definition(schema).encode())
+            cid = self.writer.register_channel(topic=topic, message_encoding="ros1", schema_id=sid,
+                                               metadata={"jsonschema": text})
+            pack = packer.pack
+            encode = enc.encode = lambda values: pack(*values)
+        self.channels[topic] = cid
+        return cid, encode
 
     def write(self, topic: str, t_ns: int, values: Sequence[Any], sequence: int = 0) -> None:
         """One message (non-finite Reals are written as ``null``)."""

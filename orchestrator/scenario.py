@@ -112,6 +112,13 @@ class LogSpec:
     include: List[str] = field(default_factory=lambda: ["*"])
     exclude: List[str] = field(default_factory=list)
     parameters: bool = True
+    #: message encoding of the units' channels: "json" (JSON objects, any reader) or "ros1"
+    #: (packed little-endian fields with a ROS 1 schema: ~4x cheaper to write, ~2.5x smaller;
+    #: Foxglove reads both, orchestrator/mcapio.py too)
+    encoding: str = "json"
+
+
+LOG_ENCODINGS = ("json", "ros1")
 
 
 @dataclass
@@ -330,10 +337,13 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     if not isinstance(raw_log, dict):
         raise ScenarioError(f"{f}: [log] must be a table")
     for key in raw_log:
-        if key not in ("include", "exclude", "parameters"):
+        if key not in ("include", "exclude", "parameters", "encoding"):
             raise ScenarioError(f"{f}: [log] unknown key {key!r}")
+    encoding = raw_log.get("encoding", "json")
+    if encoding not in LOG_ENCODINGS:
+        raise ScenarioError(f"{f}: [log] encoding {encoding!r} is not one of {', '.join(LOG_ENCODINGS)}")
     logspec = LogSpec(list(raw_log.get("include", ["*"])), list(raw_log.get("exclude", [])),
-                      bool(raw_log.get("parameters", True)))
+                      bool(raw_log.get("parameters", True)), encoding)
     from .foxglove import parse_bodies
 
     bodies = parse_bodies(data.get("foxglove"), f)
