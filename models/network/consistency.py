@@ -15,9 +15,6 @@ from .arrays import concat_ranges
 
 
 # -- scene grid §3.3 -------------------------------------------------------------------------
-#: up to this many positions :meth:`SceneGrid.cell` runs in Python (cheaper than 7 numpy calls)
-SCALAR_CELLS = 64
-LIMIT_CELL = 2.0 ** 62   # |x / size * C| below this: the int64 cast is exact truncation
 class SceneGrid:
     """``C x C`` grid over a square scene of side ``size``; 9-cell neighbourhoods (fig. 3-5a).
 
@@ -39,29 +36,8 @@ class SceneGrid:
 
     def cell(self, pos: np.ndarray) -> np.ndarray:
         """Cell index of each position (n, 2) -> (n,) int."""
-        if len(pos) <= SCALAR_CELLS and pos.shape[1:] == (2,):
-            out = self._cell_scalar(pos.tolist())
-            if out is not None:
-                return np.array(out, np.int64)
         ij = np.minimum(np.maximum((pos / self.size * self.C).astype(np.int64), 0), self.C - 1)
         return ij[:, 0] * self.C + ij[:, 1]
-
-    def _cell_scalar(self, pos: list):
-        """:meth:`cell` of a few positions (a list of ``[x, y]``, m) in Python: the same
-        quotient ``x / size * C`` truncated toward zero and clipped to the grid. None when a
-        coordinate is not finite or too large for the int64 cast (the array code's semantics)."""
-        size, C = self.size, self.C
-        hi = C - 1
-        out = []
-        for x, y in pos:
-            u, v = x / size * C, y / size * C
-            if not (-LIMIT_CELL < u < LIMIT_CELL and -LIMIT_CELL < v < LIMIT_CELL):
-                return None
-            i, j = int(u), int(v)
-            i = 0 if i < 0 else hi if i > hi else i
-            j = 0 if j < 0 else hi if j > hi else j
-            out.append(i * C + j)
-        return out
 
     def adjacent(self, a, b):
         """Cell ``b`` is in the 9-cell neighbourhood of cell ``a`` (symmetric), elementwise."""

@@ -53,14 +53,18 @@ SCALAR_VIEW = 64        # at most this many view pairs: the display error in Pyt
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
 
 
-def _due_frame(a: float, T: float, k: int) -> int:
-    """First frame (>= ``k``) whose time (frame ``T`` s) is >= the arrival ``a`` (s), or -1 for an
-    arrival that is not finite or beyond any int64 frame: :meth:`NetworkModel._due` of one
-    arrival, in Python (``max(ceil(a / T - 1e-9), k)``)."""
-    x = a / T - 1e-9
-    if not x < 4611686018427387904.0:    # 2^62 (False for NaN too)
-        return -1
-    return k if x <= k else math.ceil(x)
+def _due_frames(arrivals: list, T: float, k: int) -> list:
+    """For each arrival (s), the first frame (>= ``k``) whose time (frame ``T`` s) is >= it, or -1
+    for an arrival that is not finite or beyond any int64 frame: :meth:`NetworkModel._due`
+    in Python (``max(ceil(a / T - 1e-9), k)`` per arrival)."""
+    out = []
+    for a in arrivals:
+        x = a / T - 1e-9
+        if not x < 4611686018427387904.0:    # 2^62 (False for NaN too)
+            out.append(-1)
+        else:
+            out.append(k if x <= k else math.ceil(x))
+    return out
 
 
 def _aligned_rows(n: int, w: int) -> np.ndarray:
@@ -80,6 +84,25 @@ def _row_prefix(a: np.ndarray, ncol: int) -> np.ndarray:
     if dt is None:
         dt = _PREFIX_DTYPES[ncol] = np.dtype((np.void, 8 * ncol))
     return np.ndarray((a.shape[0],), dt, a, 0, (a.strides[0],))
+
+
+class _Views:
+    """Views into the model's arrays kept between frames. A copy (``deepcopy``, pickle) starts
+    empty: a copied view would be an array of its own, no longer a view of the copied array.
+
+    Attributes
+    ----------
+    cache_rows : (cache, the record-prefix view of its rows, :func:`_row_prefix`) or None
+    """
+
+    def __init__(self) -> None:
+        self.cache_rows: Optional[tuple] = None
+
+    def __deepcopy__(self, memo) -> "_Views":
+        return _Views()
+
+    def __reduce__(self):
+        return _Views, ()
 
 
 class NetworkModel:
@@ -115,7 +138,8 @@ class NetworkModel:
         self._pending = 0          # events of a kind in PENDING on the heap (see at_rest)
         self._seq = 0
         self.alive = np.zeros(self.reg.n, bool)       # node process running (sends heartbeats)
-        self.online = np.zeros(self.reg.n, bool)      # listed in the supernode's table
+        self.online = np.zeros(self.reg.n, bool)      # listed in the supernode's table (see _set_online)
+        self._n_online = 0                             # its number of True entries
         self.busy = np.zeros(self.reg.n)              # uplink busy-until (s)
         self.master = np.full(G, -1, np.int64)
         self.slaves: List[np.ndarray] = [np.zeros(0, np.int64) for _ in range(G)]
@@ -144,6 +168,7 @@ class NetworkModel:
         self.enter_col = width - 1
         self.cache = _aligned_rows(G * self.n_obj, width)
         self.cache[:, T_COL] = -np.inf
+        self._views = _Views()     # views into the cache, not part of the state
         self._obj_ids = np.arange(self.n_obj)
         self._obj_rid = self._obj_ids * RID_OBJECT
         self._uid = 1              # next record-table id (0: the scene file); rid = object * 2^32 + uid
@@ -175,7 +200,8 @@ class NetworkModel:
         self._og_memo: Optional[tuple] = None    # (epoch, view, owner of each view pair)
         self._owner_snap: Optional[tuple] = None  # (epoch, copy of the owners): senders of filed records
         self._group_version = 0                  # bumped whenever a group's master or slaves are set
-        self._slaves_memo: Optional[tuple] = None  # (group version, slave nodes, arange(G))
+        self._slaves_memo: Optional[tuple] = None  # (group version, slave nodes, arange(G), slave list)
+        self._online_memo: Optional[tuple] = None  # (group version, groups with a master, their indices)
         self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, flat indices, remote copies)
         self._cells_memo: Optional[tuple] = None   # (positions array, their cells)
         self._exact: Optional[tuple] = None        # (positions array, first frame time it was used)
@@ -189,7 +215,7 @@ class NetworkModel:
         self._frame_traffic = (0, 0)     # the same for the interval that ended at the last frame
         self._bootstrap()
         self._iv = [0, 0]                # the bootstrap JOINs belong to no frame interval
-        self.metrics.online_nodes = int(self.online.sum())
+        self.metrics.online_nodes = self._n_online
 
     # -- set-up ---------------------------------------------------------------------------
     def _initial_entity_owners(self) -> np.ndarray:
@@ -258,15 +284,23 @@ class NetworkModel:
         g = int(reg.group[node])
         kind = CONTROLLER if node >= reg.controller0 else RENDER
         self.supernode.join(t, node, reg.identify[g], kind, reg.ip[node], reg.port[node], self.cfg.scene_id)
-        self.alive[node] = self.online[node] = True
+        self.alive[node] = True
+        self._set_online(node, True)
         if kind == RENDER:
             self._refresh_group(g)
+
+    def _set_online(self, node: int, on: bool) -> None:
+        """Mark ``node`` listed (or not) in the supernode's table, keeping the count of
+        online nodes (``StepMetrics.online_nodes``)."""
+        if bool(self.online[node]) != on:
+            self._n_online += 1 if on else -1
+            self.online[node] = on
 
     def _leave(self, node: int, timed_out: bool) -> None:
         if not self.online[node]:
             return
         self.supernode.leave(node, timed_out)
-        self.online[node] = False
+        self._set_online(node, False)
         g = int(self.reg.group[node])
         if node < self.reg.controller0:
             self._refresh_group(g)
@@ -382,7 +416,7 @@ class NetworkModel:
         if m.frames == 0:  # no frame in a short step: the display (and its error) is unchanged
             m.inconsistency_max, m.inconsistency_rms, m.desync_frames = self._last_display
         self._last_display = (m.inconsistency_max, m.inconsistency_rms, m.desync_frames)
-        m.online_nodes = int(np.count_nonzero(self.online))
+        m.online_nodes = self._n_online
         m.frame_messages, m.frame_bytes = self._frame_traffic
         self.totals.add(m)
         self._step_inputs_changed = self.inputs_changed
@@ -414,7 +448,7 @@ class NetworkModel:
                 self._push(t + self.cfg.heartbeat_s, "heartbeat", node)
         elif kind == "expire":
             for node in self.supernode.expire(t):
-                self.online[node] = False
+                self._set_online(node, False)
                 self._refresh_group(int(self.reg.group[node]))
             self._push(t + self.cfg.heartbeat_s, "expire")
         elif kind == "leave":
@@ -469,7 +503,7 @@ class NetworkModel:
         t = self.k * cfg.frame_s
         G = cfg.groups
         self.metrics.frames += 1
-        online_g = self.master >= 0
+        online_g, cand = self._online_groups()
         # 1. collision responses between avatars and entities (the owner responds)
         # one k-d tree of the entities shared by contacts and ownership (large scenes only:
         # small ones use brute force, cheaper than a tree built every frame)
@@ -493,7 +527,6 @@ class NetworkModel:
         # accelerations only where read: order-2 records, the DIS test's last published state
         P, V, A = w.state(acc=cfg.prediction_order >= 2 or cfg.dis_threshold > 0)
         if cfg.ownership != "none" and cfg.entities:
-            cand = np.flatnonzero(online_g)
             cur = self.owner[G:]
             if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
                 new = assign_owners(cfg.ownership, w.apos, V[:G], w.epos, cur, cfg.frame_s, cfg.ownership_scale,
@@ -559,7 +592,7 @@ class NetworkModel:
             # first hop a relayed record waits for, was lost)
             if arr_l is not None:
                 k, T = self.k, cfg.frame_s
-                due_msg = [_due_frame(a, T, k) for a in arr_l]
+                due_msg = _due_frames(arr_l, T, k)
                 due = [due_msg[i] for i in tr.plan.lists()[0]]
             else:
                 due_msg = self._due(arrival)
@@ -596,6 +629,16 @@ class NetworkModel:
         self._display(vg, vo, fi, og, cells, online_g, P)
         self._frame_traffic = (self._iv[0], self._iv[1])
         self._iv = [0, 0]
+
+    def _online_groups(self):
+        """Groups with a master (G,) bool (read-only) and their indices, kept while the groups
+        stay (the masters change only in :meth:`_refresh_group`, which bumps the version)."""
+        memo = self._online_memo
+        if memo is None or memo[0] != self._group_version:
+            online_g = self.master >= 0
+            online_g.flags.writeable = False
+            memo = self._online_memo = (self._group_version, online_g, np.flatnonzero(online_g))
+        return memo[1], memo[2]
 
     def _messages(self, t: float, pub: np.ndarray, pub_obj: np.ndarray, view: tuple, newly: Optional[np.ndarray],
                   og: np.ndarray):
@@ -827,7 +870,10 @@ class NetworkModel:
         """Write records ``table[ridx]`` into the cache rows ``fi`` (the columns the prediction
         order uses and the record id, as one block per row; the subscription time is left alone)."""
         n = self.rid_col + 1
-        _row_prefix(self.cache, n)[fi] = _row_prefix(table, n)[ridx]
+        view = self._views.cache_rows
+        if view is None or view[0] is not self.cache:
+            view = self._views.cache_rows = (self.cache, _row_prefix(self.cache, n))
+        view[1][fi] = _row_prefix(table, n)[ridx]
         if self._groups is not None:
             self._groups.touch(fi)
 

@@ -48,10 +48,21 @@ def _any_within(a: list, b: list, r2: float) -> bool:
     for ax, ay in a:
         for bx, by in b:
             dx = bx - ax
-            dy = by - ay
-            if dx * dx + dy * dy <= r2:
-                return True
+            dx2 = dx * dx
+            if dx2 <= r2:     # else dx^2 + dy^2 >= dx^2 > r2 (a rounded sum does not drop below a term)
+                dy = by - ay
+                if dx2 + dy * dy <= r2:
+                    return True
     return False
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+#: the result of :meth:`World.contacts` without a contact (shared, read-only)
+_NO_CONTACTS = (_frozen(np.zeros(0, int)), _frozen(np.zeros(0, int)), _frozen(np.zeros((0, 2))))
 
 
 def _reflect_avatars(apos: np.ndarray, yaw: np.ndarray, speed: np.ndarray, S: float):
@@ -166,15 +177,12 @@ class World:
         included on z: ``accel, v * yaw rate, g``), the body-frame angular rate (rad/s:
         ``0, 0, yaw rate``), the jolt (m/s) and ``jolt / h`` (m/s^2, 0 without ``h``): 14
         Python floats per avatar in one flat list (the same products as :attr:`avel`)."""
-        x, y = self.apos[:, 0].tolist(), self.apos[:, 1].tolist()
-        yaw, sp = self.yaw.tolist(), self.speed.tolist()
-        c, s = np.cos(self.yaw).tolist(), np.sin(self.yaw).tolist()
-        acc, yr, jolt = self.accel.tolist(), self.yaw_rate.tolist(), self.jolt.tolist()
+        yaw = self.yaw
         out = []
-        for i in range(len(yaw)):
-            j = jolt[i]
-            out += (x[i], y[i], 0.0, yaw[i], c[i] * sp[i], s[i] * sp[i], acc[i], sp[i] * yr[i], G_ACC,
-                    0.0, 0.0, yr[i], j, j / h if h else 0.0)
+        for (x, y), w, v, c, s, a, yr, j in zip(self.apos.tolist(), yaw.tolist(), self.speed.tolist(),
+                                                np.cos(yaw).tolist(), np.sin(yaw).tolist(), self.accel.tolist(),
+                                                self.yaw_rate.tolist(), self.jolt.tolist()):
+            out += (x, y, 0.0, w, c * v, s * v, a, v * yr, G_ACC, 0.0, 0.0, yr, j, j / h if h else 0.0)
         return out
 
     def moving(self, eps: float = 1e-9) -> bool:
@@ -434,7 +442,7 @@ class World:
 
         G, E = len(self.speed), len(self.evel)
         if G == 0 or E == 0:
-            return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
+            return _NO_CONTACTS
         r = self.cfg.avatar_radius + self.cfg.entity_radius
         if isinstance(etree, PointIndex):
             # candidates in a box around each avatar; none within r and approaching (up to a
@@ -449,20 +457,20 @@ class World:
                 tol = 1e-9 * np.sqrt(np.einsum("ij,ij->i", rv, rv) * d2[close]) + 1e-300
                 close = close[dot > -tol]
             if not len(close):
-                return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
+                return _NO_CONTACTS
             etree = etree.tree
         elif etree is None and G * E <= SCALAR_CONTACT_PAIRS:
             # tiny scenes: the same brute-force check in Python floats (the same differences,
             # squares and bound)
             if not _any_within(self.apos.tolist(), self.epos.tolist(), r * r * (1.0 + 1e-9)):
-                return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
+                return _NO_CONTACTS
         elif etree is None and G * E <= 4096:
             # small scenes: a brute-force distance check finds the (rare) frames with a contact;
             # the exact k-d tree path below (its pair order) only runs then
             dx = self.epos[:, 0] - self.apos[:, 0, None]
             dy = self.epos[:, 1] - self.apos[:, 1, None]
             if not ((dx * dx + dy * dy) <= r * r * (1.0 + 1e-9)).any():
-                return np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2))
+                return _NO_CONTACTS
         etree = etree if etree is not None else cKDTree(self.epos)
         pairs = cKDTree(self.apos).query_ball_tree(etree, r) if G < 8 else None
         if pairs is not None:
