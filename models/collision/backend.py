@@ -542,21 +542,41 @@ class CollisionBackend(ABC):
 
     def _far_holds(self, k: int, pair: PairSpec, moved: set) -> bool:
         """The far result of pair ``k`` still holds: every member's AABB gap is still at least
-        ``max_distance`` (it shrinks by at most ``sqrt(3)`` times the sum of the face shifts of
-        both boxes: each axis' separation moves by at most that sum), and the first body does
-        not need a time of impact (:meth:`_needs_toi`)."""
+        ``max_distance``, and the first body does not need a time of impact (:meth:`_needs_toi`).
+
+        The gap is known without any bounds when it shrank by less than the slack: by at most
+        ``sqrt(3)`` times the sum of the face shifts of both boxes (each axis' separation moves
+        by at most that sum). Otherwise the backend's :meth:`_far_gap` (the members' AABB gaps
+        themselves, what the evaluation would compute) decides, and becomes the new record."""
         gap, shift0 = self._far[k]
         shift = self._shift
-        moved_by = sum(shift[i] for i in self._pair_bodies[k]) - shift0
-        if gap - _SQRT3 * moved_by < self.config.max_distance + self.FAR_MARGIN:
+        now = sum(shift[i] for i in self._pair_bodies[k])
+        limit = self.config.max_distance + self.FAR_MARGIN
+        close = gap - _SQRT3 * (now - shift0) < limit
+        if close and not self._far_gap_known:
             return False
         a = pair.a
-        if a not in moved:
-            return True
-        need = self._toi_need.get(a)  # decided already in this query (a body in two pairs)
-        if need is None:
-            need = self._toi_need[a] = self._needs_toi(a)
-        return not need
+        if a in moved:
+            need = self._toi_need.get(a)  # decided already in this query (a body in two pairs)
+            if need is None:
+                need = self._toi_need[a] = self._needs_toi(a)
+            if need:
+                return False
+        if close:
+            exact = self._far_gap(k, pair)
+            if exact is None or not exact >= limit:
+                return False
+            self._far[k] = (exact, now)
+        return True
+
+    #: the backend implements :meth:`_far_gap`
+    _far_gap_known = False
+
+    def _far_gap(self, k: int, pair: PairSpec) -> Optional[float]:
+        """The smallest AABB gap (m) of pair ``k``'s members to its first body, as ``_evaluate``
+        would compute it at the current transforms, or None when the backend cannot tell
+        without evaluating (the far-pair skip then evaluates)."""
+        return None
 
     def _needs_toi(self, a: int) -> bool:
         """Whether the motion of ``a`` (moved in this query: ``_prev_rows[a]`` is its transform

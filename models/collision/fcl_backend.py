@@ -91,6 +91,7 @@ class FclBackend(CollisionBackend):
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
+        self._small_list: Dict[int, List[int]] = {}
         for k, pair in enumerate(self.pairs):
             mask = np.zeros(self.n, bool)
             mask[pair.members] = True
@@ -103,6 +104,7 @@ class FclBackend(CollisionBackend):
             dyn = members[self.is_dynamic[members]]
             self._pair_parts[id(pair)] = (mask, stat, dyn, use_tree)
             self._small[id(pair)] = np.concatenate([dyn, [] if use_tree else stat]).astype(int)
+            self._small_list[id(pair)] = self._small[id(pair)].tolist()
             # dynamic bodies whose fcl transform must be current when the pair is evaluated
             self._pair_sync[id(pair)] = ([int(pair.a)] if self.is_dynamic[pair.a] else []) + dyn.tolist()
         self._creq = fcl.CollisionRequest(num_max_contacts=self.config.max_contacts, enable_contact=True)
@@ -138,6 +140,11 @@ class FclBackend(CollisionBackend):
         self._thin = np.array([float(self.scene.meshes[b.mesh_key].extents.min()) for b in self.scene.bodies])
         self._radius = self.sphere_r + np.linalg.norm(
             np.array([self._local[b.mesh_key][1] for b in self.scene.bodies]), axis=1)
+        # _needs_toi's estimate is within this of _travel (m): rounding of the translation
+        # (relative), and of the rotation angle: the two traces of R1 R0^T differ by ~1e-14 at
+        # most, acos near 1 turns that into up to ~1.4e-7 rad, times the radius
+        self._toi_slack = [1e-9 * max(self.config.ccd_fast * t, 1e-300) + 1e-12 + 4e-7 * r
+                           for t, r in zip(self._thin.tolist(), self._radius.tolist())]
 
     @staticmethod
     def _key(obj) -> bytes:
@@ -188,8 +195,8 @@ class FclBackend(CollisionBackend):
         """A fast mover gets conservative advancement even without contact at either end.
 
         Decided as in :meth:`_evaluate` (``_travel(a) > ccd_fast * thin``); a scalar estimate
-        of the travel settles the clear cases and only one within 1e-9 (relative) of the
-        threshold is decided by :meth:`_travel` itself."""
+        of the travel settles the clear cases and only one within its rounding of the
+        threshold (``_toi_slack``) is decided by :meth:`_travel` itself."""
         if not self.config.ccd:
             return False
         T0, T1 = self._prev_rows[a], self._T_rows[a]  # before and after this query's move
@@ -203,9 +210,21 @@ class FclBackend(CollisionBackend):
         c = p0 * a0 + p1 * a1 + p2 * a2 + q0 * b0 + q1 * b1 + q2 * b2 + r0 * c0 + r1 * c1 + r2 * c2
         angle = math.acos(min(1.0, max(-1.0, (c - 1.0) / 2.0)))
         estimate = math.sqrt(dx * dx + dy * dy + dz * dz) + angle * self._radius[a]
-        if abs(estimate - threshold) > 1e-9 * max(threshold, 1e-300) + 1e-12:
+        if abs(estimate - threshold) > self._toi_slack[a]:
             return estimate > threshold
         return bool(self._travel(a) > threshold)
+
+    _far_gap_known = True
+
+    def _far_gap(self, k: int, pair: PairSpec) -> float | None:
+        """The smallest AABB gap of the members checked directly (a pair without the tree:
+        :meth:`_evaluate` finds no candidate and no member nearer than ``max_distance`` when
+        it is at least that); None for a pair served by the tree (the tree's distance
+        traversal may count a candidate)."""
+        if self._pair_parts[id(pair)][3]:
+            return None
+        a, gap = pair.a, self._gap
+        return min(gap(a, b) for b in self._small_list[id(pair)])
 
     # -- narrow phase -------------------------------------------------------------------
     def _collide(self, a: int, b: int, obj_b=None) -> PairResult | None:
