@@ -185,7 +185,8 @@ def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) 
         Applied on top of the file (used by sweeps and ``immersim run --set``):
         ``"unit.param": value`` sets a parameter, ``"simulation.stop": value`` (or step,
         algorithm, extrapolation, start, tolerance) a simulation setting, and
-        ``"unit:fmu": path`` swaps the unit's FMU for another one.
+        ``"unit:fmu": path`` swaps the unit's FMU for another one, ``"log.encoding": "json"``
+        (or include, exclude, parameters) changes the ``[log]`` table.
     """
     path = Path(path)
     if not path.exists():
@@ -257,7 +258,7 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
         units.append(UnitSpec(name, fmu, dict(params)))
     names = {u.name for u in units}
     for k, v in (overrides or {}).items():
-        if k.startswith("simulation."):
+        if k.startswith(("simulation.", "log.")):
             continue
         if k.endswith(":fmu"):  # swap a unit's FMU (ablation): "unit:fmu" = path or built-in name
             unit = k[:-4]
@@ -336,6 +337,10 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     raw_log = data.get("log", {})
     if not isinstance(raw_log, dict):
         raise ScenarioError(f"{f}: [log] must be a table")
+    raw_log = dict(raw_log)
+    for k, v in (overrides or {}).items():
+        if k.startswith("log."):
+            raw_log[k.split(".", 1)[1]] = v
     for key in raw_log:
         if key not in ("include", "exclude", "parameters", "encoding"):
             raise ScenarioError(f"{f}: [log] unknown key {key!r}")

@@ -85,3 +85,12 @@ def test_unknown_log_encoding_is_refused(tmp_path, test_fmus):
     scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], extra='[log]\nencoding = "cbor"\n')
     with pytest.raises(ScenarioError, match=r"osc.toml: \[log\] encoding 'cbor' is not one of json, ros1"):
         load_scenario(scn)
+
+
+def test_log_table_can_be_overridden(tmp_path, test_fmus):
+    """``log.encoding`` (as ``immersim run --set`` and sweeps give it) replaces the file's value."""
+    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], extra='[log]\nencoding = "ros1"\n')
+    assert load_scenario(scn).log.encoding == "ros1"
+    assert load_scenario(scn, {"log.encoding": "json"}).log.encoding == "json"
+    with pytest.raises(ScenarioError, match=r"\[log\] unknown key 'colour'"):
+        load_scenario(scn, {"log.colour": 1})
