@@ -88,6 +88,7 @@ class FclBackend(CollisionBackend):
             self._by_pose.setdefault(self._key(self.objs[i]), []).append(int(i))
         self._member_mask = np.zeros(self.n, bool)
         self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
+        self._pair_now: List[int] = []  # the evaluated pair's dynamic bodies (their fcl transforms)
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
@@ -191,12 +192,27 @@ class FclBackend(CollisionBackend):
         return (np.linalg.norm(T1[:3, 3] - T0[:3, 3])
                 + rotation_angle(T1[:3, :3] @ T0[:3, :3].T) * self._radius[a])
 
+    def _moved_now(self, a: int) -> bool:
+        """``a`` has a new transform in this query (``prev_T[a] != T[a]``, on the list forms)."""
+        if self._prev_is_T:
+            return False
+        before = self._prev_rows.get(a)
+        return before is not None and before != self._T_rows[a]
+
+    def _fast(self, a: int) -> bool:
+        """``a`` (moved in this query) is a fast mover: :meth:`_needs_toi`, once per query."""
+        need = self._toi_need.get(a)
+        if need is None:
+            need = self._toi_need[a] = self._needs_toi(a)
+        return need
+
     def _needs_toi(self, a: int) -> bool:
         """A fast mover gets conservative advancement even without contact at either end.
 
-        Decided as in :meth:`_evaluate` (``_travel(a) > ccd_fast * thin``); a scalar estimate
-        of the travel settles the clear cases and only one within its rounding of the
-        threshold (``_toi_slack``) is decided by :meth:`_travel` itself."""
+        The answer of ``_travel(a) > ccd_fast * thin`` (what :meth:`_evaluate` asks, through
+        :meth:`_fast`): a scalar estimate of the travel settles the clear cases and only one
+        within its rounding of the threshold (``_toi_slack``) is decided by :meth:`_travel`
+        itself."""
         if not self.config.ccd:
             return False
         T0, T1 = self._prev_rows[a], self._T_rows[a]  # before and after this query's move
@@ -253,6 +269,7 @@ class FclBackend(CollisionBackend):
                 or self._frame_gap(a, b) >= before + self.FRAME_GAP_MARGIN):
             return False
         # the larger BVH first: fcl's traversal is cheaper (member first otherwise, see _collide)
+        self._sync(self._pair_now)
         faces = self._faces_list
         if faces[a] > faces[b]:
             a_first, big, small = True, a, b
@@ -345,7 +362,9 @@ class FclBackend(CollisionBackend):
     def _evaluate(self, pair: PairSpec, dt: float) -> Tuple[PairResult, int, int]:
         a = pair.a
         mask, stat, dyn, use_tree = self._pair_parts[id(pair)]
-        self._sync(self._pair_sync[id(pair)])
+        # the fcl transforms of the pair's moved bodies are set before the first fcl call
+        # (a pair whose members all turn out far needs none)
+        self._pair_now = self._pair_sync[id(pair)]
         self._member_mask = mask
         self._use_tree = use_tree
         counts = [0, 0]  # candidates, narrow-phase tests
@@ -354,15 +373,21 @@ class FclBackend(CollisionBackend):
         # broad phase (AABB overlap): static members through the tree, dynamic ones directly
         cands: List[int] = []
         if use_tree:
+            self._sync(self._pair_now)
             self.manager.collide(obj_a, fcl.CollisionData(), self._collector(cands))
         # members checked directly (dynamic ones, and static ones outside the tree): one AABB
-        # gap computation serves the broad phase and the nearest-member search
-        small = self._small[id(pair)]
-        gaps = self.aabb_gap(a, small) if len(small) else None
-        if gaps is not None:
-            cands += small[gaps <= 0].tolist()
+        # gap computation serves the broad phase and the nearest-member search (the gaps of
+        # aabb_gap, computed per member in scalar code: the same numbers)
+        small = self._small_list[id(pair)]
+        gaps = None
+        if small:
+            gap = self._gap
+            gaps = [gap(a, b) for b in small]
+            cands += [b for b, g in zip(small, gaps) if g <= 0]
             if not use_tree:  # every member's gap is known: what the far-pair skip needs
-                self._last_gap = float(gaps.min())
+                self._last_gap = min(gaps)
+        if cands:
+            self._sync(self._pair_now)
         seen = set()
         for b in cands:
             if b in seen:
@@ -377,13 +402,12 @@ class FclBackend(CollisionBackend):
             results = self._nearest(a, small, gaps, counts)
         # no member within max_distance: the base class reports distance = max_distance
         res = aggregate(results, self.config.max_distance)
-        if self.config.ccd and (self._prev_T[a] != self._T[a]).any():
-            travel = self._travel(a)
+        if self.config.ccd and self._moved_now(a):
             prev = self._previous
             held = res.in_contact and prev is not None and prev.in_contact
             if held:  # the contact held from the start of the step
                 res.toi = 0.0
-            elif travel > self.config.ccd_fast * self._thin[a]:
+            elif self._fast(a):  # _travel(a) > ccd_fast * thin
                 res.toi = self._time_of_impact(a, stat, dyn, counts, dt)
             elif res.in_contact:
                 if prev is None or prev.distance < 0:
@@ -399,8 +423,8 @@ class FclBackend(CollisionBackend):
         res = fcl.DistanceResult(self.config.max_distance
                                  if math.isfinite(self.config.max_distance) else 1.7976931348623157e308)
         best = [-1]
-        if gaps is not None and gaps.min() < res.min_distance:
-            for b, gap in sorted(zip(small.tolist(), gaps.tolist()), key=lambda bg: bg[1]):
+        if gaps is not None and min(gaps) < res.min_distance:
+            for b, gap in sorted(zip(small, gaps), key=lambda bg: bg[1]):
                 if gap >= res.min_distance:
                     break
                 counts[0] += 1
