@@ -52,3 +52,38 @@ def sum_by_key(keys: np.ndarray, w: np.ndarray):
 def concat_ranges(lo: np.ndarray, n: np.ndarray) -> np.ndarray:
     """``lo[0] .. lo[0] + n[0] - 1, lo[1] .. lo[1] + n[1] - 1, ...`` as one int array."""
     return np.arange(int(n.sum())) + np.repeat(lo - (np.cumsum(n) - n), n)
+
+
+PAIRWISE_BLOCK = 128   # numpy's PW_BLOCKSIZE
+
+
+def pairwise_sum(a: list) -> float:
+    """``float(np.add.reduce(np.array(a)))`` of a list of floats, in Python: numpy's pairwise
+    summation (eight running sums over blocks of at most ``PAIRWISE_BLOCK`` values, combined
+    as ``((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))``, then the rest in order; halves
+    at multiples of 8 above the block size), the same additions in the same order."""
+    n = len(a)
+    if n < 8:
+        res = 0.0
+        for x in a:
+            res += x
+        return res
+    if n <= PAIRWISE_BLOCK:
+        r0, r1, r2, r3, r4, r5, r6, r7 = a[:8]
+        m = n - n % 8
+        for i in range(8, m, 8):
+            r0 += a[i]
+            r1 += a[i + 1]
+            r2 += a[i + 2]
+            r3 += a[i + 3]
+            r4 += a[i + 4]
+            r5 += a[i + 5]
+            r6 += a[i + 6]
+            r7 += a[i + 7]
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        for i in range(m, n):
+            res += a[i]
+        return res
+    h = n // 2
+    h -= h % 8
+    return pairwise_sum(a[:h]) + pairwise_sum(a[h:])

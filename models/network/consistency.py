@@ -36,8 +36,14 @@ class SceneGrid:
 
     def cell(self, pos: np.ndarray) -> np.ndarray:
         """Cell index of each position (n, 2) -> (n,) int."""
-        ij = np.minimum(np.maximum((pos / self.size * self.C).astype(np.int64), 0), self.C - 1)
-        return ij[:, 0] * self.C + ij[:, 1]
+        q = pos / self.size
+        q *= self.C
+        ij = q.astype(np.int64)
+        np.maximum(ij, 0, out=ij)
+        np.minimum(ij, self.C - 1, out=ij)
+        out = ij[:, 0] * self.C
+        out += ij[:, 1]
+        return out
 
     def adjacent(self, a, b):
         """Cell ``b`` is in the 9-cell neighbourhood of cell ``a`` (symmetric), elementwise."""

@@ -122,13 +122,21 @@ class TransmitPlan:
             self.s_first, self.s_last = s_sorted[first], s_sorted[last]
         self.floats = None   # the plan as Python lists (small merged batches, see run_floats)
         if self.merged is not None and n <= FLOAT_BATCH:
-            lat = list(zip(*(a.tolist() for a in self.merged)))      # (message, mean, base) per draw
-            ser = None
+            idx, mean, base = (a.tolist() for a in self.merged)
+            draw = [0] * n          # the draw (position in the merged call) of each message
+            for j, i in enumerate(idx):
+                draw[i] = j
+            lat = [(draw[i], mean[draw[i]], base[draw[i]]) for i in range(n)]
             if self.serial:
-                ser = (self.order.tolist(), np.flatnonzero(first).tolist(), self.grp.tolist(), self.csum.tolist(),
-                       self.base.tolist(), self.s_first.tolist(), self.s_last.tolist(),
-                       np.flatnonzero(last).tolist())
-            self.floats = (lat, ser)
+                # per message in uplink order: (message, its draw, mean, base latency, sender
+                # group, cumulative transmission time, the group's start offset); per group the
+                # first message and the sender
+                grp, csum, sbase = self.grp.tolist(), self.csum.tolist(), self.base.tolist()
+                rows = [(i,) + lat[i] + (g, c, b) for i, g, c, b in zip(self.order.tolist(), grp, csum, sbase)]
+                heads = list(zip(self.order[first].tolist(), self.s_first.tolist()))
+                self.floats = (rows, heads, self.s_last.tolist())
+            else:
+                self.floats = ([(i,) + lat[i] for i in range(n)], None, None)
 
     def run(self, rng: np.random.Generator, send_t: np.ndarray, busy_until: np.ndarray, scale: float = 1.0):
         """Arrival times (n,) s and loss flags (n,) of the batch sent at ``send_t`` (n,) s."""
@@ -162,29 +170,29 @@ class TransmitPlan:
         jitter) in Python floats: the same draws (one ``standard_exponential`` call) and the
         same operations in the same order. ``send`` (n,) s as a list; returns the arrival
         times (n,) s as a list (nothing is lost)."""
-        lat, ser = self.floats
+        rows, heads, s_last = self.floats
         n = self.n
         arrival = [0.0] * n
         if n == 0:
             return arrival
-        for (i, mean, base), d in zip(lat, rng.standard_exponential(len(lat)).tolist()):
-            x = base + d * mean
-            arrival[i] = scale * (0.0 if x < 0.0 else x)      # np.maximum(x, 0.0)
-        if ser is None:
-            return [a + t for a, t in zip(arrival, send)]
-        order, first, grp, csum, base, s_first, s_last, last = ser
-        ts = [send[i] for i in order]
+        d = rng.standard_exponential(n).tolist()
+        if heads is None:
+            for i, j, mean, base in rows:
+                x = base + d[j] * mean
+                arrival[i] = scale * (0.0 if x < 0.0 else x) + send[i]     # np.maximum(x, 0.0)
+            return arrival
         busy = busy_until.tolist()
         start0 = []
-        for q, s in zip(first, s_first):
-            a, b = ts[q], busy[s]
+        for i, s in heads:   # the uplink is free at max(send, busy until)
+            a, b = send[i], busy[s]
             start0.append(a if a >= b else b)                 # np.maximum(a, b)
-        end = []
-        for g, tq, c, b0 in zip(grp, ts, csum, base):
-            a = start0[g]
-            end.append((a if a >= tq else tq) + c - b0)
-        for q, i in enumerate(order):
-            arrival[i] += end[q]
-        for q, s in zip(last, s_last):
-            busy_until[s] = end[q]
+        ends = [0.0] * len(heads)
+        for i, j, mean, base, g, c, b0 in rows:
+            x = base + d[j] * mean
+            a, tq = start0[g], send[i]
+            e = (a if a >= tq else tq) + c - b0
+            arrival[i] = scale * (0.0 if x < 0.0 else x) + e
+            ends[g] = e                                       # the group's last message ends last
+        for s, e in zip(s_last, ends):
+            busy_until[s] = e
         return arrival

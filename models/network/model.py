@@ -27,6 +27,7 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from . import links as lk
+from .arrays import pairwise_sum
 from .config import NetworkConfig
 from .consistency import SceneGrid, assign_owners, dead_reckon
 from .display import DisplayGroups, squared_dr_error
@@ -1102,7 +1103,7 @@ class NetworkModel:
         per = np.array([sqrt(x) for x in per_max] + [sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
         self.per_object_max, self.per_object_rms = per[:n_obj], per[n_obj:]
         m.inconsistency_max = max(m.inconsistency_max, sqrt(max(err2)))
-        m.inconsistency_rms = sqrt(float(np.add.reduce(np.array(err2))) / n_valid)
+        m.inconsistency_rms = sqrt(pairwise_sum(err2) / n_valid)   # numpy's sum of the same values
 
     def _copy_errors(self, t, fi, vo, vg, og, px, py):
         """Squared display errors (k,) m^2 of copies ``fi`` at frame time ``t`` and whether each

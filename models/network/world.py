@@ -34,6 +34,8 @@ SCALAR_ENTITIES = 32
 REST_SKIP = True
 #: up to this many avatar-entity pairs the contact pre-check runs in Python floats
 SCALAR_CONTACT_PAIRS = 64
+#: at most this many sub-step lengths keep the entities' per-sub-step turn (see _advance_entities)
+TURN_MEMO = 64
 
 
 def _clip_unit(x) -> float:
@@ -112,7 +114,7 @@ class World:
         self.ez = np.full(E, cfg.entity_radius)
         self._fixed_key = None     # see at_fixed_point
         self._ksteer_memo = None   # (steering bytes, steering gains tan(steer max) / wheelbase)
-        self._turn_memo = None     # (sub-step h, decay, cos and sin of the entities' turn per sub-step)
+        self._turn_memo = {}       # (sub-step h, turn rates) -> decay, cos and sin of the entities' turn per sub-step
         self._state_memo = None    # (avatar key, P, V, A) of a scene without entities at rest
 
     # -- views ----------------------------------------------------------------------------
@@ -330,12 +332,14 @@ class World:
         cfg = self.cfg
         n, h = self._substeps(dt)
         if len(self.epos) <= SCALAR_ENTITIES:
-            memo = self._turn_memo
             key = (h, self.eturn.tobytes())
-            if memo is None or memo[0] != key:   # per sub-step length (the same every frame)
-                memo = self._turn_memo = (key, float(np.exp(-cfg.entity_drag * h)), np.cos(self.eturn * h).tolist(),
-                                          np.sin(self.eturn * h).tolist())
-            return self._advance_entities_scalar(n, h, memo[1], memo[2], memo[3])
+            memo = self._turn_memo.get(key)
+            if memo is None:   # per sub-step length (a few values: k T - (k - 1) T differ in the last bits)
+                if len(self._turn_memo) >= TURN_MEMO:
+                    self._turn_memo.clear()
+                memo = self._turn_memo[key] = (float(np.exp(-cfg.entity_drag * h)), np.cos(self.eturn * h).tolist(),
+                                               np.sin(self.eturn * h).tolist())
+            return self._advance_entities_scalar(n, h, *memo)
         decay = np.exp(-cfg.entity_drag * h)
         ct, st = np.cos(self.eturn * h), np.sin(self.eturn * h)
         for _ in range(n):
@@ -438,8 +442,6 @@ class World:
 
     def contacts(self, etree=None):
         """Approaching avatar-entity pairs in contact: (avatar, entity, dv of entity (k, 2))."""
-        from scipy.spatial import cKDTree
-
         G, E = len(self.speed), len(self.evel)
         if G == 0 or E == 0:
             return _NO_CONTACTS
@@ -471,6 +473,8 @@ class World:
             dy = self.epos[:, 1] - self.apos[:, 1, None]
             if not ((dx * dx + dy * dy) <= r * r * (1.0 + 1e-9)).any():
                 return _NO_CONTACTS
+        from scipy.spatial import cKDTree   # (here: a frame without a contact candidate needs no import)
+
         etree = etree if etree is not None else cKDTree(self.epos)
         pairs = cKDTree(self.apos).query_ball_tree(etree, r) if G < 8 else None
         if pairs is not None:
