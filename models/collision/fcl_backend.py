@@ -339,10 +339,18 @@ class FclBackend(CollisionBackend):
             best = max(best, math.sqrt(float(sep @ sep)))
         return best
 
+    def _fresh_bounds(self, bodies: List[int]) -> None:
+        """``ensure_bounds`` for a few bodies (scalar stale checks)."""
+        stale = self._stale
+        idx = [i for i in bodies if stale[i]]
+        if idx:
+            self._update_bounds(idx)
+
     def _gap(self, a: int, b: int) -> float:
         """AABB gap of two bodies (m, 0 if overlapping), scalar code for the per-candidate path."""
-        if self._stale[a] or self._stale[b]:
-            self.ensure_bounds([a, b])
+        stale = self._stale
+        if stale[a] or stale[b]:
+            self._update_bounds([i for i in (a, b) if stale[i]])
         (alo, ahi), (blo, bhi) = self.aabb[a].tolist(), self.aabb[b].tolist()
         g = 0.0
         for k in range(3):
@@ -374,7 +382,7 @@ class FclBackend(CollisionBackend):
         cands: List[int] = []
         if use_tree:
             self._sync(self._pair_now)
-            self.manager.collide(obj_a, fcl.CollisionData(), self._collector(cands))
+            self.manager.collide(obj_a, None, self._collector(cands))  # (the callbacks take no data)
         # members checked directly (dynamic ones, and static ones outside the tree): one AABB
         # gap computation serves the broad phase and the nearest-member search (the gaps of
         # aabb_gap, computed per member in scalar code: the same numbers)
@@ -444,7 +452,7 @@ class FclBackend(CollisionBackend):
                 d = res.min_distance
                 return d <= 0, d
 
-            self.manager.distance(obj_a, fcl.DistanceData(), on_near)
+            self.manager.distance(obj_a, None, on_near)
         if best[0] < 0:
             return []
         return [(best[0], self._distance_result(res))]
@@ -455,16 +463,16 @@ class FclBackend(CollisionBackend):
         # swept AABB of a over the step (padded by the rotation's chord at the bounding radius)
         ang = rotation_angle(T1[:3, :3] @ T0[:3, :3].T)
         pad = 2 * self._radius[a] * math.sin(min(ang, math.pi) / 2)
-        self.ensure_bounds(np.append(dyn, a))
+        self._fresh_bounds(self._pair_now if self.is_dynamic[a] else [a] + self._pair_now)  # a and dyn
         box0 = self.aabb[a].copy()
         shift = T0[:3, 3] - T1[:3, 3]
         lo = np.minimum(box0[0], box0[0] + shift) - pad
         hi = np.maximum(box0[1], box0[1] + shift) + pad
         cands = [int(b) for b in dyn if np.all(self.aabb[b, 0] <= hi) and np.all(self.aabb[b, 1] >= lo)]
         if len(stat):
-            probe = fcl.CollisionObject(fcl.Box(*(hi - lo)), fcl.Transform(np.eye(3), (lo + hi) / 2))
+            probe = fcl.CollisionObject(fcl.Box(*(hi - lo)), fcl.Transform(_EYE3, (lo + hi) / 2))
             found: List[int] = []
-            self.manager.collide(probe, fcl.CollisionData(), self._collector(found))
+            self.manager.collide(probe, None, self._collector(found))
             cands += sorted(set(found))
         toi = math.inf
         prev = self._previous
