@@ -1,0 +1,152 @@
+"""The per-frame shortcuts of small scenes change no output: each is checked against the code
+it replaces, bit for bit.
+
+* a small lossless batch timed in Python floats (:meth:`TransmitPlan.run_floats`) vs the
+  array code (:meth:`TransmitPlan.run`): arrivals, uplinks and the generator's state;
+* due frames in Python vs :meth:`NetworkModel._due` (lost, huge and late arrivals included);
+* numpy's pairwise summation in Python (:func:`arrays.pairwise_sum`) vs ``np.add.reduce``;
+* avatars sub-stepped one by one (resting, reversing, at the walls) vs the array code;
+* whole runs with every such shortcut vs the array paths (campus size, lossy links, order 2,
+  client-server), with joins, graceful leaves and crashes (the online-node count included).
+"""
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network import links as links_mod
+from immersim.models.network import model as model_mod
+from immersim.models.network import world as world_mod
+from immersim.models.network.arrays import pairwise_sum
+from immersim.models.network.links import TransmitPlan
+
+T = 0.033
+LINKS = {"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(20.0, 5.0, 0.0, 100.0)}
+
+
+@pytest.mark.parametrize("bandwidth", [100.0, 0.0, 0.05])
+def test_float_batches_equal_the_array_code(bandwidth):
+    links = {"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(20.0, 5.0, 0.0, bandwidth)}
+    gen = np.random.default_rng(7)
+    for trial in range(60):
+        n = int(gen.integers(1, links_mod.FLOAT_BATCH + 1))
+        sender = gen.integers(0, 5, n)
+        link = gen.integers(0, 2, n) if trial % 5 else np.ones(n, np.int64)   # some one-class batches
+        nbytes = gen.integers(20, 3000, n)
+        plan = TransmitPlan(links, sender, link, nbytes)
+        if plan.floats is None:          # one class: not merged, the array code only
+            assert not (link == 0).any() or not (link == 1).any()
+            continue
+        rng_a, rng_b = np.random.default_rng(trial), np.random.default_rng(trial)
+        busy_a = gen.uniform(0.0, 0.01, 5) * (gen.random(5) < 0.5)
+        busy_b = busy_a.copy()
+        for k in range(4):
+            send = k * T + np.where(gen.random(n) < 0.4, 0.002, 0.0)
+            scale = float(gen.choice([1.0, 0.0, 2.5]))
+            arrival, lost = plan.run(rng_a, send, busy_a, scale)
+            floats = plan.run_floats(rng_b, send.tolist(), busy_b, scale)
+            assert floats == arrival.tolist() and not lost.any()
+            assert np.array_equal(busy_a, busy_b)
+        assert rng_a.bit_generator.state == rng_b.bit_generator.state
+
+
+def test_due_frames_equal_the_array_code():
+    m = NetworkModel(NetworkConfig(groups=2, render_nodes=1, entities=0))
+    gen = np.random.default_rng(1)
+    for k in (0, 3, 1000):
+        m.k = k
+        arr = np.r_[gen.uniform(0.0, 40.0, 200), k * T, (k + 1) * T, k * T - 1e-12, (k + 2) * T + 1e-15,
+                    np.inf, np.nan, 1e300, -np.inf, 0.0]
+        assert model_mod._due_frames(arr.tolist(), T, k) == m._due(arr).tolist()
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 16, 33, 64, 127, 128, 129, 300])
+def test_pairwise_sum_equals_numpy(n):
+    gen = np.random.default_rng(n)
+    for _ in range(50):
+        a = gen.random(n) ** 3 * 10.0 ** gen.uniform(-8, 4, n)
+        a[gen.random(n) < 0.3] = 0.0
+        assert pairwise_sum(a.tolist()) == float(np.add.reduce(a))
+
+
+def test_avatars_one_by_one_equal_the_array_code(monkeypatch):
+    """Resting (with -0.0 speeds), driving into the walls and reversing: the same arrays and
+    the same fixed-point decision as the array code's sub-step loop."""
+    cfg = NetworkConfig(groups=5, render_nodes=1, entities=0, scene_size=15.0, avatar_start="uniform", seed=2)
+
+    def trace():
+        w = world_mod.World(cfg, np.random.default_rng(2))
+        w.speed[:] = [0.0, -0.0, 0.0, -0.0, 0.0]
+        w.steer[:] = [0.3, -0.2, 0.0, 0.1, -0.4]
+        w.yaw[:] = [-3.14159, 3.1415926, 1e-17, -1.6, 2.0]
+        out, fixed = [], []
+        for k in range(1, 160):
+            if k == 20:
+                w.throttle[:] = [1.0, -1.0, 0.5, 1.0, -0.7]
+            if k == 110:
+                w.throttle[:] = 0.0
+            w.advance_to(k * T - (0.011 if k % 3 == 0 else 0.0), entities=False)   # partial frames too
+            w.advance_to(k * T, entities=False)
+            out.append(np.r_[w.apos.ravel(), w.yaw, w.speed, w.accel, w.yaw_rate])
+            fixed.append(w._fixed_key is not None)
+        return np.array(out), fixed
+
+    fast, fast_fixed = trace()
+    monkeypatch.setattr(world_mod, "SCALAR_AVATARS", 0)
+    plain, _ = trace()
+    assert np.array_equal(fast, plain)
+    S = cfg.scene_size
+    xy = plain[:, :10]
+    assert ((xy == 0.0) | (xy == S)).any()                 # the walls were hit
+    assert fast_fixed[1:19] == [True] * 18                 # resting at first: a fixed point (after the
+    assert not any(fast_fixed[20:110])                     # first advance normalised the headings)
+
+
+def _run(cfg, steps=180):
+    m = NetworkModel(cfg)
+    m.schedule_leave(0.7, 1)                        # a graceful leave of a slave,
+    m.schedule_leave(0.4, 3, graceful=False)        # a crashed master (times out after 3 s),
+    m.schedule_join(2.4, 1)                         # and both rejoin
+    m.schedule_join(5.2, 3)
+    out = []
+    for k in range(steps):
+        for g in range(cfg.driven_groups):
+            m.set_input(g, 0.0 if k < 10 else 0.9 - 0.4 * g, 0.25 * (g - 1) if k > 40 else 0.0)
+        if k % 17 == 16:
+            m.bounce(k % cfg.groups, (-1.0, 0.4))
+        s = m.step(T).as_dict()
+        assert s["online_nodes"] == int(np.count_nonzero(m.online))
+        out.append((s, m.at_rest(), m.world.avatar_outputs(T), m.perceived_avatars(1).tolist(),
+                    m.per_object_max.tolist(), m.per_object_rms.tolist()))
+    return m, out
+
+
+CASES = [
+    dict(),                                                             # the campus_drive size
+    dict(links={"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}),
+    dict(prediction_order=2, links={"lan": LinkClass(0.3, 0.1, 0.0, 0.0), "wan": LinkClass(30.0, 12.0, 0.0, 0.0)}),
+    dict(prediction_order=0, topology="client_server"),
+    dict(entities=20, scene_size=30.0, ownership="euclidean"),
+]
+
+
+@pytest.mark.parametrize("case", range(len(CASES)))
+def test_frame_shortcuts_change_nothing(monkeypatch, case):
+    cfg = replace(NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=5, scene_size=60.0,
+                                entity_speed=3.0, links=LINKS), **CASES[case])
+    fast, fo = _run(cfg)
+    monkeypatch.setattr(links_mod, "FLOAT_BATCH", -1)           # batches timed by the array code
+    monkeypatch.setattr(model_mod, "SCALAR_VIEW", -1)           # display in arrays
+    monkeypatch.setattr(world_mod, "SCALAR_AVATARS", 0)         # kinematics in arrays
+    monkeypatch.setattr(world_mod, "SCALAR_ENTITIES", 0)
+    plain, po = _run(cfg)
+    assert fo == po
+    for name in ("cache", "owner", "hist", "shown_frame", "busy", "online"):
+        assert np.array_equal(getattr(fast, name), getattr(plain, name)), name
+    assert fast.totals.by_type == plain.totals.by_type and fast.totals.frames == plain.totals.frames
+    assert fast.rng.bit_generator.state == plain.rng.bit_generator.state
+    assert fast.supernode.timeouts == 1 and fast.supernode.leaves == 1
+    assert any(s["handovers"] for s, *_ in fo) and max(s["inconsistency_max"] for s, *_ in fo) > 0.0
+    assert not math.isnan(fo[-1][0]["inconsistency_rms"])
