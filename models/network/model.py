@@ -203,6 +203,8 @@ class NetworkModel:
         self._group_version = 0                  # bumped whenever a group's master or slaves are set
         self._slaves_memo: Optional[tuple] = None  # (group version, slave nodes, arange(G), slave list)
         self._online_memo: Optional[tuple] = None  # (group version, groups with a master, their indices)
+        self._hist_dest: Optional[tuple] = None    # slot positions of the avatar cache rows (_shown_avatars_scalar)
+        self._pos_memo: Optional[tuple] = None     # (positions array, as a list)
         self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, flat indices, remote copies)
         self._cells_memo: Optional[tuple] = None   # (positions array, their cells)
         self._exact: Optional[tuple] = None        # (positions array, first frame time it was used)
@@ -268,7 +270,7 @@ class NetworkModel:
         if self._ncol >= 7:
             tab[:, 5:7] = A
         if objs is self._obj_ids:   # a frame's table: every object, ids object * 2^32 kept
-            tab[:, self.rid_col] = self._obj_rid + self._uid
+            np.add(self._obj_rid, self._uid, out=tab[:, self.rid_col])
         else:
             tab[:, self.rid_col] = objs * RID_OBJECT + self._uid     # exact in float64 (< 2^53)
         self._uid += 1
@@ -970,24 +972,30 @@ class NetworkModel:
         (:func:`consistency.dead_reckon`, the same operations in Python floats), its own avatar
         the truth ``P[g]``."""
         G, order = self.cfg.groups, self.cfg.prediction_order
+        if self._hist_dest is None:   # where cache row i (object i // G, viewer i % G) goes in the slot
+            self._hist_dest = ([2 * ((i % G) * G + i // G) for i in range(G * G)], [2 * (g * G + g) for g in range(G)])
+        dest, diag = self._hist_dest
         out = [0.0] * (2 * G * G)
-        for i, c in enumerate(self.cache[:G * G, :self._ncol].tolist()):   # row i: object i // G, viewer i % G
-            o, v = divmod(i, G)
+        for c, j in zip(self.cache[:G * G, :self._ncol].tolist(), dest):
             if order == 0:
-                x, y = c[1], c[2]
+                out[j], out[j + 1] = c[1], c[2]
             else:
                 dt = t - c[T_COL]
                 if order == 1:
-                    x, y = c[1] + c[3] * dt, c[2] + c[4] * dt
+                    out[j], out[j + 1] = c[1] + c[3] * dt, c[2] + c[4] * dt
                 else:
                     hd = 0.5 * dt
-                    x, y = c[1] + dt * (c[3] + hd * c[5]), c[2] + dt * (c[4] + hd * c[6])
-            j = 2 * (v * G + o)
-            out[j], out[j + 1] = x, y
-        for g, (x, y) in enumerate(P[:G].tolist()):   # a master shows its own avatar as it is
-            j = 2 * (g * G + g)
-            out[j], out[j + 1] = x, y
+                    out[j], out[j + 1] = c[1] + dt * (c[3] + hd * c[5]), c[2] + dt * (c[4] + hd * c[6])
+        for j, p in zip(diag, self._positions_list(P)):   # a master shows its own avatar as it is
+            out[j], out[j + 1] = p
         return out
+
+    def _positions_list(self, P: np.ndarray) -> list:
+        """``P.tolist()`` (objects' ``[x, y]``, m), kept for the array ``P`` of the frame."""
+        memo = self._pos_memo
+        if memo is None or memo[0] is not P:
+            memo = self._pos_memo = (P, P.tolist())
+        return memo[1]
 
     def _slave_nodes(self):
         """Every slave render node (k,), ``arange(G)`` and the slaves as a list, kept while the
@@ -1058,7 +1066,7 @@ class NetworkModel:
             memo = self._scalar_view_memo = (og, vo, fi, remote.tolist(), vo[remote].tolist(), fi[remote])
         order, enter = self.cfg.prediction_order, self.enter_col
         rows = np.take(self.cache, memo[5], axis=0).tolist()
-        pos = P.tolist()
+        pos = self._positions_list(P)
         n_obj = self.n_obj
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
         err2 = [0.0] * len(fi)    # the own copies (and remote ones without a record) count as 0

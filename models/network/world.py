@@ -147,9 +147,7 @@ class World:
         c, s = np.cos(self.yaw), np.sin(self.yaw)
         G, E = len(c), len(self.evel)
         n = G + E
-        P, V = np.empty((n, 2)), np.empty((n, 2))
-        P[:G] = self.apos
-        P[G:] = self.epos
+        P, V = np.concatenate((self.apos, self.epos)), np.empty((n, 2))
         sp = self.speed
         np.multiply(c, sp, out=V[:G, 0])
         np.multiply(s, sp, out=V[:G, 1])
@@ -284,8 +282,9 @@ class World:
         out = [0.0] * (6 * G)     # x, y per avatar, then yaw, speed, accel, yaw rate per avatar
         for i, (v0, th, k, yw, (xi, yi)) in enumerate(zip(sp, thr, ks, yaw, xy)):
             a0 = yr = 0.0
+            push = acc * th     # max_accel * throttle (the same every sub-step)
             for j in range(n):
-                a = acc * th - drag * v0
+                a = push - drag * v0
                 v1 = v0 + a * h     # clipped to [-ms, ms] (np.minimum(np.maximum(., -ms), ms))
                 if v1 < nms:
                     v1 = nms
