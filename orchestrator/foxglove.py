@@ -14,15 +14,17 @@ A scenario lists the bodies to draw; each body's pose comes from logged signals 
     size = [0.76, 0.70, 0.04]              # [m]
     color = [0.2, 0.5, 0.9, 1.0]           # RGBA in 0..1
 
-Every macro step the observer writes one ``/tf`` message (all frames) and one ``/scene``
-message (one entity per body, frame-locked to its frame), JSON-encoded under Foxglove's
-schema names, so opening the log in Foxglove's 3D panel shows the platform, the avatars and
+Every macro step the observer writes one ``/tf`` message (all frames), and once per
+simulated second one ``/scene`` message (one entity per body, frame-locked to its frame, never
+expiring), JSON-encoded under Foxglove's schema names, so opening the log in Foxglove's 3D panel shows the platform, the avatars and
 the scene moving. It only reads values.
 """
 from __future__ import annotations
 
 import json
 import math
+
+import orjson
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Sequence, Tuple, Union
 
@@ -124,18 +126,53 @@ def euler_quaternion(e1: float, e2: float, e3: float, order: str = "xyz") -> Tup
 class FoxgloveObserver:
     """Writes ``/tf`` and ``/scene`` into an open :class:`~immersim.orchestrator.observers.McapObserver`.
 
+    ``/tf`` is written every step, one transform per body. The message is built once and
+    updated in place: a value given as a number is computed once, a body rotating about one
+    axis only (the others 0, e.g. an avatar's yaw) gets its quaternion from one sine and one
+    cosine. ``/scene`` holds frame-locked entities of a fixed shape, size and colour that never
+    expire: it is written at the first step and then once per ``scene_period_s`` of simulated
+    time (a viewer that seeks or joins late finds a recent one; Foxglove keeps the last one per
+    topic).
+
     Parameters
     ----------
     mcap : McapObserver
     bodies : list of Body
     lookup : callable
         ``lookup("unit.var")`` returns a function giving that signal's current value.
+    scene_period_s : float
+        Simulated seconds between two ``/scene`` messages.
     """
 
-    def __init__(self, mcap, bodies: List[Body], lookup: Callable[[str], Callable[[], float]]) -> None:
+    def __init__(self, mcap, bodies: List[Body], lookup: Callable[[str], Callable[[], float]],
+                 scene_period_s: float = 1.0) -> None:
         self.mcap, self.bodies = mcap, bodies
-        self._get = [([lookup(r) if isinstance(r, str) else (lambda v=r: v) for r in (*b.position, *b.euler)])
-                     for b in bodies]
+        self._stamp = {"sec": 0, "nsec": 0}
+        self._msg: Dict[str, Any] = {"transforms": []}
+        #: per body with signal references: (translation dict, its getters and offsets or None,
+        #: rotation dict, how its angles are read: None (fixed), (axis, getter), or 3 getters, order)
+        self._moving: List[tuple] = []
+        for b in bodies:
+            pos = [lookup(r) if isinstance(r, str) else r for r in b.position]
+            ang = [lookup(r) if isinstance(r, str) else r for r in b.euler]
+            fixed = [r for r in (*pos, *ang) if not callable(r)]
+            translation, rotation = self._pose(b, [0.0 if callable(r) else r for r in (*pos, *ang)])
+            self._msg["transforms"].append({"timestamp": self._stamp, "parent_frame_id": b.parent,
+                                            "child_frame_id": b.name, "translation": translation,
+                                            "rotation": rotation})
+            if len(fixed) == 6:
+                continue
+            moves = any(map(callable, pos))
+            turning = [i for i, r in enumerate(ang) if callable(r) or r != 0.0]
+            if not any(map(callable, ang)):
+                spin = None                                   # fixed rotation, computed above
+            elif len(turning) == 1:
+                spin = (turning[0], ang[turning[0]])          # about one axis: q = (sin, cos) of half the angle
+            else:
+                spin = tuple(r if callable(r) else (lambda v=r: v) for r in ang)
+            self._moving.append((translation, (pos, b.offset) if moves else None, rotation, spin, b.order))
+        self._period_ns = int(round(scene_period_s * 1e9))
+        self._next_scene = None
         w = mcap.writer
         sid = w.register_schema(name="foxglove.FrameTransforms", encoding="jsonschema",
                                 data=json.dumps(FRAME_TRANSFORMS_SCHEMA).encode())
@@ -144,22 +181,44 @@ class FoxgloveObserver:
                                 data=json.dumps(SCENE_UPDATE_SCHEMA).encode())
         self._scene = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid)
 
+    @staticmethod
+    def _pose(body: Body, v: Sequence[float]) -> Tuple[Dict[str, float], Dict[str, float]]:
+        """Translation (position + offset, m) and rotation quaternion of a body's frame."""
+        qx, qy, qz, qw = euler_quaternion(v[3], v[4], v[5], body.order)
+        return ({"x": v[0] + body.offset[0], "y": v[1] + body.offset[1], "z": v[2] + body.offset[2]},
+                {"x": qx, "y": qy, "z": qz, "w": qw})
+
     def __call__(self, k: int, t_ns: int) -> None:
-        stamp = {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000}
-        transforms, entities = [], []
-        for body, getters in zip(self.bodies, self._get):
-            v = [g() for g in getters]
-            qx, qy, qz, qw = euler_quaternion(v[3], v[4], v[5], body.order)
-            transforms.append({
-                "timestamp": stamp, "parent_frame_id": body.parent, "child_frame_id": body.name,
-                "translation": {"x": v[0] + body.offset[0], "y": v[1] + body.offset[1], "z": v[2] + body.offset[2]},
-                "rotation": {"x": qx, "y": qy, "z": qz, "w": qw}})
+        stamp = self._stamp
+        stamp["sec"], stamp["nsec"] = divmod(t_ns, 1_000_000_000)
+        sin, cos = math.sin, math.cos
+        for translation, moves, rotation, spin, order in self._moving:
+            if moves is not None:
+                (px, py, pz), (ox, oy, oz) = moves
+                translation["x"] = (px() if callable(px) else px) + ox
+                translation["y"] = (py() if callable(py) else py) + oy
+                translation["z"] = (pz() if callable(pz) else pz) + oz
+            if spin is None:
+                continue
+            if len(spin) == 2:
+                axis, get = spin
+                half = 0.5 * get()
+                rotation["xyz"[axis]], rotation["w"] = sin(half), cos(half)
+            else:
+                q = euler_quaternion(spin[0](), spin[1](), spin[2](), order)
+                rotation["x"], rotation["y"], rotation["z"], rotation["w"] = q
+        w = self.mcap.writer
+        w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k, data=orjson.dumps(self._msg))
+        if self._next_scene is None or t_ns >= self._next_scene:
+            self._next_scene = t_ns + self._period_ns
+            w.add_message(self._scene, log_time=t_ns, publish_time=t_ns, sequence=k,
+                          data=orjson.dumps({"deletions": [], "entities": self._entities(stamp)}))
+
+    def _entities(self, stamp: Dict[str, int]) -> List[Dict[str, Any]]:
+        entities = []
+        for body in self.bodies:
             prim = {"pose": {"position": {"x": 0, "y": 0, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}},
                     "size": dict(zip("xyz", body.size)), "color": dict(zip("rgba", body.color))}
             entities.append({"timestamp": stamp, "frame_id": body.name, "id": body.name, "frame_locked": True,
                              "lifetime": {"sec": 0, "nsec": 0}, SHAPES[body.shape]: [prim]})
-        w = self.mcap.writer
-        w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k,
-                      data=json.dumps({"transforms": transforms}).encode())
-        w.add_message(self._scene, log_time=t_ns, publish_time=t_ns, sequence=k,
-                      data=json.dumps({"deletions": [], "entities": entities}).encode())
+        return entities

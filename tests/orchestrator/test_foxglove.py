@@ -46,11 +46,11 @@ size = [0.2, 0.2, 0.2]
         msgs = [(c.topic, json.loads(m.data)) for _, c, m in make_reader(fh).iter_messages(topics=["/tf", "/scene"])]
     tf = [m["transforms"][0] for t, m in msgs if t == "/tf"]
     scene = [m for t, m in msgs if t == "/scene"]
-    assert len(tf) == len(scene) == 21
+    assert len(tf) == 21 and len(scene) == 1   # the fixed shapes: once per simulated second
     np.testing.assert_allclose([x["translation"]["x"] for x in tf], series["m1.x"][1], atol=0)
     yaw = series["m2.x"][1]
     np.testing.assert_allclose([x["rotation"]["z"] for x in tf], np.sin(yaw / 2), atol=1e-15)
-    assert scene[5]["entities"][0]["cubes"][0]["size"] == {"x": 0.2, "y": 0.2, "z": 0.2}
+    assert scene[0]["entities"][0]["cubes"][0]["size"] == {"x": 0.2, "y": 0.2, "z": 0.2}
     assert tf[0]["child_frame_id"] == "mass1" and tf[0]["parent_frame_id"] == "world"
 
 
@@ -62,3 +62,29 @@ position = ["m1.nope", 0.0, 0.0]
 ''')
     with pytest.raises(ScenarioError, match=r"foxglove body 'b': unit m1 \(oscillator.fmu\) has no variable 'nope'"):
         run_scenario(scn, tmp_path / "x.mcap")
+
+
+def test_scene_once_per_second_and_fixed_bodies(tmp_path, test_fmus):
+    """/scene at t = 0 and then once per simulated second; a body given only numbers has the
+    same transform in every /tf message (computed once), stamped with the step's time."""
+    extra = """
+[[foxglove.bodies]]
+name = "post"
+position = [1.0, 2.0, 0.0]
+euler = [0.0, 0.0, 1.5707963267948966]
+order = "zyx"
+offset = [0.0, 0.0, 0.5]
+"""
+    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.1, stop=2.5, extra=extra)
+    out = tmp_path / "fg.mcap"
+    run_scenario(scn, out)
+    with open(out, "rb") as fh:
+        msgs = [(c.topic, m.log_time, json.loads(m.data))
+                for _, c, m in make_reader(fh).iter_messages(topics=["/tf", "/scene"])]
+    assert [t for topic, t, _ in msgs if topic == "/scene"] == [0, 1_000_000_000, 2_000_000_000]
+    tfs = [(t, m["transforms"][0]) for topic, t, m in msgs if topic == "/tf"]
+    assert len(tfs) == 26
+    for t, tr in tfs:
+        assert tr["translation"] == {"x": 1.0, "y": 2.0, "z": 0.5}
+        assert tr["rotation"]["z"] == pytest.approx(np.sqrt(0.5), abs=1e-15) and tr["rotation"]["x"] == 0.0
+        assert tr["timestamp"]["sec"] * 10**9 + tr["timestamp"]["nsec"] == t
