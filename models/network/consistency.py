@@ -33,6 +33,7 @@ class SceneGrid:
                 ok = (ii >= 0) & (ii < C) & (jj >= 0) & (jj < C)
                 nb.append(np.where(ok, ii * C + jj, -1))
         self.neigh = np.stack(nb, axis=1)  # (C*C, 9), -1 outside
+        self._neigh_list = None            # its cells inside the grid per row, as lists (built on first use)
 
     def cell(self, pos: np.ndarray) -> np.ndarray:
         """Cell index of each position (n, 2) -> (n,) int."""
@@ -84,6 +85,8 @@ class SceneGrid:
         M, O = len(viewer_cells), len(object_cells)
         if not self.enabled:
             return np.repeat(np.arange(M), O), np.tile(np.arange(O), M)
+        if M * O <= SCALAR_VIEW_PAIRS:
+            return self._view_pairs_scalar(viewer_cells.tolist(), object_cells.tolist())
         order = np.argsort(object_cells, kind="stable")
         counts = np.bincount(object_cells, minlength=self.C * self.C)
         starts = np.cumsum(counts) - counts
@@ -95,6 +98,27 @@ class SceneGrid:
         return np.repeat(owner, lens), order[concat_ranges(starts[cells], lens)]
 
 
+    def _view_pairs_scalar(self, viewer_cells: list, object_cells: list) -> Tuple[np.ndarray, np.ndarray]:
+        """:meth:`view_pairs` of a few viewers and objects in Python: the same pairs in the same
+        order (viewer by viewer, its neighbourhood's cells in ``neigh`` order, the objects of a
+        cell in index order)."""
+        if self._neigh_list is None:
+            self._neigh_list = [[c for c in row if c >= 0] for row in self.neigh.tolist()]
+        by_cell = {}
+        for o, c in enumerate(object_cells):
+            by_cell.setdefault(c, []).append(o)
+        vl, vo = [], []
+        for v, c in enumerate(viewer_cells):
+            for nc in self._neigh_list[c]:
+                objs = by_cell.get(nc)
+                if objs:
+                    vo += objs
+                    vl += [v] * len(objs)
+        return np.array(vl, np.int64), np.array(vo, np.int64)
+
+
+#: at most this many (viewer, object) candidates: :meth:`SceneGrid.view_pairs` in Python
+SCALAR_VIEW_PAIRS = 256
 #: below this many (avatar, entity) pairs, brute force beats building k-d trees every frame
 BRUTE_FORCE_PAIRS = 4096
 

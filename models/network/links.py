@@ -79,13 +79,32 @@ class TransmitPlan:
 
     def __init__(self, links: Dict[str, LinkClass], sender: np.ndarray, link_class: np.ndarray,
                  nbytes: np.ndarray) -> None:
-        n = len(sender)
-        self.n = n
+        self.n = len(sender)
+        self.floats = None   # the plan as Python lists (small merged batches, see run_floats)
+        self._inputs = None  # (links, sender, link_class, nbytes) while the array plan is not built
+        if self.n <= FLOAT_BATCH and self._plan_floats(links, sender.tolist(), link_class.tolist(), nbytes.tolist()):
+            self._inputs = (links, sender, link_class, nbytes)   # the array plan: on the first run()
+        else:
+            self._plan_arrays(links, sender, link_class, nbytes)
+
+    @staticmethod
+    def _merges(links: Dict[str, LinkClass], counts: list) -> bool:
+        """The classes with messages (``counts`` per class in CLASS_INDEX order) are drawn in
+        one call: several of them, each with exponential jitter and no loss, in a batch of at
+        most ``MERGE_MAX`` messages."""
+        used = [links[name] for name, m in zip(CLASS_INDEX, counts) if m]
+        return MERGE_DRAWS and len(used) > 1 and sum(counts) <= MERGE_MAX and all(
+            link.distribution == "exponential" and link.jitter_ms > 0.0 and link.loss <= 0.0 for link in used)
+
+    def _plan_arrays(self, links, sender: np.ndarray, link_class: np.ndarray, nbytes: np.ndarray) -> None:
+        n = self.n
         self.classes = []        # (link, selection, count) in CLASS_INDEX order
         tx = np.zeros(n)
+        counts = []
         for name, k in CLASS_INDEX.items():
             sel = link_class == k
             m = int(np.count_nonzero(sel))
+            counts.append(m)
             if not m:
                 continue
             link = links[name]
@@ -95,9 +114,7 @@ class TransmitPlan:
         # one draw for every class (exponential jitter, no loss): the per-message jitter means
         # in class order, the same sequence of draws as one call per class
         self.merged = None
-        if MERGE_DRAWS and len(self.classes) > 1 and n <= MERGE_MAX and all(
-                link.distribution == "exponential" and link.jitter_ms > 0.0 and link.loss <= 0.0
-                for link, _, _ in self.classes):
+        if self._merges(links, counts):
             idx = np.concatenate([np.arange(n)[sel] for _, sel, _ in self.classes])
             mean = np.concatenate([np.full(m, link.jitter_ms * 1e-3) for link, _, m in self.classes])
             base = np.concatenate([np.full(m, link.latency_ms * 1e-3) for link, _, m in self.classes])
@@ -120,26 +137,51 @@ class TransmitPlan:
             self.csum = np.cumsum(tx_sorted)
             self.base = (self.csum - tx_sorted)[first][self.grp]
             self.s_first, self.s_last = s_sorted[first], s_sorted[last]
-        self.floats = None   # the plan as Python lists (small merged batches, see run_floats)
-        if self.merged is not None and n <= FLOAT_BATCH:
-            idx, mean, base = (a.tolist() for a in self.merged)
-            draw = [0] * n          # the draw (position in the merged call) of each message
-            for j, i in enumerate(idx):
-                draw[i] = j
-            lat = [(draw[i], mean[draw[i]], base[draw[i]]) for i in range(n)]
-            if self.serial:
-                # per message in uplink order: (message, its draw, mean, base latency, sender
-                # group, cumulative transmission time, the group's start offset); per group the
-                # first message and the sender
-                grp, csum, sbase = self.grp.tolist(), self.csum.tolist(), self.base.tolist()
-                rows = [(i,) + lat[i] + (g, c, b) for i, g, c, b in zip(self.order.tolist(), grp, csum, sbase)]
-                heads = list(zip(self.order[first].tolist(), self.s_first.tolist()))
-                self.floats = (rows, heads, self.s_last.tolist())
-            else:
-                self.floats = ([(i,) + lat[i] for i in range(n)], None, None)
+
+    def _plan_floats(self, links, sender: list, link_class: list, nbytes: list) -> bool:
+        """:attr:`floats` of a merged batch, derived in Python as :meth:`_plan_arrays` derives
+        its arrays (the same transmission times, uplink order, cumulative sums); False (and
+        nothing set) for a batch that is not merged."""
+        n = self.n
+        per_class = [[i for i, c in enumerate(link_class) if c == k] for k in CLASS_INDEX.values()]
+        if not self._merges(links, [len(m) for m in per_class]):
+            return False
+        tx = [0.0] * n
+        lat = [None] * n        # (its draw, mean, base latency) per message; draws in class order
+        j = 0
+        for name, msgs in zip(CLASS_INDEX, per_class):
+            link = links[name]
+            bw = link.bandwidth_mbps
+            for i in msgs:
+                if bw > 0:
+                    tx[i] = nbytes[i] * 8.0 / (bw * 1e6)
+                lat[i] = (j, link.jitter_ms * 1e-3, link.latency_ms * 1e-3)
+                j += 1
+        if not any(tx):
+            self.floats = ([(i,) + lat[i] for i in range(n)], None, None)
+            return True
+        # per message in uplink order: (message, its draw, mean, base latency, sender group,
+        # cumulative transmission time, the group's start offset); per group the first
+        # message and the sender, and the senders in group order
+        order = sorted(range(n), key=sender.__getitem__)     # stable: (sender, message) order
+        rows, heads, s_last = [], [], []
+        csum, g, prev, b0 = 0.0, -1, None, 0.0
+        for i in order:
+            s, t = sender[i], tx[i]
+            csum += t
+            if s != prev:
+                g, prev, b0 = g + 1, s, csum - t
+                heads.append((i, s))
+                s_last.append(s)
+            rows.append((i,) + lat[i] + (g, csum, b0))
+        self.floats = (rows, heads, s_last)
+        return True
 
     def run(self, rng: np.random.Generator, send_t: np.ndarray, busy_until: np.ndarray, scale: float = 1.0):
         """Arrival times (n,) s and loss flags (n,) of the batch sent at ``send_t`` (n,) s."""
+        if self._inputs is not None:   # a small plan: its arrays on first use
+            self._plan_arrays(*self._inputs)
+            self._inputs = None
         n = self.n
         arrival = np.empty(n)
         lost = np.zeros(n, bool)

@@ -33,7 +33,7 @@ from .consistency import SceneGrid, assign_owners, dead_reckon
 from .display import DisplayGroups, squared_dr_error
 from .ids import PastryOverlay
 from .metrics import StepMetrics, Totals, inconsistency_sq, object_runs
-from .nodes import H, NodeRegistry, Traffic, TrafficPlan, build_messages, control_bytes
+from .nodes import H, PDU_NAMES, NodeRegistry, Traffic, TrafficPlan, build_messages, control_bytes
 from .pdu import PduType, record_bytes
 from .supernode import CONTROLLER, RENDER, Supernode
 from .world import World
@@ -476,7 +476,7 @@ class NetworkModel:
             self._iv[0] += int(messages)
             self._iv[1] += int(nbytes)
         bt = self.totals.by_type
-        name = PduType(ptype).name
+        name = PDU_NAMES[int(ptype)]
         bt[name] = bt.get(name, 0) + int(nbytes)
 
     def _handover(self, objs: np.ndarray, new: np.ndarray) -> None:

@@ -35,6 +35,7 @@ from .ids import node_id
 from .pdu import HEADER, PduType, controller_bytes, record_bytes, report_bytes
 
 H = HEADER.size
+PDU_NAMES = {int(t): t.name for t in PduType}
 LAN, WAN = lk.CLASS_INDEX["lan"], lk.CLASS_INDEX["wan"]
 
 
@@ -108,7 +109,7 @@ class TrafficPlan:
         self.n = len(tr.send_t)
         self.nbytes = int(tr.nbytes.sum())
         per_type = np.bincount(tr.ptype, weights=tr.nbytes, minlength=64)
-        self.by_type = [(PduType(int(p)).name, int(per_type[p])) for p in np.flatnonzero(per_type)]
+        self.by_type = [(PDU_NAMES[p], int(per_type[p])) for p in np.flatnonzero(per_type).tolist()]
         first = tr.hop_of == -1
         self.first = first
         self.hop1 = lk.TransmitPlan(links, tr.sender[first], tr.link[first], tr.nbytes[first])

@@ -5,6 +5,7 @@ it replaces, bit for bit.
   array code (:meth:`TransmitPlan.run`): arrivals, uplinks and the generator's state;
 * due frames in Python vs :meth:`NetworkModel._due` (lost, huge and late arrivals included);
 * numpy's pairwise summation in Python (:func:`arrays.pairwise_sum`) vs ``np.add.reduce``;
+* the grid's view pairs of a few viewers and objects in Python vs the array code;
 * avatars sub-stepped one by one (resting, reversing, at the walls) vs the array code;
 * whole runs with every such shortcut vs the array paths (campus size, lossy links, order 2,
   client-server), with joins, graceful leaves and crashes (the online-node count included).
@@ -16,6 +17,7 @@ import numpy as np
 import pytest
 
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network import consistency as cons
 from immersim.models.network import links as links_mod
 from immersim.models.network import model as model_mod
 from immersim.models.network import world as world_mod
@@ -137,7 +139,8 @@ def test_frame_shortcuts_change_nothing(monkeypatch, case):
     cfg = replace(NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=5, scene_size=60.0,
                                 entity_speed=3.0, links=LINKS), **CASES[case])
     fast, fo = _run(cfg)
-    monkeypatch.setattr(links_mod, "FLOAT_BATCH", -1)           # batches timed by the array code
+    monkeypatch.setattr(links_mod, "FLOAT_BATCH", -1)           # batches planned and timed by the array code
+    monkeypatch.setattr(cons, "SCALAR_VIEW_PAIRS", -1)          # view pairs in arrays
     monkeypatch.setattr(model_mod, "SCALAR_VIEW", -1)           # display in arrays
     monkeypatch.setattr(world_mod, "SCALAR_AVATARS", 0)         # kinematics in arrays
     monkeypatch.setattr(world_mod, "SCALAR_ENTITIES", 0)
@@ -150,3 +153,16 @@ def test_frame_shortcuts_change_nothing(monkeypatch, case):
     assert fast.supernode.timeouts == 1 and fast.supernode.leaves == 1
     assert any(s["handovers"] for s, *_ in fo) and max(s["inconsistency_max"] for s, *_ in fo) > 0.0
     assert not math.isnan(fo[-1][0]["inconsistency_rms"])
+
+
+@pytest.mark.parametrize("cells", [1, 2, 5, 10])
+def test_small_view_pairs_equal_the_array_code(monkeypatch, cells):
+    grid = cons.SceneGrid(100.0, cells, True)
+    gen = np.random.default_rng(cells)
+    cases = [(gen.integers(0, cells * cells, gen.integers(0, 12)), gen.integers(0, cells * cells, gen.integers(0, 20)))
+             for _ in range(200)]
+    fast = [grid.view_pairs(v, o) for v, o in cases]
+    monkeypatch.setattr(cons, "SCALAR_VIEW_PAIRS", -1)
+    for (v, o), (a, b) in zip(cases, fast):
+        ra, rb = grid.view_pairs(v, o)
+        assert np.array_equal(a, ra) and np.array_equal(b, rb) and a.dtype == ra.dtype and b.dtype == rb.dtype
