@@ -127,6 +127,9 @@ def read_info(path: Path | str) -> LogInfo:
     return info
 
 
+_SCALAR = ("number", "integer", "boolean")
+
+
 def read_series(path: Path | str, patterns: List[str]) -> Dict[str, Tuple[np.ndarray, np.ndarray, str]]:
     """Time series of every ``unit.variable`` matching a glob pattern (brackets are literal).
 
@@ -142,7 +145,9 @@ def read_series(path: Path | str, patterns: List[str]) -> Dict[str, Tuple[np.nda
             continue
         for var in ch.signals:
             full = f"{topic}.{var}"
-            if matches(full, patterns):
+            # signals are numbers (a unit's Real, Integer, Boolean): not the arrays of a 3D view's
+            # /tf and /scene, nor a String
+            if ch.schema["properties"][var].get("type") in _SCALAR and matches(full, patterns):
                 wanted.setdefault(topic, []).append(var)
     if not wanted:
         avail = [f"{t}.{v}" for t, c in info.channels.items() if not t.endswith("/parameters") for v in c.signals]

@@ -52,6 +52,9 @@ size = [0.2, 0.2, 0.2]
     np.testing.assert_allclose([x["rotation"]["z"] for x in tf], np.sin(yaw / 2), atol=1e-15)
     assert scene[0]["entities"][0]["cubes"][0]["size"] == {"x": 0.2, "y": 0.2, "z": 0.2}
     assert tf[0]["child_frame_id"] == "mass1" and tf[0]["parent_frame_id"] == "world"
+    # "*" selects the units' signals, not the 3D view's arrays (they are not numbers)
+    every = read_series(out, ["*"])
+    assert every and all(k.split(".")[0] in ("m1", "m2") for k in every)
 
 
 def test_bad_body_reference(tmp_path, test_fmus):
