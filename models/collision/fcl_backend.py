@@ -88,7 +88,8 @@ class FclBackend(CollisionBackend):
             self._by_pose.setdefault(self._key(self.objs[i]), []).append(int(i))
         self._member_mask = np.zeros(self.n, bool)
         self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
-        self._pair_now: List[int] = []  # the evaluated pair's dynamic bodies (their fcl transforms)
+        self._pair_now: List[int] = []
+        self._static_rows: Dict[int, list] = {}  # the evaluated pair's dynamic bodies (their fcl transforms)
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
@@ -117,9 +118,6 @@ class FclBackend(CollisionBackend):
         self._frame_box = [(np.asarray(self.scene.meshes[b.mesh_key].vertices, float).min(0),
                             np.asarray(self.scene.meshes[b.mesh_key].vertices, float).max(0))
                            for b in self.scene.bodies]
-        self._frame_corners = [np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
-                                         for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-                               for lo, hi in self._frame_box]
         # chunked exact distances (module docstring): the chunks of each large mesh, built once
         self._chunked: Dict[str, ChunkedMesh] = {}
         if self.config.chunk_faces > 0:
@@ -134,6 +132,13 @@ class FclBackend(CollisionBackend):
         self._hull = [self._local[b.mesh_key][0] for b in self.scene.bodies]
         self._box_c = [(lo + hi) / 2 for lo, hi in self._frame_box]
         self._box_h = [(hi - lo) / 2 for lo, hi in self._frame_box]
+        # the same boxes as lists (lo, hi, centre, half extents), one tuple per mesh, for _frame_gap
+        boxes: Dict[str, tuple] = {}
+        for b, (lo, hi), c, h in zip(self.scene.bodies, self._frame_box, self._box_c, self._box_h):
+            boxes.setdefault(b.mesh_key, (lo.tolist(), hi.tolist(), c.tolist(), h.tolist()))
+        self._box_lists = [boxes[b.mesh_key] for b in self.scene.bodies]
+        self._sphere_r = self.sphere_r.tolist()
+        self._is_dyn = self.is_dynamic.tolist()
         self._tf_version = [0] * self.n  # bumped when a body moves: tags its chunks' transform
         self._tf_cache: Dict[int, tuple] = {}
         self._unrotated = [not self.is_dynamic[i] and bool((self.T[i, :3, :3] == np.eye(3)).all())
@@ -329,26 +334,49 @@ class FclBackend(CollisionBackend):
     def _frame_gap(self, a: int, b: int) -> float:
         """Lower bound (m) of the distance of ``a`` and ``b``: in the frame of each of the two
         bodies that is rotated and not smaller than the other (bounding spheres), the gap
-        between its local AABB and the box of the other body's local-AABB corners (the larger
-        of the two). Both boxes contain their body, so
-        the gap cannot exceed the distance; unlike the world-AABB gap it does not grow loose
-        when a body is rotated (a tank at yaw 2.2 rad). Only asked for when the cheaper bounds
-        failed and an exact query would follow."""
+        between its local AABB and the box that bounds the other body's local AABB there
+        (centre ``M c + p``, half extents ``|M| h``: the box of its 8 corners; the larger of
+        the two gaps). Both boxes contain their body, so the gap cannot exceed the distance;
+        unlike the world-AABB gap it does not grow loose when a body is rotated (a tank at
+        yaw 2.2 rad). Scalar code on the list forms of the transforms: a bound, compared with
+        margins far above its rounding (``FRAME_GAP_MARGIN``, ``SEPARATED``)."""
         best = -math.inf
+        radius, rows = self._sphere_r, self._rows
         for f, o in ((a, b), (b, a)):
-            Tf = self._T[f]
-            R = Tf[:3, :3]
-            if self.sphere_r[o] > self.sphere_r[f]:
+            if radius[o] > radius[f] or self._unrotated[f]:
                 continue  # a larger body's box in a smaller one's frame is rarely tighter
-            if self._unrotated[f] or (self.is_dynamic[f] and (R == _EYE3).all()):
+            F, O = rows(f), rows(o)
+            (f00, f01, f02, ftx), (f10, f11, f12, fty), (f20, f21, f22, ftz) = F[0], F[1], F[2]
+            if (self._is_dyn[f] and f00 == 1.0 and f11 == 1.0 and f22 == 1.0 and f01 == 0.0 and f02 == 0.0
+                    and f10 == 0.0 and f12 == 0.0 and f20 == 0.0 and f21 == 0.0):
                 continue  # in the world axes its frame box is its world AABB: nothing to gain
-            To = self._T[o]
-            # the corners of o's local box in f's frame: R_f^T (R_o v + t_o - t_f)
-            pts = self._frame_corners[o] @ (R.T @ To[:3, :3]).T + R.T @ (To[:3, 3] - Tf[:3, 3])
-            lo, hi = self._frame_box[f]
-            sep = np.maximum(np.maximum(lo - pts.max(0), pts.min(0) - hi), 0.0)
-            best = max(best, math.sqrt(float(sep @ sep)))
+            (o00, o01, o02, otx), (o10, o11, o12, oty), (o20, o21, o22, otz) = O[0], O[1], O[2]
+            dx, dy, dz = otx - ftx, oty - fty, otz - ftz
+            # M = R_f^T R_o, p = R_f^T (t_o - t_f): o's frame in f's
+            m00, m01, m02 = f00 * o00 + f10 * o10 + f20 * o20, f00 * o01 + f10 * o11 + f20 * o21, f00 * o02 + f10 * o12 + f20 * o22
+            m10, m11, m12 = f01 * o00 + f11 * o10 + f21 * o20, f01 * o01 + f11 * o11 + f21 * o21, f01 * o02 + f11 * o12 + f21 * o22
+            m20, m21, m22 = f02 * o00 + f12 * o10 + f22 * o20, f02 * o01 + f12 * o11 + f22 * o21, f02 * o02 + f12 * o12 + f22 * o22
+            lo, hi = self._box_lists[f][0], self._box_lists[f][1]
+            (cx, cy, cz), (ex, ey, ez) = self._box_lists[o][2], self._box_lists[o][3]
+            g = 0.0
+            for (r0, r1, r2), t, l, h in (((m00, m01, m02), f00 * dx + f10 * dy + f20 * dz, lo[0], hi[0]),
+                                          ((m10, m11, m12), f01 * dx + f11 * dy + f21 * dz, lo[1], hi[1]),
+                                          ((m20, m21, m22), f02 * dx + f12 * dy + f22 * dz, lo[2], hi[2])):
+                c = r0 * cx + r1 * cy + r2 * cz + t
+                e = abs(r0) * ex + abs(r1) * ey + abs(r2) * ez
+                sep = max(l - (c + e), (c - e) - h, 0.0)
+                g += sep * sep
+            best = max(best, math.sqrt(g))
         return best
+
+    def _rows(self, i: int) -> list:
+        """The transform of body ``i`` as nested lists (a static body's converted once)."""
+        rows = self._T_rows.get(i)
+        if rows is None:
+            rows = self._static_rows.get(i)
+            if rows is None:
+                rows = self._static_rows[i] = self._T[i].tolist()
+        return rows
 
     def _fresh_bounds(self, bodies: List[int]) -> None:
         """``ensure_bounds`` for a few bodies (scalar stale checks)."""
