@@ -66,6 +66,9 @@ class SceneGrid:
         """
         if not self.enabled:
             return np.flatnonzero(~np.take(old_online, vg))
+        if len(vg) <= SCALAR_VIEW_PAIRS:
+            return self._not_in_view_scalar(old_cells.tolist(), old_online.tolist(), cells.tolist(), vg.tolist(),
+                                            vo.tolist())
         moved = cells != old_cells
         changed_v = moved[:len(old_online)] | ~old_online
         cand = np.flatnonzero(np.take(moved, vo) | np.take(changed_v, vg))
@@ -98,6 +101,24 @@ class SceneGrid:
         return np.repeat(owner, lens), order[concat_ranges(starts[cells], lens)]
 
 
+    def _not_in_view_scalar(self, old_cells: list, old_online: list, cells: list, vg: list, vo: list) -> np.ndarray:
+        """:meth:`not_in_view` of a few pairs in Python (the same test: a pair whose object and
+        viewer kept their cells and whose viewer was online is still in view; else it was in
+        view iff its viewer was online and the cells were adjacent)."""
+        C = self.C
+        out = []
+        for p, (g, o) in enumerate(zip(vg, vo)):
+            og, oo = old_cells[g], old_cells[o]
+            if oo == cells[o] and og == cells[g] and old_online[g]:
+                continue
+            if old_online[g]:
+                ia, ja = divmod(oo, C)
+                ib, jb = divmod(og, C)
+                if -1 <= ia - ib <= 1 and -1 <= ja - jb <= 1:
+                    continue
+            out.append(p)
+        return np.array(out, np.int64)
+
     def _view_pairs_scalar(self, viewer_cells: list, object_cells: list) -> Tuple[np.ndarray, np.ndarray]:
         """:meth:`view_pairs` of a few viewers and objects in Python: the same pairs in the same
         order (viewer by viewer, its neighbourhood's cells in ``neigh`` order, the objects of a
@@ -117,7 +138,8 @@ class SceneGrid:
         return np.array(vl, np.int64), np.array(vo, np.int64)
 
 
-#: at most this many (viewer, object) candidates: :meth:`SceneGrid.view_pairs` in Python
+#: at most this many (viewer, object) candidates or view pairs: :meth:`SceneGrid.view_pairs` and
+#: :meth:`SceneGrid.not_in_view` in Python
 SCALAR_VIEW_PAIRS = 256
 #: below this many (avatar, entity) pairs, brute force beats building k-d trees every frame
 BRUTE_FORCE_PAIRS = 4096
@@ -286,8 +308,9 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
     correctly rounded), the winner of each entity the lowest (distance, avatar). None for a
     degenerate ellipsoid (``a = 0`` or ``b = 0``: the array code's NaN/inf semantics);
     ``current`` itself when no entity changes owner."""
-    cx, cy, ux, uy, a2, b2, reach = [], [], [], [], [], [], []
-    for (axi, ayi), (vxi, vyi) in zip(avatar_pos.tolist(), avatar_vel.tolist()):
+    maha = rule == "mahalanobis"
+    av = []      # per avatar: index, centre, the culling bound, long axis, a^2, b^2, reach a
+    for i, ((axi, ayi), (vxi, vyi)) in enumerate(zip(avatar_pos.tolist(), avatar_vel.tolist())):
         speed = math.sqrt(vxi * vxi + vyi * vyi)
         D = speed * frame_s
         a = max(D * scale, min_axis)
@@ -301,42 +324,38 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
             u0, u1 = vxi / speed, vyi / speed
         else:
             u0, u1 = 1.0, 0.0
-        if rule == "mahalanobis":
-            cx.append(axi + hf * u0)
-            cy.append(ayi + hf * u1)
+        if maha:
+            cxi, cyi = axi + hf * u0, ayi + hf * u1
         else:
-            cx.append(axi)
-            cy.append(ayi)
-        ux.append(u0)
-        uy.append(u1)
-        a2.append(a * a)
-        b2.append(b * b)
-        reach.append(a)
-    # b <= a: the ellipsoid (and the reach sphere) lie in the sphere of radius a, so a pair
-    # with |r|^2 > a^2 (1 + 1e-9) has d > 1 (d > a) whatever the rounding: skipped
-    far = [x * (1.0 + 1e-9) for x in a2]
-    G = len(cx)
-    maha = rule == "mahalanobis"
+            cxi, cyi = axi, ayi
+        # b <= a: the ellipsoid (and the reach sphere) lie in the sphere of radius a, so a pair
+        # with |r|^2 > a^2 (1 + 1e-9) has d > 1 (d > a) whatever the rounding: skipped
+        a2 = a * a
+        av.append((i, cxi, cyi, a2 * (1.0 + 1e-9), u0, u1, a2, b * b, a))
     moved = []        # (entity, new owner) where the owner changes
     for j, ((x, y), cur) in enumerate(zip(entity_pos.tolist(), current.tolist())):
         best, who = None, -1
-        for i in range(G):
-            rx, ry = x - cx[i], y - cy[i]
+        for i, cxi, cyi, far, u0, u1, a2, b2, reach in av:
+            rx = x - cxi
+            rr = rx * rx
+            if rr > far:      # |r|^2 >= rx^2 > a^2 (with margin): outside the sphere of radius a
+                continue
+            ry = y - cyi
             rr = rx * rx + ry * ry
-            if rr > far[i]:   # |r| > a (with margin): outside the sphere that holds the ellipsoid
+            if rr > far:      # |r| > a (with margin): outside the sphere that holds the ellipsoid
                 continue
             if maha:
-                along = rx * ux[i] + ry * uy[i]
+                along = rx * u0 + ry * u1
                 al2 = along * along
                 perp2 = rr - al2
                 if perp2 < 0.0:
                     perp2 = 0.0
-                d = math.sqrt(al2 / a2[i] + perp2 / b2[i])
+                d = math.sqrt(al2 / a2 + perp2 / b2)
                 if not d <= 1.0:     # (NaN too, like the array test)
                     continue
             else:
                 d = math.sqrt(rr)
-                if not d <= reach[i]:
+                if not d <= reach:
                     continue
             if best is None or d < best:
                 best, who = d, i

@@ -5,7 +5,7 @@ it replaces, bit for bit.
   array code (:meth:`TransmitPlan.run`): arrivals, uplinks and the generator's state;
 * due frames in Python vs :meth:`NetworkModel._due` (lost, huge and late arrivals included);
 * numpy's pairwise summation in Python (:func:`arrays.pairwise_sum`) vs ``np.add.reduce``;
-* the grid's view pairs of a few viewers and objects in Python vs the array code;
+* the grid's view pairs and view entries of a few viewers and objects in Python vs the array code;
 * avatars sub-stepped one by one (resting, reversing, at the walls) vs the array code;
 * whole runs with every such shortcut vs the array paths (campus size, lossy links, order 2,
   client-server), with joins, graceful leaves and crashes (the online-node count included).
@@ -166,3 +166,22 @@ def test_small_view_pairs_equal_the_array_code(monkeypatch, cells):
     for (v, o), (a, b) in zip(cases, fast):
         ra, rb = grid.view_pairs(v, o)
         assert np.array_equal(a, ra) and np.array_equal(b, rb) and a.dtype == ra.dtype and b.dtype == rb.dtype
+
+
+@pytest.mark.parametrize("cells", [1, 3, 10])
+def test_small_view_entries_equal_the_array_code(monkeypatch, cells):
+    grid = cons.SceneGrid(100.0, cells, True)
+    gen = np.random.default_rng(cells)
+    cases = []
+    for _ in range(300):
+        G, O = int(gen.integers(1, 5)), int(gen.integers(0, 10))
+        old = gen.integers(0, cells * cells, G + O)
+        new = np.where(gen.random(G + O) < 0.3, gen.integers(0, cells * cells, G + O), old)   # some moved
+        k = int(gen.integers(0, 40))
+        cases.append((old, gen.random(G) < 0.7, new, gen.integers(0, G, k), gen.integers(0, G + O, k)))
+    fast = [grid.not_in_view(*c) for c in cases]
+    monkeypatch.setattr(cons, "SCALAR_VIEW_PAIRS", -1)
+    assert sum(len(f) for f in fast) > 100
+    for c, f in zip(cases, fast):
+        ref = grid.not_in_view(*c)
+        assert np.array_equal(f, ref) and f.dtype == ref.dtype
