@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional
 
 from .errors import ImmersimError, LogWriteError
-from .fmu import RealSetter, forget_python_code
+from .fmu import forget_python_code
 from .master import Master, Slot
 from .observers import McapObserver, write_parameters
 from .scenario import Scenario, load_scenario
@@ -94,7 +94,11 @@ class RunResult:
     delayed_connections: List[str] = field(default_factory=list)
     values: Dict[str, Dict[str, Any]] = field(default_factory=dict)
     #: wall seconds: "loop" (the whole step loop), "logging" (observers), "unit:<name>" per unit
+    #: (for a unit in a worker process: the worker's time in its calls), "wait" (the master's
+    #: time waiting for worker processes; only with some)
     timing: Dict[str, float] = field(default_factory=dict)
+    #: units that ran in worker processes (``process`` >= 1)
+    remote_units: List[str] = field(default_factory=list)
 
     def timing_summary(self) -> str:
         """One line: wall time of the loop, real-time factor, share of each unit and of logging."""
@@ -102,10 +106,14 @@ class RunResult:
         if loop <= 0 or self.steps_done == 0:
             return ""
         sim = (self.t_ns - self.start_ns) / 1e9
-        parts = [f"{k[5:]} {v:.3g} s" for k, v in self.timing.items() if k.startswith("unit:")]
-        master = loop - sum(v for k, v in self.timing.items() if k.startswith("unit:")) - self.timing.get("logging", 0.0)
+        units = {k[5:]: v for k, v in self.timing.items() if k.startswith("unit:")}
+        parts = [f"{k} {v:.3g} s" + (" (worker)" if k in self.remote_units else "") for k, v in units.items()]
+        wait = self.timing.get("wait", 0.0)
+        master = (loop - sum(v for k, v in units.items() if k not in self.remote_units)
+                  - self.timing.get("logging", 0.0) - wait)
         return (f"loop {loop:.3g} s for {sim:.6g} s simulated ({sim / loop:.1f}x real time); "
-                f"units: {', '.join(parts)}; logging {self.timing.get('logging', 0.0):.3g} s; master {master:.3g} s")
+                f"units: {', '.join(parts)}; logging {self.timing.get('logging', 0.0):.3g} s; master {master:.3g} s"
+                + (f"; waiting for workers {wait:.3g} s" if "wait" in self.timing else ""))
 
 
 class Execution:
@@ -151,7 +159,7 @@ class Execution:
                         and inst.var(f.var).causality == "input"]
             slot.real_inputs = list(dict.fromkeys(real_in))
             if slot.real_inputs:
-                slot.setter = RealSetter(inst, slot.real_inputs)
+                slot.setter = inst.real_setter(slot.real_inputs)
                 slot.in_vals = [float(inst.var(n).start or 0.0) for n in slot.real_inputs]
             slots[name] = slot
         self._initialize(slots, conns)
@@ -263,8 +271,12 @@ class Execution:
                         raise KeyboardInterrupt
                     t_ns, t_next = t0 + k * h, min(t0 + (k + 1) * h, stop)
                     master.step(t_ns, t_next - t_ns)
-                    self._observe(master, k + 1, t_next)
-                    result.steps_done, result.t_ns = k + 1, t_next
+                    try:   # units in worker processes start the next step while this one is logged
+                        if master.pipelined and k + 1 < n:
+                            master.post_remote(t_next, min(t0 + (k + 2) * h, stop) - t_next)
+                    finally:
+                        self._observe(master, k + 1, t_next)
+                        result.steps_done, result.t_ns = k + 1, t_next
                     if bar is not None:
                         bar.update(1)
                 master.finish()
@@ -285,7 +297,13 @@ class Execution:
                     result.timing["loop"] = time.perf_counter() - loop_start
                     result.timing["logging"] = self._observe_ns / 1e9
                     for name, s in master.slots.items():
-                        result.timing[f"unit:{name}"] = s.busy_ns / 1e9
+                        # a unit in a worker process: the worker's time in its calls (it steps in
+                        # parallel); the master's time waiting for workers is "wait"
+                        result.timing[f"unit:{name}"] = (s.inst.busy_ns if s.inst.remote else s.busy_ns) / 1e9
+                    if master.remote:   # Gauss-Seidel: a worker unit's round trips are in its busy_ns
+                        result.timing["wait"] = (master.wait_ns + sum(
+                            max(0, s.busy_ns - s.inst.busy_ns) for s in master.slots.values() if s.inst.remote)) / 1e9
+                        result.remote_units = [n for n, s in master.slots.items() if s.inst.remote]
             self._finish(result)
         return result
 

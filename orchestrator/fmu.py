@@ -229,6 +229,9 @@ class FmuInstance:
         several instances per process.
     """
 
+    #: loaded in this process (a unit in a worker process is a ``remote.RemoteInstance``)
+    remote = False
+
     def __init__(self, name: str, path: Path | str, unzip_dir: Optional[Path] = None) -> None:
         self.name = name
         self.path = Path(path)

@@ -1,4 +1,5 @@
-"""Master algorithms: Jacobi and Gauss-Seidel, with zero-order-hold or linear input extrapolation.
+"""Master algorithms: Jacobi and Gauss-Seidel, with zero-order-hold or linear input extrapolation;
+units in worker processes (``process = N``, :mod:`.remote`) step in parallel under Jacobi.
 
 Each unit occupies a :class:`Slot` holding the values it last reported (``cur``) and the
 ones before (``prev``). Before a unit steps over ``[t, t+h]`` its inputs are gathered:
@@ -87,6 +88,11 @@ class Master:
     def __init__(self, scenario: Scenario, slots: Dict[str, Slot], connections: List[Connection]) -> None:
         self.algorithm = scenario.algorithm
         self.slots = slots
+        #: some unit runs in a worker process (orchestrator/remote.py); ``wait_ns``: the time
+        #: the Jacobi step spent waiting for their replies after stepping its own units
+        self.remote = any(s.inst.remote for s in slots.values())
+        self.wait_ns = 0
+        self._posted: Optional[tuple] = None   # (step start, slots posted) of post_remote
         if self.algorithm == "gauss-seidel":
             self.order, self.delayed = gauss_seidel_order(list(slots), connections)
             for c in self.delayed:
@@ -183,6 +189,8 @@ class Master:
         """Advance every slot from ``t_ns`` by ``h_ns``."""
         slots = self.slots
         if self.algorithm == "jacobi":
+            if self.remote:
+                return self._parallel_step(t_ns, h_ns)
             gathered = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
                         for slot in map(slots.__getitem__, self.order)]
             t0 = perf_counter_ns()
@@ -205,11 +213,51 @@ class Master:
             slot.busy_ns += t1 - t0
             t0 = t1
 
+    @property
+    def pipelined(self) -> bool:
+        """Jacobi with units in worker processes: the execution posts their next step
+        (:meth:`post_remote`) before it logs the last one, so they step while it logs."""
+        return self.remote and self.algorithm == "jacobi"
+
+    def post_remote(self, t_ns: int, h_ns: int) -> None:
+        """Jacobi: gather the inputs of the units in worker processes for the step from ``t_ns``
+        (the outputs at ``t_ns``: every unit has stepped there) and post their steps, one
+        message each, without waiting; :meth:`step` at ``t_ns`` takes their replies."""
+        posted = []
+        for slot in map(self.slots.__getitem__, self.order):
+            if slot.inst.remote and self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
+                slot.inst.post()
+                posted.append(slot)
+        self._posted = (t_ns, posted)
+
+    def _parallel_step(self, t_ns: int, h_ns: int) -> None:
+        """A Jacobi step with units in worker processes: their steps are posted (now, unless
+        :meth:`post_remote` did it), the units of this process step, then the workers' replies
+        (their outputs) are taken. Every input is gathered from the outputs at ``t_ns``."""
+        if self._posted is None or self._posted[0] != t_ns:
+            self.post_remote(t_ns, h_ns)
+        posted = self._posted[1]
+        self._posted = None
+        local = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
+                 for slot in map(self.slots.__getitem__, self.order) if not slot.inst.remote]
+        t0 = perf_counter_ns()
+        for slot, inputs in local:
+            if self._advance(slot, t_ns, h_ns, inputs):
+                slot.read()
+            t1 = perf_counter_ns()
+            slot.busy_ns += t1 - t0
+            t0 = t1
+        for slot in posted:
+            slot.read()
+        self.wait_ns += perf_counter_ns() - t0
+
     def finish(self) -> None:
         """Bring lazily stepped units to the final time (counted as the unit's time)."""
         for slot in self.slots.values():
             t0 = perf_counter_ns()
             self.catch_up(slot)
+            if slot.inst.remote:
+                slot.inst.sync()
             slot.busy_ns += perf_counter_ns() - t0
 
     def initial(self, t_ns: int) -> None:

@@ -64,6 +64,9 @@ class UnitSpec:
     fmu: str
     parameters: Dict[str, Any] = field(default_factory=dict)
     path: Optional[Path] = None  # resolved FMU file, set when loaded
+    #: 0: the unit runs in the master's process; N >= 1: in worker process N (units with the
+    #: same N share one), stepped in parallel with the others under Jacobi (orchestrator/remote.py)
+    process: int = 0
 
 
 @dataclass(frozen=True)
@@ -156,6 +159,16 @@ class Scenario:
         raise KeyError(name)
 
 
+def _process(value: Any, where: str) -> int:
+    """A unit's ``process`` key: 0 (the master's process) or a worker number >= 1."""
+    if isinstance(value, str) and value.strip().isdigit():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ScenarioError(f"{where}: 'process' must be an integer >= 0 (0: the master's process, "
+                            f"N: worker process N), got {value!r}")
+    return value
+
+
 def seconds_to_ns(value: Any, where: str) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ScenarioError(f"{where} must be a number of seconds, got {value!r}")
@@ -185,8 +198,9 @@ def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) 
         Applied on top of the file (used by sweeps and ``immersim run --set``):
         ``"unit.param": value`` sets a parameter, ``"simulation.stop": value`` (or step,
         algorithm, extrapolation, start, tolerance) a simulation setting, and
-        ``"unit:fmu": path`` swaps the unit's FMU for another one, ``"log.encoding": "json"``
-        (or include, exclude, parameters) changes the ``[log]`` table.
+        ``"unit:fmu": path`` swaps the unit's FMU for another one, ``"unit:process": N`` runs the
+        unit in worker process N (0: the master's process), ``"log.encoding": "json"`` (or
+        include, exclude, parameters) changes the ``[log]`` table.
     """
     path = Path(path)
     if not path.exists():
@@ -243,7 +257,7 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
         if not isinstance(u, dict):
             raise ScenarioError(f"{where} must be a table")
         for key in u:
-            if key not in ("name", "fmu", "parameters"):
+            if key not in ("name", "fmu", "parameters", "process"):
                 raise ScenarioError(f"{where}: unknown key {key!r}")
         name, fmu = u.get("name"), u.get("fmu")
         if not isinstance(name, str) or not _NAME.match(name):
@@ -255,7 +269,7 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
         params = u.get("parameters", {})
         if not isinstance(params, dict):
             raise ScenarioError(f"{where} ({name}): 'parameters' must be a table")
-        units.append(UnitSpec(name, fmu, dict(params)))
+        units.append(UnitSpec(name, fmu, dict(params), process=_process(u.get("process", 0), f"{where} ({name})")))
     names = {u.name for u in units}
     for k, v in (overrides or {}).items():
         if k.startswith(("simulation.", "log.")):
@@ -265,6 +279,12 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
             if unit not in names:
                 raise ScenarioError(f"override {k!r}: no unit {unit!r} in {f}")
             next(u for u in units if u.name == unit).fmu = str(v)
+            continue
+        if k.endswith(":process"):  # move a unit into worker process N (0: the master's)
+            unit = k[:-8]
+            if unit not in names:
+                raise ScenarioError(f"override {k!r}: no unit {unit!r} in {f}")
+            next(u for u in units if u.name == unit).process = _process(v, f"override {k!r}")
             continue
         unit, var = split_ref(k, f"override {k!r}")
         if unit not in names:

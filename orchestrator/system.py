@@ -10,7 +10,7 @@ import hashlib
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Set
+from typing import Any, Dict, List, Optional, Set
 
 from .errors import FmuLoadError, ScenarioError
 from .fmu import FmuInstance, VarInfo, read_model
@@ -70,18 +70,43 @@ class System:
     logged: Dict[str, List[str]]
     instances: Dict[str, FmuInstance] = field(default_factory=dict)
     hashes: Dict[str, str] = field(default_factory=dict)
+    workers: Dict[int, Any] = field(default_factory=dict)   # process number -> remote.WorkerProcess
 
     def connections(self) -> List[Connection]:
         return [c for c in self.scenario.connections if c.dst_unit in self.needed]
 
     def instantiate(self, unzip_root: Optional[Path] = None) -> None:
+        """Load every needed unit: a unit with ``process = N >= 1`` in worker process N
+        (:mod:`~immersim.orchestrator.remote`), the others here. Workers load while this
+        process loads its own units."""
+        from .remote import RemoteInstance, WorkerProcess
+
+        where = {name: self.scenario.unit(name).process for name in self.needed}
         for name in self.needed:
-            self.instances[name] = FmuInstance(name, self.paths[name],
-                                               unzip_root / name if unzip_root else None)
+            n = where[name]
+            if n and n not in self.workers:
+                self.workers[n] = WorkerProcess(n)
+            folder = unzip_root / name if unzip_root else None
+            if n:
+                inst = RemoteInstance(name, self.paths[name], folder, self.workers[n])
+                self.instances[name] = inst
+                inst.start_loading()
+        for name in self.needed:
+            if not where[name]:
+                self.instances[name] = FmuInstance(name, self.paths[name], unzip_root / name if unzip_root else None)
+        for name in self.needed:
+            if where[name]:
+                self.instances[name].finish_loading()
+        self.instances = {name: self.instances[name] for name in self.needed}
 
     def terminate(self) -> None:
-        for inst in self.instances.values():
-            inst.terminate()
+        """Terminate and free every instance, then end the worker processes."""
+        try:
+            for inst in self.instances.values():
+                inst.terminate()
+        finally:
+            for w in self.workers.values():
+                w.close()
 
 
 def check_system(scenario: Scenario) -> System:

@@ -1,0 +1,383 @@
+"""Units in worker processes: parallel stepping of FMUs that run Python in the interpreter.
+
+pythonfmu FMUs run their Python code in the interpreter of the process that loads them, under
+its one GIL, so threads cannot step two of them at once. A unit given ``process = N``
+(``[[units]]`` key, or the override ``"unit:process": N``) is loaded instead by worker process
+N: a fresh interpreter running this module (``python -m immersim.orchestrator.remote FD``, one
+end of a socket pair as a ``multiprocessing`` connection; nothing is inherited from the FMUs of
+this process, and the caller's ``__main__`` is not imported again as *spawn* would). Units with
+the same N share a worker; 0 is the master's process.
+
+The master talks to a worker unit through a :class:`RemoteInstance`, which has the interface
+of :class:`~immersim.orchestrator.fmu.FmuInstance` the master and the execution use. Calls
+that return nothing (set inputs, ``doStep``) are queued and sent with the next read of the
+outputs as **one message** (:meth:`RemoteInstance.post`); the reply carries the outputs. Under
+Jacobi the master posts the steps of every worker unit first (the next step's already before it
+logs the last one, ``Master.post_remote``), steps its own units, and only then waits for the
+replies: the processes step in parallel. Under Gauss-Seidel each unit's step waits for its
+reply (one round trip per unit, no parallelism).
+
+Inside the worker every call goes through a real ``FmuInstance``, so status checks, time
+checks and error messages are the same; an exception raised there is rebuilt here with its type
+and message (:func:`_portable`, :func:`_rebuild`). A worker that dies gives an
+:class:`~immersim.orchestrator.errors.FmuCallError` naming the unit, the call, the time and the
+exit code. Workers ignore SIGINT (the master acts on it between steps, see
+:class:`~immersim.orchestrator.execution.DeferredSigint`) and end when their pipe closes.
+
+While it waits for the next command a worker polls its pipe for ``spin_s`` seconds before it
+blocks: a blocked process takes ~25 us to wake on this kind of machine (measured: 45-50 us
+for a round trip through a pipe or a semaphore), on the critical path of every step
+(``RemoteConfig``).
+"""
+from __future__ import annotations
+
+import builtins
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence
+
+from . import errors as _errors
+from .errors import FmuCallError, FmuLoadError
+from .fmu import FmuInstance, VarInfo, read_model
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RemoteConfig:
+    """How a worker waits for commands.
+
+    Attributes
+    ----------
+    spin_s : float
+        Seconds a worker polls its pipe after a reply before it blocks in ``recv`` (0: block
+        at once). Polling keeps its core busy while it waits, at most this long per step.
+    """
+
+    spin_s: float = 0.002
+
+
+# -- errors across the pipe -------------------------------------------------------------------
+def _portable(exc: BaseException) -> tuple:
+    """An exception as (module, class name, message, attributes): plain data for the pipe."""
+    attrs = {k: v for k, v in vars(exc).items() if isinstance(v, (str, int, float, bool, type(None)))}
+    return type(exc).__module__, type(exc).__name__, str(exc), attrs
+
+
+def _rebuild(data: tuple) -> BaseException:
+    """The exception of :func:`_portable`: our own error types and builtins keep their type and
+    message; anything else becomes a RuntimeError naming its type."""
+    module, name, message, attrs = data
+    cls = getattr(_errors, name, None) if module == _errors.__name__ else None
+    if cls is None and module == "builtins":
+        cls = getattr(builtins, name, None)
+    if not (isinstance(cls, type) and issubclass(cls, BaseException)):
+        return RuntimeError(f"{name}: {message}")
+    exc = cls.__new__(cls)
+    BaseException.__init__(exc, message)
+    if cls is KeyError:   # str(KeyError) quotes its argument: keep the text as it was
+        BaseException.__init__(exc, message.strip("'\""))
+    exc.__dict__.update(attrs)
+    return exc
+
+
+# -- the worker side ----------------------------------------------------------------------------
+def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in the worker process
+    """Worker main loop: load units, run their queued calls, reply with outputs."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    logging.basicConfig(level=logging.WARNING, format="worker %(process)d: %(levelname)s %(name)s: %(message)s")
+    units: Dict[str, FmuInstance] = {}
+    readers: Dict[str, Any] = {}
+    setters: Dict[tuple, Any] = {}
+    clock = time.perf_counter_ns
+    poll, spin = conn.poll, config.spin_s
+    while True:
+        if spin > 0 and not poll():
+            end = time.perf_counter() + spin
+            while not poll() and time.perf_counter() < end:
+                pass
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            break
+        op, name = msg[0], msg[1]
+        try:
+            if op == "run":          # ("run", unit, queued calls, read?)
+                t0 = clock()
+                inst = units[name]
+                for call in msg[2]:
+                    kind = call[0]
+                    if kind == "reals" or kind == "discrete":
+                        setters[name, kind].set(call[1])
+                    elif kind == "step":
+                        inst.do_step(call[1], call[2])
+                    else:            # ("set", {name: value})
+                        inst.set_values(call[1])
+                values = readers[name].read() if msg[3] else None
+                reply = ("ok", (values, clock() - t0))
+            elif op == "load":       # ("load", unit, path, unzip dir)
+                units[name] = FmuInstance(name, msg[2], msg[3])
+                reply = ("ok", os.getpid())
+            elif op == "reader":     # ("reader", unit, names, check_finite)
+                readers[name] = units[name].reader(msg[2], msg[3])
+                reply = ("ok", readers[name].names)
+            elif op == "setter":     # ("setter", unit, names, "reals" | "discrete")
+                inst = units[name]
+                setters[name, msg[3]] = (inst.real_setter if msg[3] == "reals" else inst.discrete_setter)(msg[2])
+                reply = ("ok", None)
+            elif op == "call":       # ("call", unit, method, args)
+                reply = ("ok", getattr(units[name], msg[2])(*msg[3]))
+            elif op == "close":
+                for inst in units.values():
+                    inst.terminate()
+                units.clear()
+                reply = ("ok", None)
+            else:
+                raise ValueError(f"worker: unknown command {op!r}")
+        except BaseException as exc:   # every failure goes back to the master, typed
+            reply = ("err", _portable(exc))
+        try:
+            conn.send(reply)
+        except (EOFError, OSError):
+            break
+        if op == "close":
+            break
+    conn.close()
+    logging.shutdown()
+    os._exit(0)   # not the interpreter's teardown: pythonfmu's unloading can abort in it
+
+
+class WorkerProcess:
+    """One worker process and its pipe (see the module docstring).
+
+    Parameters
+    ----------
+    number : int
+        The ``process`` number of its units (>= 1), for messages.
+    config : RemoteConfig
+    """
+
+    def __init__(self, number: int, config: RemoteConfig = RemoteConfig()) -> None:
+        import socket
+        import subprocess
+        import sys
+        from multiprocessing.connection import Connection
+
+        self.number = number
+        ours, theirs = socket.socketpair()
+        self.conn = Connection(ours.detach())
+        fd = theirs.fileno()
+        # a fresh interpreter running this module (not multiprocessing's spawn, which imports
+        # the caller's __main__ again: a script without a main guard would run twice)
+        self.proc = subprocess.Popen([sys.executable, "-m", __name__, str(fd), repr(config.spin_s)],
+                                     pass_fds=(fd,), close_fds=True)
+        theirs.close()
+        self.closed = False
+
+    def send(self, msg: tuple) -> None:
+        try:
+            self.conn.send(msg)
+        except (OSError, EOFError, ValueError):
+            raise self._died(msg[1], msg[0], None) from None
+
+    def receive(self, unit: str, function: str, t_ns: Optional[int]) -> Any:
+        """The reply to the oldest message sent; raises the worker's exception, or
+        FmuCallError when the worker is gone."""
+        try:
+            kind, payload = self.conn.recv()
+        except (EOFError, OSError, ValueError):
+            raise self._died(unit, function, t_ns) from None
+        if kind == "err":
+            raise _rebuild(payload)
+        return payload
+
+    def call(self, unit: str, op: str, *args: Any, function: str = "", t_ns: Optional[int] = None) -> Any:
+        self.send((op, unit) + args)
+        return self.receive(unit, function or op, t_ns)
+
+    def _died(self, unit: str, function: str, t_ns: Optional[int]) -> FmuCallError:
+        try:
+            code = self.proc.wait(timeout=1.0)
+        except Exception:
+            code = None
+        return FmuCallError(unit, function, t_ns or 0, 4,
+                            f"worker process {self.number} (pid {self.proc.pid}) ended"
+                            + (f" with exit code {code}" if code is not None else ""))
+
+    def close(self) -> None:
+        """Terminate its units and end the process (errors are logged, not raised)."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            if self.proc.poll() is None:
+                self.call("", "close")
+        except Exception as exc:
+            log.debug("worker %d: close failed: %s", self.number, exc)
+        self.conn.close()
+        try:
+            self.proc.wait(timeout=5.0)
+        except Exception:
+            self.proc.kill()
+            self.proc.wait(timeout=5.0)
+
+
+class RemoteReader:
+    """The outputs of a :class:`RemoteInstance`: :meth:`read` posts its queued calls (if not
+    posted yet) and returns the values of the reply. The worker's reader checks them."""
+
+    check_finite = True
+
+    def __init__(self, inst: "RemoteInstance", names: Sequence[str], check_finite: bool) -> None:
+        self.inst = inst
+        self.names = inst.worker.call(inst.name, "reader", list(names), True, function="reader")
+
+    def read(self) -> List[Any]:
+        return self.inst.collect()
+
+
+class RemoteSetter:
+    """Inputs of a :class:`RemoteInstance` (``kind`` "reals": a ``RealSetter`` in the worker,
+    "discrete": a ``DiscreteSetter``), queued until the next post."""
+
+    def __init__(self, inst: "RemoteInstance", names: List[str], kind: str = "reals") -> None:
+        self.inst = inst
+        self.names = names
+        self.kind = kind
+        inst.worker.call(inst.name, "setter", list(names), kind, function="setter")
+
+    def set(self, values: Sequence[Any]) -> None:
+        self.inst.queue.append((self.kind, tuple(values)))
+
+
+class RemoteInstance:
+    """A unit loaded by a :class:`WorkerProcess`, with the interface of ``FmuInstance``.
+
+    Attributes
+    ----------
+    busy_ns : int
+        Time the worker spent in this unit's calls (its own clock: set inputs, step, read).
+    """
+
+    remote = True
+
+    def __init__(self, name: str, path: Path | str, unzip_dir: Optional[Path], worker: WorkerProcess) -> None:
+        self.name = name
+        self.path = Path(path)
+        self.worker = worker
+        self.t_ns = 0
+        self.fatal = False
+        self.busy_ns = 0
+        self.queue: List[tuple] = []
+        self._posted = False
+        if not self.path.exists():
+            raise FmuLoadError(f"unit {name}: FMU file {self.path} does not exist")
+        md, self.variables = read_model(self.path, name)
+        self.model_description = md
+        self.fmi_version = md.fmiVersion
+        self._unzip = str(unzip_dir) if unzip_dir else None
+        self._loading = False
+
+    # -- loading (split so that workers load while the master loads its own units) --------------
+    def start_loading(self) -> None:
+        self.worker.send(("load", self.name, str(self.path), self._unzip))
+        self._loading = True
+
+    def finish_loading(self) -> None:
+        if self._loading:
+            self._loading = False
+            self.worker.receive(self.name, "load", None)
+
+    # -- queued calls and their one message ------------------------------------------------------
+    def post(self, read: bool = True) -> None:
+        """Send the queued calls (and a read of the outputs) without waiting for the reply."""
+        self._drain()
+        self.worker.send(("run", self.name, self.queue, read))
+        self.queue = []
+        self._posted = True
+
+    def collect(self) -> Optional[List[Any]]:
+        """The reply of the last post (posting first if nothing is posted): the outputs."""
+        if not self._posted:
+            self.post()
+        self._posted = False
+        values, busy = self.worker.receive(self.name, "fmi2DoStep/read", self.t_ns)
+        self.busy_ns += busy
+        return values
+
+    def sync(self) -> None:
+        """Run the queued calls now (no read)."""
+        if self.queue:
+            self.post(read=False)
+            self.collect()
+
+    def _drain(self) -> None:
+        """Take the reply of a post nobody collected (a run that failed elsewhere)."""
+        if self._posted:
+            self._posted = False
+            try:
+                self.worker.receive(self.name, "fmi2DoStep/read", self.t_ns)
+            except Exception as exc:
+                log.debug("unit %s: a dropped reply failed: %s", self.name, exc)
+
+    def _call(self, method: str, *args: Any) -> Any:
+        self.finish_loading()
+        self._drain()
+        self.sync()
+        return self.worker.call(self.name, "call", method, args, function=method, t_ns=self.t_ns)
+
+    # -- FmuInstance's interface -------------------------------------------------------------------
+    def var(self, name: str) -> VarInfo:
+        return FmuInstance.var(self, name)
+
+    def initialize(self, start_ns: int, stop_ns: Optional[int], parameters: Dict[str, Any],
+                   tolerance: Optional[float] = None) -> None:
+        self.t_ns = start_ns
+        self._call("initialize", start_ns, stop_ns, dict(parameters), tolerance)
+
+    def do_step(self, t_ns: int, h_ns: int) -> None:
+        """Queue a step (checked as ``FmuInstance.do_step`` checks it, here and in the worker)."""
+        if h_ns <= 0:
+            raise FmuCallError(self.name, "doStep", t_ns, 3, f"step size {h_ns} ns must be > 0")
+        if t_ns != self.t_ns:
+            raise FmuCallError(self.name, "doStep", t_ns, 3,
+                               f"master time {t_ns} ns differs from the instance time {self.t_ns} ns")
+        self.queue.append(("step", t_ns, h_ns))
+        self.t_ns = t_ns + h_ns
+
+    def set_values(self, values: Dict[str, Any]) -> None:
+        self.queue.append(("set", dict(values)))
+
+    def get_values(self, names: Sequence[str]) -> List[Any]:
+        return self._call("get_values", list(names))
+
+    def reader(self, names: Sequence[str], check_finite: bool = False) -> RemoteReader:
+        self.finish_loading()
+        return RemoteReader(self, names, check_finite)
+
+    def real_setter(self, names: Sequence[str]) -> RemoteSetter:
+        self.finish_loading()
+        return RemoteSetter(self, list(names))
+
+    def discrete_setter(self, names: Sequence[str]) -> RemoteSetter:
+        self.finish_loading()
+        return RemoteSetter(self, list(names), "discrete")
+
+    def terminate(self) -> None:
+        """Terminate and free the unit in its worker (errors are logged, not raised)."""
+        try:
+            self._call("terminate")
+        except Exception as exc:
+            log.debug("unit %s: terminate failed: %s", self.name, exc)
+
+
+if __name__ == "__main__":  # pragma: no cover - a worker process (WorkerProcess starts it)
+    import sys
+    from multiprocessing.connection import Connection
+
+    _serve(Connection(int(sys.argv[1])), RemoteConfig(spin_s=float(sys.argv[2])))

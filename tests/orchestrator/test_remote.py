@@ -1,0 +1,105 @@
+"""Units in worker processes (``process = N``): the same log as in this process, under Jacobi
+(stepped in parallel) and Gauss-Seidel, lazy stepping included; errors keep their type and
+message; a worker that dies stops the run with a message and the log keeps every step."""
+import os
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from immersim.orchestrator.errors import FmuCallError, ScenarioError
+from immersim.orchestrator.execution import Execution, RunFailed, run_scenario
+from immersim.orchestrator.mcapio import read_info, read_series
+from immersim.orchestrator.scenario import load_scenario
+
+from .helpers import oscillator_scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+SCEN = ROOT / "scenarios"
+
+
+def _same_logs(a: Path, b: Path) -> int:
+    sa, sb = read_series(a, ["*"]), read_series(b, ["*"])
+    assert sa.keys() == sb.keys()
+    differ = [k for k in sa if not (np.array_equal(sa[k][0], sb[k][0]) and np.array_equal(sa[k][1], sb[k][1]))]
+    assert not differ, differ
+    return len(sa)
+
+
+@pytest.mark.parametrize("algorithm", ["jacobi", "gauss-seidel"])
+def test_worker_units_give_the_same_log(tmp_path, test_fmus, algorithm):
+    """Oscillator m2 in worker process 1: every logged signal equals the one-process run, bit
+    for bit (the worker runs the same FmuInstance calls in the same order per unit)."""
+    logs = {}
+    for where, extra in (("here", ""), ("worker", "")):
+        scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=2.0, algorithm=algorithm,
+                                  extrapolation="linear", name=f"{where}.toml")
+        logs[where] = tmp_path / f"{where}.mcap"
+        res = run_scenario(scn, logs[where], overrides={"m2:process": 1} if where == "worker" else None)
+        assert res.remote_units == (["m2"] if where == "worker" else [])
+    assert _same_logs(logs["here"], logs["worker"]) >= 4
+    res_info = read_info(logs["worker"])
+    assert res_info.channels["m2"].count == 62
+
+
+def test_campus_units_in_workers_step_in_parallel_to_the_same_log(tmp_path):
+    """campus_drive (1.5 s, Jacobi) with the collision and platform units in one worker and the
+    network here: the log (the 3D view included) equals the one-process Jacobi run; the timing
+    reports the workers' units and the wait."""
+    ov = {"simulation.stop": 1.5, "simulation.algorithm": "jacobi"}
+    here, there = tmp_path / "here.mcap", tmp_path / "there.mcap"
+    run_scenario(SCEN / "campus_drive.toml", here, overrides=ov)
+    res = run_scenario(SCEN / "campus_drive.toml", there, overrides={**ov, "coll:process": 1, "plat:process": 1})
+    assert _same_logs(here, there) > 300
+    assert res.remote_units == ["coll", "plat"] and "wait" in res.timing
+    assert res.timing["unit:coll"] > 0 and "(worker)" in res.timing_summary()
+
+
+def test_lazy_worker_units_match_eager(tmp_path):
+    """A unit in a worker may be stepped lazily: the same log as eager stepping."""
+    ov = {"simulation.stop": 3.0, "simulation.algorithm": "jacobi", "coll:process": 1, "plat:process": 2}
+    lazy_log, eager_log = tmp_path / "lazy.mcap", tmp_path / "eager.mcap"
+    ex = Execution(SCEN / "campus_idle.toml", lazy_log, overrides={**ov, "simulation.lazy": True})
+    ex.run()
+    assert ex.master.slots["coll"].skipped_steps > 50 and ex.master.slots["plat"].skipped_steps > 50
+    run_scenario(SCEN / "campus_idle.toml", eager_log, overrides={**ov, "simulation.lazy": False})
+    _same_logs(lazy_log, eager_log)
+
+
+def test_error_in_a_worker_unit_keeps_type_message_and_log(tmp_path, test_fmus):
+    """The NaN fault of test_runs.test_error_mid_run..., m2 in a worker: the same message."""
+    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=1.0, algorithm="gauss-seidel",
+                              extra='[[faults]]\ntarget = "m2.x_other"\nat = 0.33\nvalue = nan\n')
+    out = tmp_path / "fail.mcap"
+    with pytest.raises(RunFailed, match=r"failed at t = 0.33 s after 10 of 31 steps: unit m2: fmi2DoStep returned "
+                                        r"discard at t = 0.33 s: FmuInputError: m2: input x_other = nan at t = 0.33 s") as e:
+        run_scenario(scn, out, overrides={"m2:process": 1})
+    assert isinstance(e.value.__cause__, FmuCallError) and e.value.__cause__.unit == "m2"
+    info = read_info(out)
+    assert info.channels["m2"].count == 11 and info.metadata["run"]["status"] == "failed"
+
+
+def test_a_worker_that_dies_stops_the_run_and_the_log_keeps_every_step(tmp_path, test_fmus):
+    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=3.0, algorithm="jacobi")
+    out = tmp_path / "killed.mcap"
+    ex = Execution(load_scenario(scn, {"m2:process": 1}), out)
+
+    def kill_at_step_5(k, t_ns):
+        if k == 5:
+            os.kill(ex.system.workers[1].proc.pid, signal.SIGKILL)
+
+    ex.observers.append(kill_at_step_5)
+    with pytest.raises(RunFailed, match=r"after 5 of 91 steps: unit m2: fmi2DoStep/read returned fatal at "
+                                        r"t = 0.198 s: worker process 1 \(pid \d+\) ended with exit code -9"):
+        ex.run()
+    info = read_info(out)
+    assert info.channels["m1"].count == info.channels["m2"].count == 6   # steps 0..5
+
+
+def test_bad_process_number_is_refused(tmp_path, test_fmus):
+    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"])
+    with pytest.raises(ScenarioError, match=r"override 'm1:process': 'process' must be an integer >= 0"):
+        load_scenario(scn, {"m1:process": -1})
+    with pytest.raises(ScenarioError, match=r"override 'mx:process': no unit 'mx'"):
+        load_scenario(scn, {"mx:process": 1})
