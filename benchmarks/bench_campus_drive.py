@@ -232,6 +232,43 @@ def main() -> None:
             print(name, {k: round(v, 3) for k, v in p.items()})
         lines.append("")
 
+        # 3b. master algorithm and units in worker processes (wall clock only: two processes)
+        par = {"as shipped (Gauss-Seidel, one process)": {},
+               "Jacobi, one process": {"simulation.algorithm": "jacobi"},
+               "Jacobi, coll + plat in worker 1": {"simulation.algorithm": "jacobi", "coll:process": 1,
+                                                   "plat:process": 1},
+               "Jacobi, net in worker 1": {"simulation.algorithm": "jacobi", "net:process": 1}}
+        par_res: Dict[str, List[RunResult]] = {k: [] for k in par}
+
+        def par_run(name: str) -> Callable[[], float]:
+            def go() -> float:
+                res, _, _ = run(CAMPUS, par[name], tmp / "par.mcap")
+                par_res[name].append(res)
+                return res.timing["loop"]
+            return go
+
+        ptimes = interleaved({k: par_run(k) for k in par}, reps + 2)
+        lines += ["## 3b. Units in worker processes (`process = N`), wall clock", "",
+                  f"The same run (20 s, full logging) with the master algorithm and the units' processes as "
+                  f"overrides; {reps + 2} interleaved runs each, medians of the loop wall time. Jacobi with "
+                  "worker units steps them in parallel with the master's own units (README \"Units in worker "
+                  "processes\"); its log equals the one-process Jacobi log bit for bit "
+                  "(`tests/orchestrator/test_remote.py`). A worker unit's time is its worker's, the master's "
+                  "time waiting for replies is `wait`.", "",
+                  "| configuration | loop s (median) | real-time factor | per unit s (median; worker units marked) "
+                  "| wait s | logging s |", "|---|---|---|---|---|---|"]
+        for name in par:
+            rs = par_res[name]
+            loop = median(ptimes[name])
+            units = sorted({k[5:] for r in rs for k in r.timing if k.startswith("unit:")})
+            cells = ", ".join(f"{u} {median([r.timing['unit:' + u] for r in rs]):.3f}"
+                              + (" (worker)" if u in rs[0].remote_units else "") for u in units)
+            wait = median([r.timing.get("wait", 0.0) for r in rs])
+            lines.append(f"| {name} | {loop:.3f} | {sim / loop:.1f}x | {cells} | {wait:.3f} | "
+                         f"{median([r.timing['logging'] for r in rs]):.3f} |")
+            print(name, ptimes[name])
+        lines.append("")
+
         # 4. lazy vs eager on the mostly idle scene
         lines += ["## 4. Lazy vs eager stepping on a mostly idle scene (campus_idle)", "",
                   "`scenarios/campus_idle.toml`: the campus scene with no free entities, nobody driving for "
