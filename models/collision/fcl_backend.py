@@ -89,7 +89,8 @@ class FclBackend(CollisionBackend):
         self._member_mask = np.zeros(self.n, bool)
         self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
         self._pair_now: List[int] = []
-        self._static_rows: Dict[int, list] = {}  # the evaluated pair's dynamic bodies (their fcl transforms)
+        self._static_rows: Dict[int, list] = {}
+        self._static_boxes: Dict[int, tuple] = {}  # the evaluated pair's dynamic bodies (their fcl transforms)
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
@@ -244,8 +245,43 @@ class FclBackend(CollisionBackend):
         traversal may count a candidate)."""
         if self._pair_parts[id(pair)][3]:
             return None
-        a, gap = pair.a, self._gap
-        return min(gap(a, b) for b in self._small_list[id(pair)])
+        a, small = pair.a, self._small_list[id(pair)]
+        # first without any AABB update: a box around each moved body from its transform (its
+        # local AABB rotated: it contains the exact AABB), less its rounding
+        alo, ahi = self._loose_box(a)
+        loose = math.inf
+        for b in small:
+            blo, bhi = self._loose_box(b)
+            g = 0.0
+            for k in range(3):
+                d = max(blo[k] - ahi[k], alo[k] - bhi[k], 0.0)
+                g += d * d
+            loose = min(loose, math.sqrt(g) - self.LOOSE_ROUNDING)
+        if loose >= self.config.max_distance + self.FAR_MARGIN:
+            return loose
+        return min(self._gap(a, b) for b in small)
+
+    #: m; the rounding of _loose_box's corners (coordinates up to 1e4 m: ~1e-11 m)
+    LOOSE_ROUNDING = 1e-9
+
+    def _loose_box(self, i: int) -> tuple:
+        """A world box (lo, hi lists) that contains body ``i``'s AABB: a static body's AABB
+        itself, a dynamic body's local AABB rotated and moved by its current transform
+        (centre ``R c + t``, half extents ``|R| h``), up to rounding."""
+        if not self._is_dyn[i]:
+            box = self._static_boxes.get(i)
+            if box is None:
+                box = self._static_boxes[i] = tuple(self.aabb[i].tolist())
+            return box
+        R = self._T_rows[i]
+        (cx, cy, cz), (hx, hy, hz) = self._box_lists[i][2], self._box_lists[i][3]
+        lo, hi = [], []
+        for r0, r1, r2, t in R[:3]:
+            c = r0 * cx + r1 * cy + r2 * cz + t
+            e = abs(r0) * hx + abs(r1) * hy + abs(r2) * hz
+            lo.append(c - e)
+            hi.append(c + e)
+        return lo, hi
 
     #: m; a lower bound of a candidate's distance above this proves it is not in contact (far
     #: above the rounding of fcl's triangle tests, coordinates of 1e2..1e3 m: ~1e-13 m)
