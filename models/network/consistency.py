@@ -15,6 +15,7 @@ from .arrays import concat_ranges
 
 
 # -- scene grid §3.3 -------------------------------------------------------------------------
+CELL_LIMIT = 2.0 ** 62   # cell quotients below this in magnitude: int() is the int64 cast
 class SceneGrid:
     """``C x C`` grid over a square scene of side ``size``; 9-cell neighbourhoods (fig. 3-5a).
 
@@ -35,8 +36,13 @@ class SceneGrid:
         self.neigh = np.stack(nb, axis=1)  # (C*C, 9), -1 outside
         self._neigh_list = None            # its cells inside the grid per row, as lists (built on first use)
 
-    def cell(self, pos: np.ndarray) -> np.ndarray:
-        """Cell index of each position (n, 2) -> (n,) int."""
+    def cell(self, pos: np.ndarray, pos_list=None) -> np.ndarray:
+        """Cell index of each position (n, 2) -> (n,) int. ``pos_list``: the same positions as
+        a list of ``[x, y]`` when the caller has it (a few positions: the cells in Python)."""
+        if pos_list is not None:
+            out = self._cell_scalar(pos_list)
+            if out is not None:
+                return np.array(out, np.int64)
         q = pos / self.size
         q *= self.C
         ij = q.astype(np.int64)
@@ -44,6 +50,21 @@ class SceneGrid:
         np.minimum(ij, self.C - 1, out=ij)
         out = ij[:, 0] * self.C
         out += ij[:, 1]
+        return out
+
+    def _cell_scalar(self, pos: list):
+        """:meth:`cell` of positions given as a list of ``[x, y]`` (m), in Python: the same
+        quotient ``x / size * C`` truncated toward zero and clipped to the grid. None when a
+        quotient is not finite or too large for an exact int64 cast (the array code then)."""
+        size, C = self.size, self.C
+        hi = C - 1
+        out = []
+        for x, y in pos:
+            u, v = x / size * C, y / size * C
+            if not (-CELL_LIMIT < u < CELL_LIMIT and -CELL_LIMIT < v < CELL_LIMIT):
+                return None
+            i, j = int(u), int(v)
+            out.append((0 if i < 0 else hi if i > hi else i) * C + (0 if j < 0 else hi if j > hi else j))
         return out
 
     def adjacent(self, a, b):

@@ -23,6 +23,24 @@ MERGE_MAX = 512
 FLOAT_BATCH = 64
 
 
+def _exponential_lossless(link: LinkClass) -> bool:
+    """The link's latency is drawn by one exponential call per batch and nothing is lost."""
+    return link.distribution == "exponential" and link.jitter_ms > 0.0 and link.loss <= 0.0
+
+
+def latency_sum(rng: np.random.Generator, link: LinkClass, n: int) -> float:
+    """``float(sample_latency(rng, link, n).sum())`` (s): the same draws and the same sum
+    (numpy's of fewer than 8 values: in order from 0), in Python for a few exponential ones."""
+    if n >= 8 or not _exponential_lossless(link):
+        return float(sample_latency(rng, link, n).sum())
+    base = link.latency_ms * 1e-3
+    total = 0.0
+    for j in rng.exponential(link.jitter_ms * 1e-3, n).tolist():
+        x = base + j
+        total += 0.0 if x < 0.0 else x        # np.maximum(x, 0.0)
+    return total
+
+
 def sample_latency(rng: np.random.Generator, link: LinkClass, n: int) -> np.ndarray:
     """One-way latencies (s) of ``n`` messages on ``link``.
 
@@ -93,8 +111,7 @@ class TransmitPlan:
         one call: several of them, each with exponential jitter and no loss, in a batch of at
         most ``MERGE_MAX`` messages."""
         used = [links[name] for name, m in zip(CLASS_INDEX, counts) if m]
-        return MERGE_DRAWS and len(used) > 1 and sum(counts) <= MERGE_MAX and all(
-            link.distribution == "exponential" and link.jitter_ms > 0.0 and link.loss <= 0.0 for link in used)
+        return MERGE_DRAWS and len(used) > 1 and sum(counts) <= MERGE_MAX and all(map(_exponential_lossless, used))
 
     def _plan_arrays(self, links, sender: np.ndarray, link_class: np.ndarray, nbytes: np.ndarray) -> None:
         n = self.n
@@ -139,12 +156,17 @@ class TransmitPlan:
             self.s_first, self.s_last = s_sorted[first], s_sorted[last]
 
     def _plan_floats(self, links, sender: list, link_class: list, nbytes: list) -> bool:
-        """:attr:`floats` of a merged batch, derived in Python as :meth:`_plan_arrays` derives
-        its arrays (the same transmission times, uplink order, cumulative sums); False (and
-        nothing set) for a batch that is not merged."""
+        """:attr:`floats` of a merged batch (or one of a single exponential, lossless class),
+        derived in Python as :meth:`_plan_arrays` derives its arrays (the same transmission
+        times, uplink order, cumulative sums); False (and nothing set) for any other batch."""
         n = self.n
         per_class = [[i for i, c in enumerate(link_class) if c == k] for k in CLASS_INDEX.values()]
-        if not self._merges(links, [len(m) for m in per_class]):
+        used = [links[name] for name, m in zip(CLASS_INDEX, per_class) if m]
+        if self._merges(links, [len(m) for m in per_class]):
+            self._draw = None      # one standard_exponential call, times each message's mean
+        elif len(used) == 1 and _exponential_lossless(used[0]):
+            self._draw = used[0].jitter_ms * 1e-3   # sample_latency's exponential(mean, n): mean 1 below
+        else:
             return False
         tx = [0.0] * n
         lat = [None] * n        # (its draw, mean, base latency) per message; draws in class order
@@ -152,10 +174,11 @@ class TransmitPlan:
         for name, msgs in zip(CLASS_INDEX, per_class):
             link = links[name]
             bw = link.bandwidth_mbps
+            mean = 1.0 if self._draw is not None else link.jitter_ms * 1e-3
             for i in msgs:
                 if bw > 0:
                     tx[i] = nbytes[i] * 8.0 / (bw * 1e6)
-                lat[i] = (j, link.jitter_ms * 1e-3, link.latency_ms * 1e-3)
+                lat[i] = (j, mean, link.latency_ms * 1e-3)
                 j += 1
         if not any(tx):
             self.floats = ([(i,) + lat[i] for i in range(n)], None, None)
@@ -208,16 +231,16 @@ class TransmitPlan:
         return arrival, lost
 
     def run_floats(self, rng: np.random.Generator, send: list, busy_until: np.ndarray, scale: float = 1.0) -> list:
-        """:meth:`run` of a small merged batch (``floats`` not None: lossless, exponential
-        jitter) in Python floats: the same draws (one ``standard_exponential`` call) and the
-        same operations in the same order. ``send`` (n,) s as a list; returns the arrival
+        """:meth:`run` of a small batch (``floats`` not None: lossless, exponential jitter) in
+        Python floats: the same draws (one ``standard_exponential`` call for a merged batch,
+        one ``exponential`` for a single class) and the same operations in the same order. ``send`` (n,) s as a list; returns the arrival
         times (n,) s as a list (nothing is lost)."""
         rows, heads, s_last = self.floats
         n = self.n
         arrival = [0.0] * n
         if n == 0:
             return arrival
-        d = rng.standard_exponential(n).tolist()
+        d = (rng.standard_exponential(n) if self._draw is None else rng.exponential(self._draw, n)).tolist()
         if heads is None:
             for i, j, mean, base in rows:
                 x = base + d[j] * mean

@@ -366,7 +366,7 @@ class NetworkModel:
             self._count(1, control_bytes(), PduType.CONTROL)
             return float(self.latency_scale * lk.sample_latency(self.rng, links["lan"], 1)[0])
         self._count(2, 2 * control_bytes(), PduType.CONTROL)
-        return float(self.latency_scale * lk.sample_latency(self.rng, links["wan"], 2).sum())
+        return float(self.latency_scale * lk.latency_sum(self.rng, links["wan"], 2))
 
     def _autopilot(self, t: float, g: int) -> None:
         thr = float(self.rng.uniform(0.1, 0.6))
@@ -568,7 +568,7 @@ class NetworkModel:
         if cm is not None and cm[0] is P:   # the same position array (a scene at rest): the same cells
             cells = cm[1]
         else:
-            cells = self.grid.cell(P)
+            cells = self.grid.cell(P, self._positions_list(P) if len(P) <= SCALAR_VIEW else None)
             self._cells_memo = (P, cells)
         view = self._view(cells, online_g)
         vo, vg, fi, frame_size = view

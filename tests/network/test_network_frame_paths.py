@@ -3,9 +3,10 @@ it replaces, bit for bit.
 
 * a small lossless batch timed in Python floats (:meth:`TransmitPlan.run_floats`) vs the
   array code (:meth:`TransmitPlan.run`): arrivals, uplinks and the generator's state;
-* due frames in Python vs :meth:`NetworkModel._due` (lost, huge and late arrivals included);
+* due frames and control-packet latencies in Python vs :meth:`NetworkModel._due` and
+  :func:`links.sample_latency` (lost, huge and late arrivals included);
 * numpy's pairwise summation in Python (:func:`arrays.pairwise_sum`) vs ``np.add.reduce``;
-* the grid's view pairs and view entries of a few viewers and objects in Python vs the array code;
+* the grid's cells, view pairs and view entries of a few objects in Python vs the array code;
 * avatars sub-stepped one by one (resting, reversing, at the walls) vs the array code;
 * whole runs with every such shortcut vs the array paths (campus size, lossy links, order 2,
   client-server), with joins, graceful leaves and crashes (the online-node count included).
@@ -185,3 +186,47 @@ def test_small_view_entries_equal_the_array_code(monkeypatch, cells):
     for c, f in zip(cases, fast):
         ref = grid.not_in_view(*c)
         assert np.array_equal(f, ref) and f.dtype == ref.dtype
+
+
+@pytest.mark.parametrize("dist", ["exponential", "uniform", "normal"])
+def test_latency_sum_equals_the_array_code(dist):
+    for n in (1, 2, 3, 7, 8, 20):
+        for link in (LinkClass(20.0, 5.0, 0.0, 100.0, dist), LinkClass(0.0, 3.0, 0.0, 0.0, dist),
+                     LinkClass(20.0, 0.0, 0.0, 100.0, dist), LinkClass(5.0, 2.0, 0.1, 10.0, dist)):
+            a, b = np.random.default_rng(n), np.random.default_rng(n)
+            for _ in range(20):
+                assert links_mod.latency_sum(a, link, n) == float(links_mod.sample_latency(b, link, n).sum())
+            assert a.bit_generator.state == b.bit_generator.state
+
+
+def test_single_class_float_batches_equal_the_array_code():
+    gen = np.random.default_rng(3)
+    for trial in range(40):
+        n = int(gen.integers(1, links_mod.FLOAT_BATCH + 1))
+        sender, nbytes = gen.integers(0, 4, n), gen.integers(20, 3000, n)
+        plan = TransmitPlan(LINKS, sender, np.full(n, trial % 2), nbytes)
+        assert plan.floats is not None
+        rng_a, rng_b = np.random.default_rng(trial), np.random.default_rng(trial)
+        busy_a = gen.uniform(0.0, 0.01, 4)
+        busy_b = busy_a.copy()
+        for k in range(3):
+            send = k * T + np.where(gen.random(n) < 0.4, 0.002, 0.0)
+            arrival, lost = plan.run(rng_a, send, busy_a, 1.5)
+            assert plan.run_floats(rng_b, send.tolist(), busy_b, 1.5) == arrival.tolist()
+            assert np.array_equal(busy_a, busy_b) and not lost.any()
+        assert rng_a.bit_generator.state == rng_b.bit_generator.state
+
+
+def test_cells_from_a_positions_list_equal_the_array_code():
+    gen = np.random.default_rng(9)
+    for size, C in ((100.0, 10), (60.0, 7), (1.0, 1), (33.3, 3)):
+        grid = cons.SceneGrid(size, C, True)
+        pos = np.r_[gen.uniform(-0.1 * size, 1.1 * size, (200, 2)),
+                    [[0.0, size], [size, 0.0], [-0.0, size * (1 - 1e-16)], [size / C, 2 * size / C], [1e30, -1e30]]]
+        with np.errstate(invalid="ignore"):     # (1e30: beyond int64, the array code's cast)
+            fast, ref = grid.cell(pos, pos.tolist()), grid.cell(pos)
+        assert np.array_equal(fast, ref) and fast.dtype == ref.dtype
+        assert np.array_equal(grid.cell(pos[:-1], pos[:-1].tolist()), ref[:-1])   # (all in Python)
+    with np.errstate(invalid="ignore"):
+        bad = np.array([[np.nan, 1.0], [np.inf, 2.0]])
+        assert np.array_equal(grid.cell(bad, bad.tolist()), grid.cell(bad))   # not finite: the array code
