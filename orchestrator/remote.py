@@ -54,10 +54,11 @@ class RemoteConfig:
     ----------
     spin_s : float
         Seconds a worker polls its pipe after a reply before it blocks in ``recv`` (0: block
-        at once). Polling keeps its core busy while it waits, at most this long per step.
+        at once). It yields the core between polls (``sched_yield``), so a process that waits
+        for a core (the master on a loaded machine) gets it; at most this long per step.
     """
 
-    spin_s: float = 0.002
+    spin_s: float = 0.0005
 
 
 # -- errors across the pipe -------------------------------------------------------------------
@@ -95,12 +96,12 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     readers: Dict[str, Any] = {}
     setters: Dict[tuple, Any] = {}
     clock = time.perf_counter_ns
-    poll, spin = conn.poll, config.spin_s
+    poll, spin, yield_cpu, now = conn.poll, config.spin_s, os.sched_yield, time.perf_counter
     while True:
-        if spin > 0 and not poll():
-            end = time.perf_counter() + spin
-            while not poll() and time.perf_counter() < end:
-                pass
+        if spin > 0 and not poll():   # poll a while, giving the core to anyone waiting for it
+            end = now() + spin
+            while not poll() and now() < end:
+                yield_cpu()
         try:
             msg = conn.recv()
         except (EOFError, OSError):
