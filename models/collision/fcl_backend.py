@@ -150,6 +150,8 @@ class FclBackend(CollisionBackend):
         # _needs_toi's estimate is within this of _travel (m): rounding of the translation
         # (relative), and of the rotation angle: the two traces of R1 R0^T differ by ~1e-14 at
         # most, acos near 1 turns that into up to ~1.4e-7 rad, times the radius
+        self._radius_list = self._radius.tolist()
+        self._toi_threshold = (self.config.ccd_fast * self._thin).tolist()
         self._toi_slack = [1e-9 * max(self.config.ccd_fast * t, 1e-300) + 1e-12 + 4e-7 * r
                            for t, r in zip(self._thin.tolist(), self._radius.tolist())]
 
@@ -224,14 +226,15 @@ class FclBackend(CollisionBackend):
         T0, T1 = self._prev_rows[a], self._T_rows[a]  # before and after this query's move
         if T0 == T1:
             return False
-        threshold = self.config.ccd_fast * self._thin[a]
+        threshold = self._toi_threshold[a]
         (a0, a1, a2, ax), (b0, b1, b2, by), (c0, c1, c2, cz) = T0[0], T0[1], T0[2]
         (p0, p1, p2, px), (q0, q1, q2, qy), (r0, r1, r2, rz) = T1[0], T1[1], T1[2]
         dx, dy, dz = px - ax, qy - by, rz - cz
-        # trace(R1 R0^T) = sum of the element-wise products (rotation_angle's formula)
-        c = p0 * a0 + p1 * a1 + p2 * a2 + q0 * b0 + q1 * b1 + q2 * b2 + r0 * c0 + r1 * c1 + r2 * c2
-        angle = math.acos(min(1.0, max(-1.0, (c - 1.0) / 2.0)))
-        estimate = math.sqrt(dx * dx + dy * dy + dz * dz) + angle * self._radius[a]
+        estimate = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if self._same_rotation_at[a] != self._qn:  # (the same rotation: angle 0, within the slack)
+            # trace(R1 R0^T) = sum of the element-wise products (rotation_angle's formula)
+            c = p0 * a0 + p1 * a1 + p2 * a2 + q0 * b0 + q1 * b1 + q2 * b2 + r0 * c0 + r1 * c1 + r2 * c2
+            estimate += math.acos(min(1.0, max(-1.0, (c - 1.0) / 2.0))) * self._radius_list[a]
         if abs(estimate - threshold) > self._toi_slack[a]:
             return estimate > threshold
         return bool(self._travel(a) > threshold)
