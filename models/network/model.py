@@ -1070,15 +1070,10 @@ class NetworkModel:
         n_obj = self.n_obj
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
         err2 = [0.0] * len(fi)    # the own copies (and remote ones without a record) count as 0
-        n_valid = 0
-        oldest = math.inf
         for i, o, c in zip(memo[3], memo[4], rows):
             ct = c[0]
             if not ct >= c[enter] - 1e-12:   # no record since it subscribed
                 continue
-            n_valid += 1
-            if ct < oldest:
-                oldest = ct
             cnt[o] += 1
             p = pos[o]
             ex = c[1] - p[0]
@@ -1099,9 +1094,11 @@ class NetworkModel:
         m = self.metrics
         ex = self._exact
         self._display_clean = None
-        if (REST_DISPLAY and ex is not None and ex[0] is P and oldest >= ex[1] and not any(err2)
-                and self.world.at_fixed_point()):
-            self._display_clean = (P, vo, og)   # every counted record is one of this resting state
+        if (REST_DISPLAY and ex is not None and ex[0] is P and not any(err2) and self.world.at_fixed_point()
+                and min((c[0] for c in rows if c[0] >= c[enter] - 1e-12), default=math.inf) >= ex[1]):
+            # the oldest counted record is one of this resting state: so are the others
+            self._display_clean = (P, vo, og)
+        n_valid = sum(cnt)
         if n_valid == 0:
             self.per_object_max, self.per_object_rms = np.zeros(n_obj), np.zeros(n_obj)
             m.inconsistency_max = max(m.inconsistency_max, 0.0)
@@ -1124,27 +1121,28 @@ class NetworkModel:
         return squared_dr_error(c, ct, np.take(px, vo), np.take(py, vo), t, order), remote
 
     # -- queries ------------------------------------------------------------------------------------
+    def _shown_row(self, node: int):
+        """History slot and group of what render node ``node`` shows now: its master's current
+        frame, or the frame the slave shows (at most ``HIST - 1`` frames old)."""
+        grp = self.reg.group_list[node]
+        frame = self.k if node == self.master[grp] else int(self.shown_frame[node])
+        return max(frame, self.k - HIST + 1) % HIST, grp
+
     def perceived_avatar(self, node: int, g: int) -> np.ndarray:
         """Position (2,) of avatar ``g`` as shown by render node ``node`` now (m)."""
-        grp = int(self.reg.group[node])
-        frame = self.k if node == self.master[grp] else int(self.shown_frame[node])
-        frame = max(frame, self.k - HIST + 1)
-        return self.hist[frame % HIST, grp, g].copy()
+        slot, grp = self._shown_row(node)
+        return self.hist[slot, grp, g].copy()
 
     def perceived_avatars(self, node: int) -> np.ndarray:
         """Positions (G, 2) of every avatar as shown by render node ``node`` now (m)."""
-        grp = int(self.reg.group[node])
-        frame = self.k if node == self.master[grp] else int(self.shown_frame[node])
-        frame = max(frame, self.k - HIST + 1)
-        return self.hist[frame % HIST, grp].copy()
+        slot, grp = self._shown_row(node)
+        return self.hist[slot, grp].copy()
 
     def perceived_key(self, node: int) -> tuple:
         """What :meth:`perceived_avatars` of ``node`` returns, as bytes (the history row it
         reads; equal keys, equal positions)."""
-        grp = int(self.reg.group[node])
-        frame = self.k if node == self.master[grp] else int(self.shown_frame[node])
-        frame = max(frame, self.k - HIST + 1)
-        return self.hist[frame % HIST, grp].tobytes()
+        slot, grp = self._shown_row(node)
+        return self.hist[slot, grp].tobytes()
 
     def at_rest(self) -> bool:
         """Stepping on with unchanged inputs would change no per-frame output.

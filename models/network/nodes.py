@@ -50,6 +50,7 @@ class NodeRegistry:
         self.supernode = G * R + G
         self.n = G * R + G + 1
         self.group = np.r_[np.arange(G * R) // R, np.arange(G), -1]
+        self.group_list = self.group.tolist()    # the same, as Python ints
         self.rank = np.r_[np.arange(G * R) % R, np.full(G, -1), -1]
         self.identify = [f"Render-{g:04d}" for g in range(G)]
         self.ip: List[str] = []
