@@ -338,7 +338,7 @@ class FclBackend(CollisionBackend):
                                     self._box_h[small])
             tag, tf = self._chunk_tf(big)
             d = chunked_distance(chunks, tag, tf, lb, self.objs[small], True, self._dreq, res)
-        self._exact[(a, b)] = (d, self._T[a].copy(), self._T[b].copy())
+        self._exact[(a, b)] = (d, self._rows(a), self._rows(b))  # (rows are replaced, never modified)
         if res.min_distance < before:
             self._a_first = a_first
             return True
@@ -357,13 +357,17 @@ class FclBackend(CollisionBackend):
             return -math.inf
         d, A0, B0 = last
         mu = 0.0
-        for X0, X1, r in ((A0, self._T[a], self._radius[a]), (B0, self._T[b], self._radius[b])):
+        radius = self._radius_list
+        for X0, i in ((A0, a), (B0, b)):
+            X1 = self._rows(i)
+            if X1 is X0:
+                continue  # not moved since
             # |(R1 - R0) p + t1 - t0| <= |t1 - t0| + ||R1 - R0||_F |p|  (Frobenius >= spectral norm)
-            m = (X1 - X0).ravel().tolist()
+            m = [x1 - x0 for r1, r0 in zip(X1[:3], X0[:3]) for x1, x0 in zip(r1, r0)]
             t2 = m[3] * m[3] + m[7] * m[7] + m[11] * m[11]
             r2 = sum(m[k] * m[k] for k in (0, 1, 2, 4, 5, 6, 8, 9, 10))
             if t2 or r2:
-                mu += math.sqrt(t2) + math.sqrt(r2) * r
+                mu += math.sqrt(t2) + math.sqrt(r2) * radius[i]
         return d - mu
 
     #: m; the body-frame gap must beat the best distance by this much to skip a query (it can
