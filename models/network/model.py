@@ -1157,9 +1157,8 @@ class NetworkModel:
         heartbeats (and the supernode's time-out checks) go on but are not part of it.
         """
         return (not self._step_inputs_changed and self._traffic_steady and not self._pending
-                and not self.world.moving()
                 and self.metrics.inconsistency_max == 0.0 and self.cfg.driven_groups == self.cfg.groups
-                and self.cfg.dis_threshold <= 0)
+                and self.cfg.dis_threshold <= 0 and not self.world.moving())
 
     def shown_position(self, viewer: int, obj: int) -> np.ndarray:
         """Position (2,) m of object ``obj`` as the master of group ``viewer`` shows it at the

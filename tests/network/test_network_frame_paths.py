@@ -6,7 +6,8 @@ it replaces, bit for bit.
 * due frames and control-packet latencies in Python vs :meth:`NetworkModel._due` and
   :func:`links.sample_latency` (lost, huge and late arrivals included);
 * numpy's pairwise summation in Python (:func:`arrays.pairwise_sum`) vs ``np.add.reduce``;
-* the grid's cells, view pairs and view entries of a few objects in Python vs the array code;
+* the grid's cells, view pairs and view entries of a few objects, and the hybrid_p2p messages
+  of a few view pairs, in Python vs the array code;
 * avatars sub-stepped one by one (resting, reversing, at the walls) vs the array code;
 * whole runs with every such shortcut vs the array paths (campus size, lossy links, order 2,
   client-server), with joins, graceful leaves and crashes (the online-node count included).
@@ -21,6 +22,7 @@ from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network import consistency as cons
 from immersim.models.network import links as links_mod
 from immersim.models.network import model as model_mod
+from immersim.models.network import nodes as nodes_mod
 from immersim.models.network import world as world_mod
 from immersim.models.network.arrays import pairwise_sum
 from immersim.models.network.links import TransmitPlan
@@ -142,6 +144,7 @@ def test_frame_shortcuts_change_nothing(monkeypatch, case):
     fast, fo = _run(cfg)
     monkeypatch.setattr(links_mod, "FLOAT_BATCH", -1)           # batches planned and timed by the array code
     monkeypatch.setattr(cons, "SCALAR_VIEW_PAIRS", -1)          # view pairs in arrays
+    monkeypatch.setattr(nodes_mod, "SCALAR_MESSAGES", -1)       # messages built in arrays
     monkeypatch.setattr(model_mod, "SCALAR_VIEW", -1)           # display in arrays
     monkeypatch.setattr(world_mod, "SCALAR_AVATARS", 0)         # kinematics in arrays
     monkeypatch.setattr(world_mod, "SCALAR_ENTITIES", 0)
@@ -230,3 +233,32 @@ def test_cells_from_a_positions_list_equal_the_array_code():
     with np.errstate(invalid="ignore"):
         bad = np.array([[np.nan, 1.0], [np.inf, 2.0]])
         assert np.array_equal(grid.cell(bad, bad.tolist()), grid.cell(bad))   # not finite: the array code
+
+
+def test_small_hybrid_messages_equal_the_array_code(monkeypatch):
+    nodes = nodes_mod
+    gen = np.random.default_rng(0)
+    names = ("send_t", "sender", "receiver", "link", "nbytes", "ptype", "hop_of", "rec_msg", "rec_viewer", "rec_obj",
+             "frame_msg", "frame_slave", "rec_hop1")
+    cases = []
+    for trial in range(300):
+        G, R, E = int(gen.integers(1, 6)), int(gen.integers(1, 4)), int(gen.integers(0, 12))
+        cfg = NetworkConfig(groups=G, render_nodes=R, entities=E, prediction_order=int(gen.integers(0, 3)))
+        master = np.array([g * R if gen.random() < 0.8 else -1 for g in range(G)], np.int64)   # some offline
+        slaves = [np.arange(g * R + 1, (g + 1) * R)[gen.random(R - 1) < 0.7] if master[g] >= 0 else np.zeros(0, np.int64)
+                  for g in range(G)]
+        owner = np.r_[np.arange(G), gen.integers(0, G, E)]
+        k = int(gen.integers(0, 40))
+        vo, vg = np.sort(gen.integers(0, G + E, k)), gen.integers(0, G, k)
+        send = gen.random(k) < (0.5 if trial % 2 else 1.1)                     # DIS-like, or every pair
+        cases.append((cfg, nodes.NodeRegistry(cfg), float(gen.uniform(0, 10)), master, slaves,
+                      np.flatnonzero(gen.random(G + E) < 0.8), owner, vg, vo, np.bincount(vg, minlength=G), send,
+                      owner[vo]))
+    fast = [nodes.build_messages(*c) for c in cases]
+    monkeypatch.setattr(nodes, "SCALAR_MESSAGES", -1)
+    assert sum(len(f.rec_msg) for f in fast) > 1000 and sum(len(f.frame_msg) for f in fast) > 200
+    for c, f in zip(cases, fast):
+        ref = nodes.build_messages(*c)
+        for name in names:
+            a, b = getattr(f, name), getattr(ref, name)
+            assert np.array_equal(a, b) and a.dtype == b.dtype, name
