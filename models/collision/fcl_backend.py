@@ -41,7 +41,7 @@ import numpy as np
 
 from .backend import CollisionBackend, PairResult, PairSpec, aggregate
 from .chunks import CHUNK_MIN_FACES, CHUNK_OTHER_MAX_FACES, ChunkedMesh, chunk_lower_bounds, chunked_distance
-from .geometry import rotation_angle, slerp_pose
+from .geometry import Slerp, rotation_angle
 
 log = logging.getLogger(__name__)
 
@@ -586,6 +586,7 @@ class FclBackend(CollisionBackend):
             tag, tf = self._chunk_tf(b)
             hull, box_c, box_h = self._hull[a], self._box_c[a], self._box_h[a]
         TA = A0
+        path_a = path_b = None  # the interpolated motions, made when first needed
         s = 0.0
         for it in range(200):
             if it == 0 and d0 is not None:
@@ -606,8 +607,10 @@ class FclBackend(CollisionBackend):
             s += d / mu
             if s > s_max:
                 return None
-            TA = slerp_pose(A0, A1, s)
+            if path_a is None:
+                path_a, path_b = Slerp(A0, A1), (Slerp(B0, B1) if chunks is None else None)
+            TA = path_a.at(s)
             oa.setTransform(fcl_transform(TA))
             if chunks is None:
-                ob.setTransform(fcl_transform(slerp_pose(B0, B1, s)))
+                ob.setTransform(fcl_transform(path_b.at(s)))
         return s

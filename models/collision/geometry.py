@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 __all__ = ["rotation", "pose_rows", "pose_matrix", "transform_points", "point_triangle_distance",
-           "rotation_angle", "slerp_pose"]
+           "rotation_angle", "Slerp", "slerp_pose"]
 
 
 def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -59,28 +59,50 @@ def rotation_angle(R: np.ndarray) -> float:
     return math.acos(min(1.0, max(-1.0, c)))
 
 
-def slerp_pose(T0: np.ndarray, T1: np.ndarray, s: float) -> np.ndarray:
-    """Interpolate two 4x4 rigid transforms at fraction ``s`` in [0, 1]: linear translation,
-    constant-rate rotation about the relative axis (the motion used for time of impact)."""
-    R_rel = T1[:3, :3] @ T0[:3, :3].T
-    ang = rotation_angle(R_rel)
-    T = np.eye(4)
-    T[:3, 3] = (1 - s) * T0[:3, 3] + s * T1[:3, 3]
-    if ang < 1e-12:
-        T[:3, :3] = T0[:3, :3]
+class Slerp:
+    """The interpolation of two 4x4 rigid transforms: linear translation, constant-rate
+    rotation about the relative axis (the motion used for time of impact). What does not
+    depend on the fraction (relative rotation, its angle and axis) is computed once.
+
+    Parameters
+    ----------
+    T0, T1 : ndarray, shape (4, 4)
+        The transforms at fractions 0 and 1.
+    """
+
+    def __init__(self, T0: np.ndarray, T1: np.ndarray) -> None:
+        self.R0, self.t0, self.t1 = T0[:3, :3], T0[:3, 3], T1[:3, 3]
+        R_rel = T1[:3, :3] @ T0[:3, :3].T
+        self.ang = rotation_angle(R_rel)
+        self.K = None
+        if self.ang < 1e-12:
+            return
+        w = np.array([R_rel[2, 1] - R_rel[1, 2], R_rel[0, 2] - R_rel[2, 0], R_rel[1, 0] - R_rel[0, 1]])
+        nw = np.linalg.norm(w)
+        if nw < 1e-12:  # rotation by pi: axis from the symmetric part
+            vals, vecs = np.linalg.eigh((R_rel + np.eye(3)) / 2)
+            axis = vecs[:, np.argmax(vals)]
+        else:
+            axis = w / nw
+        self.K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+
+    def at(self, s: float) -> np.ndarray:
+        """The transform at fraction ``s`` in [0, 1], shape (4, 4)."""
+        T = np.eye(4)
+        T[:3, 3] = (1 - s) * self.t0 + s * self.t1
+        if self.K is None:
+            T[:3, :3] = self.R0
+            return T
+        K = self.K
+        a = s * self.ang
+        R_s = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+        T[:3, :3] = R_s @ self.R0
         return T
-    w = np.array([R_rel[2, 1] - R_rel[1, 2], R_rel[0, 2] - R_rel[2, 0], R_rel[1, 0] - R_rel[0, 1]])
-    nw = np.linalg.norm(w)
-    if nw < 1e-12:  # rotation by pi: axis from the symmetric part
-        vals, vecs = np.linalg.eigh((R_rel + np.eye(3)) / 2)
-        axis = vecs[:, np.argmax(vals)]
-    else:
-        axis = w / nw
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    a = s * ang
-    R_s = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
-    T[:3, :3] = R_s @ T0[:3, :3]
-    return T
+
+
+def slerp_pose(T0: np.ndarray, T1: np.ndarray, s: float) -> np.ndarray:
+    """Interpolate two 4x4 rigid transforms at fraction ``s`` in [0, 1] (:class:`Slerp`)."""
+    return Slerp(T0, T1).at(s)
 
 
 def point_triangle_distance(p: np.ndarray, tri: np.ndarray):
