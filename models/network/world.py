@@ -116,6 +116,7 @@ class World:
         self._ksteer_memo = None   # (steering bytes, steering gains tan(steer max) / wheelbase)
         self._turn_memo = {}       # (sub-step h, turn rates) -> decay, cos and sin of the entities' turn per sub-step
         self._state_memo = None    # (avatar key, P, V, A) of a scene without entities at rest
+        self._trig_memo = None     # (heading bytes, their cosines, sines)
 
     # -- views ----------------------------------------------------------------------------
     @property
@@ -144,7 +145,7 @@ class World:
             memo = self._state_memo
             if memo is not None and memo[0] == self._avatar_key() and (memo[3] is not None or not acc):
                 return memo[1], memo[2], memo[3] if acc else None
-        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        c, s = self._headings()
         G, E = len(c), len(self.evel)
         n = G + E
         P, V = np.concatenate((self.apos, self.epos)), np.empty((n, 2))
@@ -172,15 +173,26 @@ class World:
             self._state_memo = (self._avatar_key(), P, V, A)
         return P, V, A
 
+    def _headings(self):
+        """``np.cos(yaw), np.sin(yaw)`` (G,) (read-only), kept while the headings stay (the frame's
+        :meth:`state` and the step's :meth:`avatar_outputs` read the same ones)."""
+        key = self.yaw.tobytes()
+        memo = self._trig_memo
+        if memo is None or memo[0] != key:
+            c, s = np.cos(self.yaw), np.sin(self.yaw)
+            c.flags.writeable = s.flags.writeable = False
+            memo = self._trig_memo = (key, c, s)
+        return memo[1], memo[2]
+
     def avatar_outputs(self, h=None) -> list:
         """Per avatar ``x, y, z, yaw, vx, vy``, the body-frame specific force (m/s^2, gravity
         included on z: ``accel, v * yaw rate, g``), the body-frame angular rate (rad/s:
         ``0, 0, yaw rate``), the jolt (m/s) and ``jolt / h`` (m/s^2, 0 without ``h``): 14
         Python floats per avatar in one flat list (the same products as :attr:`avel`)."""
-        yaw = self.yaw
+        c, s = self._headings()
         out = []
-        for (x, y), w, v, c, s, a, yr, j in zip(self.apos.tolist(), yaw.tolist(), self.speed.tolist(),
-                                                np.cos(yaw).tolist(), np.sin(yaw).tolist(), self.accel.tolist(),
+        for (x, y), w, v, c, s, a, yr, j in zip(self.apos.tolist(), self.yaw.tolist(), self.speed.tolist(),
+                                                c.tolist(), s.tolist(), self.accel.tolist(),
                                                 self.yaw_rate.tolist(), self.jolt.tolist()):
             out += (x, y, 0.0, w, c * v, s * v, a, v * yr, G_ACC, 0.0, 0.0, yr, j, j / h if h else 0.0)
         return out
