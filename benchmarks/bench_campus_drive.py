@@ -237,7 +237,9 @@ def main() -> None:
                "Jacobi, one process": {"simulation.algorithm": "jacobi"},
                "Jacobi, coll + plat in worker 1": {"simulation.algorithm": "jacobi", "coll:process": 1,
                                                    "plat:process": 1},
-               "Jacobi, net in worker 1": {"simulation.algorithm": "jacobi", "net:process": 1}}
+               "Jacobi, net in worker 1": {"simulation.algorithm": "jacobi", "net:process": 1},
+               "Gauss-Seidel, net in worker 1, plat in worker 2": {"net:process": 1, "plat:process": 2},
+               "Gauss-Seidel, plat in worker 1": {"plat:process": 1}}
         par_res: Dict[str, List[RunResult]] = {k: [] for k in par}
 
         def par_run(name: str) -> Callable[[], float]:
@@ -250,9 +252,9 @@ def main() -> None:
         ptimes = interleaved({k: par_run(k) for k in par}, reps + 2)
         lines += ["## 3b. Units in worker processes (`process = N`), wall clock", "",
                   f"The same run (20 s, full logging) with the master algorithm and the units' processes as "
-                  f"overrides; {reps + 2} interleaved runs each, medians of the loop wall time. Jacobi with "
-                  "worker units steps them in parallel with the master's own units (README \"Units in worker "
-                  "processes\"); its log equals the one-process Jacobi log bit for bit "
+                  f"overrides; {reps + 2} interleaved runs each, medians of the loop wall time. Worker units "
+                  "step in parallel with the master's own units where the algorithm allows (README \"Units in "
+                  "worker processes\"); the log equals the one-process log of the same algorithm bit for bit "
                   "(`tests/orchestrator/test_remote.py`). A worker unit's time is its worker's, the master's "
                   "time waiting for replies is `wait`.", "",
                   "| configuration | loop s (median) | real-time factor | per unit s (median; worker units marked) "

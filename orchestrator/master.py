@@ -60,6 +60,7 @@ class Slot:
     pending_ns: int = 0
     skipped_steps: int = 0
     busy_ns: int = 0  # wall time spent in this unit's FMI calls (gather, step, read)
+    waits_for: List["Slot"] = field(default_factory=list)  # Gauss-Seidel: units before it that feed it
 
     def index(self, name: str) -> int:
         return self.read_names.index(name)
@@ -93,6 +94,7 @@ class Master:
         self.remote = any(s.inst.remote for s in slots.values())
         self.wait_ns = 0
         self._posted: Optional[tuple] = None   # (step start, slots posted) of post_remote
+        self._early: List[Slot] = []           # worker units that can start a step at once
         if self.algorithm == "gauss-seidel":
             self.order, self.delayed = gauss_seidel_order(list(slots), connections)
             for c in self.delayed:
@@ -120,6 +122,15 @@ class Master:
             if slot is not None:
                 idx = slot.real_inputs.index(fs.var) if fs.var in slot.real_inputs else None
                 slot.faults.append((Fault(fs), idx))
+        # units in worker processes: which of them can be posted at a step's start (Jacobi: all;
+        # Gauss-Seidel: those fed by no unit before them in the order), and, under Gauss-Seidel,
+        # the sources a unit waits for (the units before it that feed it)
+        rank = {name: i for i, name in enumerate(self.order)}
+        for slot in slots.values():
+            feeds = [f[1] for f in slot.float_feeds] + [f[1] for f in slot.other_feeds]
+            before = {src.name: src for src in feeds if rank[src.name] < rank[slot.name]}
+            slot.waits_for = list(before.values()) if self.algorithm == "gauss-seidel" else []
+        self._early = [slots[n] for n in self.order if slots[n].inst.remote and not slots[n].waits_for]
         for slot in slots.values():
             if slot.other_feeds:
                 slot.other_setter = slot.inst.discrete_setter([name for name, _, _ in slot.other_feeds])
@@ -188,9 +199,9 @@ class Master:
     def step(self, t_ns: int, h_ns: int) -> None:
         """Advance every slot from ``t_ns`` by ``h_ns``."""
         slots = self.slots
+        if self.remote:
+            return self._parallel_step(t_ns, h_ns)
         if self.algorithm == "jacobi":
-            if self.remote:
-                return self._parallel_step(t_ns, h_ns)
             gathered = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
                         for slot in map(slots.__getitem__, self.order)]
             t0 = perf_counter_ns()
@@ -215,41 +226,69 @@ class Master:
 
     @property
     def pipelined(self) -> bool:
-        """Jacobi with units in worker processes: the execution posts their next step
-        (:meth:`post_remote`) before it logs the last one, so they step while it logs."""
-        return self.remote and self.algorithm == "jacobi"
+        """Some unit in a worker process can start a step before the units of this process
+        (Jacobi: every one; Gauss-Seidel: one fed by no unit before it): the execution posts
+        their next step (:meth:`post_remote`) before it logs the last one, so they step while
+        it logs."""
+        return bool(self._early)
 
     def post_remote(self, t_ns: int, h_ns: int) -> None:
-        """Jacobi: gather the inputs of the units in worker processes for the step from ``t_ns``
-        (the outputs at ``t_ns``: every unit has stepped there) and post their steps, one
+        """Gather the inputs of the worker units that can start the step from ``t_ns`` at once
+        (:attr:`pipelined`: their inputs are outputs at ``t_ns``) and post their steps, one
         message each, without waiting; :meth:`step` at ``t_ns`` takes their replies."""
         posted = []
-        for slot in map(self.slots.__getitem__, self.order):
-            if slot.inst.remote and self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
+        for slot in self._early:
+            if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
                 slot.inst.post()
                 posted.append(slot)
         self._posted = (t_ns, posted)
 
     def _parallel_step(self, t_ns: int, h_ns: int) -> None:
-        """A Jacobi step with units in worker processes: their steps are posted (now, unless
-        :meth:`post_remote` did it), the units of this process step, then the workers' replies
-        (their outputs) are taken. Every input is gathered from the outputs at ``t_ns``."""
+        """A step with units in worker processes. Those that can start at once are posted (now,
+        unless :meth:`post_remote` did it); the others follow the algorithm: under Jacobi the
+        units of this process step on the outputs at ``t_ns``; under Gauss-Seidel the units step
+        in order, a unit in a worker is posted when the units before it that feed it have
+        stepped, and a reply is taken when a later unit needs it. Every reply is taken before
+        the step ends. The inputs every unit gets are those of the one-process algorithm."""
+        slots = self.slots
         if self._posted is None or self._posted[0] != t_ns:
             self.post_remote(t_ns, h_ns)
-        posted = self._posted[1]
+        pending = self._posted[1]
         self._posted = None
-        local = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
-                 for slot in map(self.slots.__getitem__, self.order) if not slot.inst.remote]
+        early = set(map(id, self._early))
+        if self.algorithm == "jacobi":
+            work = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
+                    for slot in map(slots.__getitem__, self.order) if not slot.inst.remote]
+        else:
+            for name in self.order:
+                slots[name].stepped = False
+            work = [(slot, None) for slot in map(slots.__getitem__, self.order) if id(slot) not in early]
+        wait = 0
         t0 = perf_counter_ns()
-        for slot, inputs in local:
-            if self._advance(slot, t_ns, h_ns, inputs):
-                slot.read()
+        for slot, inputs in work:
+            for src in slot.waits_for:             # Gauss-Seidel: its sources' replies first
+                if any(p is src for p in pending):
+                    pending = [p for p in pending if p is not src]
+                    src.read()
+                    src.stepped = True
             t1 = perf_counter_ns()
-            slot.busy_ns += t1 - t0
-            t0 = t1
-        for slot in posted:
+            wait += t1 - t0
+            if self.algorithm != "jacobi" and slot.has_inputs:
+                inputs = self._gather(slot, t_ns)
+            if self._advance(slot, t_ns, h_ns, inputs):
+                if slot.inst.remote:
+                    slot.inst.post()
+                    pending.append(slot)
+                else:
+                    slot.read()
+            if not slot.inst.remote:
+                slot.stepped = True
+            t0 = perf_counter_ns()
+            slot.busy_ns += t0 - t1
+        for slot in pending:
             slot.read()
-        self.wait_ns += perf_counter_ns() - t0
+            slot.stepped = True
+        self.wait_ns += wait + perf_counter_ns() - t0
 
     def finish(self) -> None:
         """Bring lazily stepped units to the final time (counted as the unit's time)."""

@@ -43,17 +43,35 @@ def test_worker_units_give_the_same_log(tmp_path, test_fmus, algorithm):
     assert res_info.channels["m2"].count == 62
 
 
-def test_campus_units_in_workers_step_in_parallel_to_the_same_log(tmp_path):
-    """campus_drive (1.5 s, Jacobi) with the collision and platform units in one worker and the
-    network here: the log (the 3D view included) equals the one-process Jacobi run; the timing
-    reports the workers' units and the wait."""
-    ov = {"simulation.stop": 1.5, "simulation.algorithm": "jacobi"}
+@pytest.mark.parametrize("algorithm, where", [("jacobi", {"coll": 1, "plat": 1}),
+                                               ("gauss-seidel", {"net": 1, "plat": 2})])
+def test_campus_units_in_workers_step_in_parallel_to_the_same_log(tmp_path, algorithm, where):
+    """campus_drive (1.5 s; the contacts start later, the bounce at 3.76 s is not reached) with
+    units in workers: the log (the 3D view included) equals the one-process run of the same
+    algorithm. Jacobi: coll and plat step in one worker while net steps here. Gauss-Seidel
+    (net -> coll, plat): net, fed only across the cycle, starts each step in worker 1 while the
+    last one is logged; plat (worker 2) steps while coll steps here. The timing reports the
+    workers' units and the wait."""
+    ov = {"simulation.stop": 1.5, "simulation.algorithm": algorithm}
     here, there = tmp_path / "here.mcap", tmp_path / "there.mcap"
     run_scenario(SCEN / "campus_drive.toml", here, overrides=ov)
-    res = run_scenario(SCEN / "campus_drive.toml", there, overrides={**ov, "coll:process": 1, "plat:process": 1})
+    res = run_scenario(SCEN / "campus_drive.toml", there,
+                       overrides={**ov, **{f"{u}:process": n for u, n in where.items()}})
     assert _same_logs(here, there) > 300
-    assert res.remote_units == ["coll", "plat"] and "wait" in res.timing
-    assert res.timing["unit:coll"] > 0 and "(worker)" in res.timing_summary()
+    assert res.remote_units == [u for u in ("net", "coll", "plat") if u in where] and "wait" in res.timing
+    assert all(res.timing[f"unit:{u}"] > 0 for u in where) and "(worker)" in res.timing_summary()
+
+
+def test_gauss_seidel_contact_loop_in_workers_is_the_same(tmp_path):
+    """The closed loop through a contact (campus_drive to 4.5 s: avatar 1 bounces off tank_a
+    at 3.76 s): Gauss-Seidel with net in a worker gives the one-process log."""
+    ov = {"simulation.stop": 4.5}
+    here, there = tmp_path / "here.mcap", tmp_path / "there.mcap"
+    run_scenario(SCEN / "campus_drive.toml", here, overrides=ov)
+    run_scenario(SCEN / "campus_drive.toml", there, overrides={**ov, "net:process": 1})
+    _same_logs(here, there)
+    jolt = read_series(there, ["net.avatar[[]1].jolt"])["net.avatar[1].jolt"][1]
+    assert jolt.max() > 5.0   # the bounce happened
 
 
 def test_lazy_worker_units_match_eager(tmp_path):
