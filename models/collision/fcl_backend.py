@@ -7,7 +7,9 @@
   bodies that moved get a new transform.
 * Per monitored pair ``a vs members``: broad phase ``manager.collide(a)`` lists the members
   whose AABB overlaps ``a``'s; each gets a narrow-phase ``fcl.collide`` with contacts
-  (penetration depth = deepest contact's ``penetration_depth``). Without contact,
+  (penetration depth = deepest contact's ``penetration_depth``), unless a lower bound of its
+  distance (the last exact distance less the motion since, the body-frame box gap) proves
+  it apart: it counts as tested and has no contact, what ``fcl.collide`` would say. Without contact,
   ``manager.distance(a)`` finds the nearest member: the tree prunes every member whose AABB is
   farther than the best distance so far (or than ``max_distance``). Before each exact
   ``fcl.distance`` the member's AABB gap and the lower bound from its last exact distance
