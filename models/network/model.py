@@ -920,9 +920,12 @@ class NetworkModel:
                 show.append(x[1])
         if len(later) == len(fr):   # every FRAME is due later
             return
-        sf = self.shown_frame
-        for node in show:
-            sf[node] = k
+        if len(show) <= SCALAR_VIEW:   # a few: element by element (cheaper than a fancy assignment)
+            sf = self.shown_frame
+            for node in show:
+                sf[node] = k
+        else:
+            self.shown_frame[show] = k
         self.metrics.dropped_frames += len(fr) - len(later) - len(show)
         self._frames = later
 
@@ -962,7 +965,9 @@ class NetworkModel:
             av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
             slot[...] = av.reshape(G, G, 2).transpose(1, 0, 2)
             slot[diag, diag] = P[:G]                  # a master shows its own avatar as it is
-        if sl_list:
+        if len(sl_list) > SCALAR_VIEW:
+            self.metrics.desync_frames = max(self.metrics.desync_frames, self.k - int(self.shown_frame[sl].min()))
+        elif sl_list:
             sf = self.shown_frame.tolist()
             self.metrics.desync_frames = max(self.metrics.desync_frames, self.k - min([sf[i] for i in sl_list]))
 
