@@ -389,16 +389,16 @@ class CollisionBackend(ABC):
         old = self._T_rows[i]
         if key == self._rot_key[i]:
             r0, r1, r2 = old[0], old[1], old[2]
-            M = [[r0[0], r0[1], r0[2], float(row[0])], [r1[0], r1[1], r1[2], float(row[1])],
-                 [r2[0], r2[1], r2[2], float(row[2])], [0.0, 0.0, 0.0, 1.0]]
-            same = True
+            x, y, z = float(row[0]), float(row[1]), float(row[2])
+            M = [[r0[0], r0[1], r0[2], x], [r1[0], r1[1], r1[2], y], [r2[0], r2[1], r2[2], z], [0.0, 0.0, 0.0, 1.0]]
             self._same_rotation_at[i] = self._qn
-        else:
-            M = pose_rows(row)
-            self._rot_key[i] = key
-            same = False
+            if self._far_skip:  # _face_shift without its rotation term (exactly 0)
+                self._shift[i] += math.sqrt((x - r0[3]) ** 2 + (y - r1[3]) ** 2 + (z - r2[3]) ** 2)
+            return M
+        M = pose_rows(row)
+        self._rot_key[i] = key
         if self._far_skip:
-            self._shift[i] += _face_shift(old, M, self._rmax[i], same)
+            self._shift[i] += _face_shift(old, M, self._rmax[i])
         return M
 
     # -- bounds ---------------------------------------------------------------------------
@@ -555,7 +555,7 @@ class CollisionBackend(ABC):
         themselves, what the evaluation would compute) decides, and becomes the new record."""
         gap, shift0 = self._far[k]
         shift = self._shift
-        now = sum(shift[i] for i in self._pair_bodies[k])
+        now = sum(map(shift.__getitem__, self._pair_bodies[k]))
         limit = self.config.max_distance + self.FAR_MARGIN
         close = gap - _SQRT3 * (now - shift0) < limit
         if close and not self._far_gap_known:
@@ -662,17 +662,14 @@ _SQRT3 = math.sqrt(3.0)
 _PACK3 = struct.Struct("3d").pack
 
 
-def _face_shift(T0: list, T1: list, rmax: float, same_rotation: bool = False) -> float:
+def _face_shift(T0: list, T1: list, rmax: float) -> float:
     """Bound (m) on how far any face of a body's world AABB moves from pose ``T0`` to ``T1``
     (4x4 nested lists): ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is
     ``max_v (R v)_k + t_k`` over the hull vertices ``v`` (``|v| <= rmax``), and
-    ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <= ||R1 - R0||_F rmax``. ``same_rotation``: the
-    rotation entries of ``T1`` are those of ``T0`` (the rotation term is exactly 0)."""
-    t2 = (T1[0][3] - T0[0][3]) ** 2 + (T1[1][3] - T0[1][3]) ** 2 + (T1[2][3] - T0[2][3]) ** 2
-    if same_rotation:
-        return math.sqrt(t2)
+    ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <= ||R1 - R0||_F rmax``."""
     (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = T0[0], T0[1], T0[2]
     (p0, p1, p2, p3), (q0, q1, q2, q3), (r0, r1, r2, r3) = T1[0], T1[1], T1[2]
+    t2 = (p3 - a3) ** 2 + (q3 - b3) ** 2 + (r3 - c3) ** 2
     rot2 = ((p0 - a0) ** 2 + (p1 - a1) ** 2 + (p2 - a2) ** 2 + (q0 - b0) ** 2 + (q1 - b1) ** 2
             + (q2 - b2) ** 2 + (r0 - c0) ** 2 + (r1 - c1) ** 2 + (r2 - c2) ** 2)
     return math.sqrt(t2) + math.sqrt(rot2) * rmax
