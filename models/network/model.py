@@ -965,11 +965,13 @@ class NetworkModel:
             av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
             slot[...] = av.reshape(G, G, 2).transpose(1, 0, 2)
             slot[diag, diag] = P[:G]                  # a master shows its own avatar as it is
-        if len(sl_list) > SCALAR_VIEW:
-            self.metrics.desync_frames = max(self.metrics.desync_frames, self.k - int(self.shown_frame[sl].min()))
-        elif sl_list:
-            sf = self.shown_frame.tolist()
-            self.metrics.desync_frames = max(self.metrics.desync_frames, self.k - min([sf[i] for i in sl_list]))
+        if sl_list:
+            if len(sl_list) > SCALAR_VIEW:
+                oldest = int(self.shown_frame[sl].min())
+            else:
+                sf = self.shown_frame.tolist()
+                oldest = min([sf[i] for i in sl_list])
+            self.metrics.desync_frames = max(self.metrics.desync_frames, self.k - oldest)
 
     def _shown_avatars_scalar(self, t: float, P: np.ndarray) -> list:
         """The avatars every master shows at frame time ``t`` (s), as the flat (viewer, avatar,
