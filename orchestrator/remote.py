@@ -25,9 +25,9 @@ exit code. Workers ignore SIGINT (the master acts on it between steps, see
 :class:`~immersim.orchestrator.execution.DeferredSigint`) and end when their pipe closes.
 
 While it waits for the next command a worker polls its pipe for ``spin_s`` seconds before it
-blocks: a blocked process takes ~25 us to wake on this kind of machine (measured: 45-50 us
-for a round trip through a pipe or a semaphore), on the critical path of every step
-(``RemoteConfig``).
+blocks, and the master does the same while it waits for a reply: a blocked process takes ~25 us
+to wake on this kind of machine (measured: 45-50 us for a round trip through a pipe or a
+semaphore), on the critical path of every step (``RemoteConfig``).
 """
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Callable, Dict, List, Optional, Sequence
 
 from . import errors as _errors
 from .errors import FmuCallError, FmuLoadError
@@ -85,6 +85,28 @@ def _rebuild(data: tuple) -> BaseException:
     return exc
 
 
+def _readable(conn, spin_s: float) -> Callable[[], None]:
+    """A function that returns once ``conn`` has data or ``spin_s`` seconds have passed: it
+    polls the descriptor (one ``poll`` system call on a poller made once; ``Connection.poll``
+    builds a selector per call) and yields the core between polls (``sched_yield``), so a
+    process waiting for a core gets it. The caller's ``recv`` then blocks if nothing came."""
+    import select
+
+    if spin_s <= 0:
+        return lambda: None
+    poller = select.poll()
+    poller.register(conn.fileno(), select.POLLIN)
+    poll, yield_cpu, now = poller.poll, os.sched_yield, time.perf_counter
+
+    def ready() -> None:
+        if poll(0):
+            return
+        end = now() + spin_s
+        while not poll(0) and now() < end:
+            yield_cpu()
+    return ready
+
+
 # -- the worker side ----------------------------------------------------------------------------
 def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in the worker process
     """Worker main loop: load units, run their queued calls, reply with outputs."""
@@ -96,12 +118,9 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     readers: Dict[str, Any] = {}
     setters: Dict[tuple, Any] = {}
     clock = time.perf_counter_ns
-    poll, spin, yield_cpu, now = conn.poll, config.spin_s, os.sched_yield, time.perf_counter
+    ready = _readable(conn, config.spin_s)
     while True:
-        if spin > 0 and not poll():   # poll a while, giving the core to anyone waiting for it
-            end = now() + spin
-            while not poll() and now() < end:
-                yield_cpu()
+        ready()
         try:
             msg = conn.recv()
         except (EOFError, OSError):
@@ -179,6 +198,7 @@ class WorkerProcess:
                                      pass_fds=(fd,), close_fds=True)
         theirs.close()
         self.closed = False
+        self._ready = _readable(self.conn, config.spin_s)   # the master waits for a reply the same way
 
     def send(self, msg: tuple) -> None:
         try:
@@ -190,6 +210,7 @@ class WorkerProcess:
         """The reply to the oldest message sent; raises the worker's exception, or
         FmuCallError when the worker is gone."""
         try:
+            self._ready()
             kind, payload = self.conn.recv()
         except (EOFError, OSError, ValueError):
             raise self._died(unit, function, t_ns) from None
