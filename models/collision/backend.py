@@ -296,6 +296,9 @@ class CollisionBackend(ABC):
         self._aabb_cache: Dict[tuple, np.ndarray] = {}
         self._dyn_box: Dict[int, tuple] = {}
         self._stale = np.zeros(self.n, bool)
+        self._sphere_stale = np.zeros(self.n, bool)  # AABB current, bounding-sphere centre not
+        self._is_dyn_list = self.is_dynamic.tolist()
+        self._rot_key: Dict[int, Optional[bytes]] = {}
         self._moved_set = np.zeros(self.n, bool)
         self._update_bounds(np.arange(self.n))
         # dynamic bodies each pair depends on (for the skip rule)
@@ -317,7 +320,7 @@ class CollisionBackend(ABC):
         self._T_rows: Dict[int, list] = {i: self._T[i].tolist() for i in self._dyn_list}
         self._prev_rows: Dict[int, list] = {}
         # per dynamic body: the bits of the (roll, pitch, yaw) its _T_rows rotation was made of
-        self._rot_key: Dict[int, Optional[bytes]] = {i: _PACK3(*self._poses[i, 3:].tolist()) for i in self._dyn_list}
+        self._rot_key = {i: _PACK3(*self._poses[i, 3:].tolist()) for i in self._dyn_list}
         self._toi_need: Dict[int, bool] = {}  # _needs_toi's answers in the current query
         self._pair_bodies = [sorted(d) for d in self._pair_dyn]
         self._far: List[Optional[Tuple[float, float]]] = [None] * len(self.pairs)
@@ -405,34 +408,42 @@ class CollisionBackend(ABC):
     def ensure_bounds(self, idx) -> None:
         """Bring ``aabb`` / ``sphere_c`` of bodies ``idx`` up to date (they are lazy)."""
         idx = np.asarray(idx, dtype=int).ravel()
-        stale = idx[self._stale[idx]]
+        stale = idx[self._stale[idx] | self._sphere_stale[idx]]
         if len(stale):
             self._update_bounds(stale)
 
-    def _update_bounds(self, idx) -> None:
+    def _update_bounds(self, idx, spheres: bool = True) -> None:
+        """World AABBs (and, with ``spheres``, bounding-sphere centres) of bodies ``idx`` at
+        their current transforms; without ``spheres`` the centres stay stale (``ensure_bounds``
+        brings them up to date)."""
         self._stale[idx] = False
+        self._sphere_stale[idx] = not spheres
         self._sync_rows(idx)
+        dynamic, rot_key = self._is_dyn_list, self._rot_key
         for i in idx:
             key = self.scene.bodies[i].mesh_key
             v, c, _ = self._local[key]
             T = self._T[i]
             # static bodies share rotated boxes by rotation; a dynamic body keeps its last one
-            # (a body that only translates never rotates its vertices again)
-            rkey = (key, T[:3, :3].tobytes()) if self.is_dynamic[i] else (key, T[:3, :3].round(12).tobytes())
-            if self.is_dynamic[i]:
+            # (a body that only translates never rotates its vertices again: its rotation is
+            # named by the bits of its roll, pitch and yaw, or by its own bits after set_state)
+            if dynamic[i]:
+                rkey = rot_key.get(i) or T[:3, :3].tobytes()
                 last = self._dyn_box.get(i)
                 box = last[1] if last is not None and last[0] == rkey else None
             else:
+                rkey = (key, T[:3, :3].round(12).tobytes())
                 box = self._aabb_cache.get(rkey)
             if box is None:
                 pts = v @ T[:3, :3].T
                 box = np.stack([pts.min(0), pts.max(0)])
-                if self.is_dynamic[i]:
+                if dynamic[i]:
                     self._dyn_box[i] = (rkey, box)
                 else:
                     self._aabb_cache[rkey] = box
             self.aabb[i] = box + T[:3, 3]
-            self.sphere_c[i] = T[:3, :3] @ c + T[:3, 3]
+            if spheres:
+                self.sphere_c[i] = T[:3, :3] @ c + T[:3, 3]
 
     def aabb_gap(self, a: int, members: np.ndarray) -> np.ndarray:
         """Euclidean gap between the AABB of ``a`` and those of ``members`` (0 if overlapping)."""

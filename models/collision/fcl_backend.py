@@ -424,17 +424,17 @@ class FclBackend(CollisionBackend):
         return rows
 
     def _fresh_bounds(self, bodies: List[int]) -> None:
-        """``ensure_bounds`` for a few bodies (scalar stale checks)."""
+        """``ensure_bounds`` of the AABBs of a few bodies (scalar stale checks)."""
         stale = self._stale
         idx = [i for i in bodies if stale[i]]
         if idx:
-            self._update_bounds(idx)
+            self._update_bounds(idx, spheres=False)
 
     def _gap(self, a: int, b: int) -> float:
         """AABB gap of two bodies (m, 0 if overlapping), scalar code for the per-candidate path."""
         stale = self._stale
         if stale[a] or stale[b]:
-            self._update_bounds([i for i in (a, b) if stale[i]])
+            self._update_bounds([i for i in (a, b) if stale[i]], spheres=False)
         (alo, ahi), (blo, bhi) = self.aabb[a].tolist(), self.aabb[b].tolist()
         g = 0.0
         for k in range(3):
