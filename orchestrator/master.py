@@ -262,6 +262,8 @@ class Master:
         else:
             for name in self.order:
                 slots[name].stepped = False
+            for slot in self._early:   # skipped lazily (not posted): stepped, as _advance leaves it
+                slot.stepped = not any(p is slot for p in pending)
             work = [(slot, None) for slot in map(slots.__getitem__, self.order) if id(slot) not in early]
         wait = 0
         t0 = perf_counter_ns()
