@@ -983,18 +983,25 @@ class NetworkModel:
             self._hist_dest = ([2 * ((i % G) * G + i // G) for i in range(G * G)], [2 * (g * G + g) for g in range(G)])
         dest, diag = self._hist_dest
         out = [0.0] * (2 * G * G)
-        for c, j in zip(self.cache[:G * G, :self._ncol].tolist(), dest):
-            if order == 0:
-                out[j], out[j + 1] = c[1], c[2]
-            else:
+        rows = self.cache[:G * G, :self._ncol].tolist()
+        if order == 1:
+            for c, j in zip(rows, dest):
                 dt = t - c[T_COL]
-                if order == 1:
-                    out[j], out[j + 1] = c[1] + c[3] * dt, c[2] + c[4] * dt
+                out[j] = c[1] + c[3] * dt
+                out[j + 1] = c[2] + c[4] * dt
+        else:
+            for c, j in zip(rows, dest):
+                if order == 0:
+                    out[j] = c[1]
+                    out[j + 1] = c[2]
                 else:
+                    dt = t - c[T_COL]
                     hd = 0.5 * dt
-                    out[j], out[j + 1] = c[1] + dt * (c[3] + hd * c[5]), c[2] + dt * (c[4] + hd * c[6])
-        for j, p in zip(diag, self._positions_list(P)):   # a master shows its own avatar as it is
-            out[j], out[j + 1] = p
+                    out[j] = c[1] + dt * (c[3] + hd * c[5])
+                    out[j + 1] = c[2] + dt * (c[4] + hd * c[6])
+        for j, (x, y) in zip(diag, self._positions_list(P)):   # a master shows its own avatar as it is
+            out[j] = x
+            out[j + 1] = y
         return out
 
     def _positions_list(self, P: np.ndarray) -> list:
@@ -1077,6 +1084,7 @@ class NetworkModel:
         n_obj = self.n_obj
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
         err2 = [0.0] * len(fi)    # the own copies (and remote ones without a record) count as 0
+        first_order, second_order = order >= 1, order >= 2
         for i, o, c in zip(memo[3], memo[4], rows):
             ct = c[0]
             if not ct >= c[enter] - 1e-12:   # no record since it subscribed
@@ -1085,11 +1093,11 @@ class NetworkModel:
             p = pos[o]
             ex = c[1] - p[0]
             ey = c[2] - p[1]
-            if order >= 1:
+            if first_order:
                 dt = t - ct
                 ex += c[3] * dt
                 ey += c[4] * dt
-                if order >= 2:
+                if second_order:
                     h = 0.5 * dt * dt
                     ex += c[5] * h
                     ey += c[6] * h
