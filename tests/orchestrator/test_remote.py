@@ -74,13 +74,15 @@ def test_gauss_seidel_contact_loop_in_workers_is_the_same(tmp_path):
     assert jolt.max() > 5.0   # the bounce happened
 
 
-def test_lazy_worker_units_match_eager(tmp_path):
+@pytest.mark.parametrize("algorithm, where", [("jacobi", {"coll": 1, "plat": 2}),
+                                               ("gauss-seidel", {"net": 1, "plat": 2})])
+def test_lazy_worker_units_match_eager(tmp_path, algorithm, where):
     """A unit in a worker may be stepped lazily: the same log as eager stepping."""
-    ov = {"simulation.stop": 3.0, "simulation.algorithm": "jacobi", "coll:process": 1, "plat:process": 2}
+    ov = {"simulation.stop": 3.0, "simulation.algorithm": algorithm, **{f"{u}:process": n for u, n in where.items()}}
     lazy_log, eager_log = tmp_path / "lazy.mcap", tmp_path / "eager.mcap"
     ex = Execution(SCEN / "campus_idle.toml", lazy_log, overrides={**ov, "simulation.lazy": True})
     ex.run()
-    assert ex.master.slots["coll"].skipped_steps > 50 and ex.master.slots["plat"].skipped_steps > 50
+    assert all(ex.master.slots[u].skipped_steps > 50 for u in where)
     run_scenario(SCEN / "campus_idle.toml", eager_log, overrides={**ov, "simulation.lazy": False})
     _same_logs(lazy_log, eager_log)
 
