@@ -59,6 +59,7 @@ def _any_within(a: list, b: list, r2: float) -> bool:
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a`` made read-only (a shared constant)."""
     a.flags.writeable = False
     return a
 
