@@ -63,7 +63,9 @@ def bvh_model(vertices: np.ndarray, faces: np.ndarray) -> "fcl.BVHModel":
 
 
 def fcl_transform(T: np.ndarray) -> "fcl.Transform":
-    return fcl.Transform(np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
+    """The fcl transform of a 4x4 rigid transform (python-fcl copies the rotation and
+    translation into arrays of its own)."""
+    return fcl.Transform(T[:3, :3], T[:3, 3])
 
 
 class FclBackend(CollisionBackend):
