@@ -199,7 +199,9 @@ class FclBackend(CollisionBackend):
 
     def _travel(self, a: int) -> float:
         """Bound (m) on the travel of any surface point of ``a`` over the step (translation +
-        rotation angle x radius about the origin): what decides a fast mover."""
+        rotation angle x radius about the origin): what decides a fast mover. (Asked by the
+        far-pair skip too, before the pair's rows are written: writes ``a``'s.)"""
+        self._sync_rows((a,))
         T0, T1 = self._prev_T[a], self._T[a]
         return (np.linalg.norm(T1[:3, 3] - T0[:3, 3])
                 + rotation_angle(T1[:3, :3] @ T0[:3, :3].T) * self._radius[a])

@@ -101,3 +101,23 @@ def test_a_non_finite_flat_pose_is_rejected_by_name(scene):
     be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
     with pytest.raises(ValueError, match=r"pose of dynamic body 'e' \(yaw\) = nan is not finite"):
         be.query((0.0, 0.0, 2.5, 0.0, 0.0, 0.0, 1.0, 2.0, 1.0, 0.0, 0.0, math.nan))
+
+
+def test_the_travel_of_a_far_skipped_body_is_that_of_its_poses(scene):
+    """The far-pair skip may ask for a body's travel before the pair's rows are written."""
+    from immersim.models.collision.geometry import rotation_angle
+
+    be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
+    p0 = ((-30.0, 0.0, 2.5, 0.0, 0.0, 0.1), (40.0, 0.0, 1.0, 0.0, 0.0, 0.0))
+    p1 = ((-29.8, 0.1, 2.5, 0.0, 0.0, 0.12), (40.0, 0.0, 1.0, 0.0, 0.0, 0.0))
+    be.query(tuple(x for p in p0 for x in p))
+    be.query(tuple(x for p in p1 for x in p))
+    evaluated = []
+    real = be._evaluate
+    be._evaluate = lambda pair, dt: evaluated.append(pair.label) or real(pair, dt)
+    p2 = ((-29.6, 0.2, 2.5, 0.0, 0.0, 0.14), p1[1])  # slow: no time of impact needed
+    be.query(tuple(x for p in p2 for x in p))
+    assert evaluated == []  # far: the rows of the avatar were not written by an evaluation
+    T1, T2 = pose_matrix(p1[0]), pose_matrix(p2[0])
+    expected = np.linalg.norm(T2[:3, 3] - T1[:3, 3]) + rotation_angle(T2[:3, :3] @ T1[:3, :3].T) * be._radius[0]
+    assert be._travel(0) == expected
