@@ -61,6 +61,9 @@ class SceneGrid:
         out = []
         for x, y in pos:
             u, v = x / size * C, y / size * C
+            if 0.0 <= u < C and 0.0 <= v < C:     # inside the grid: no clipping
+                out.append(int(u) * C + int(v))
+                continue
             if not (-CELL_LIMIT < u < CELL_LIMIT and -CELL_LIMIT < v < CELL_LIMIT):
                 return None
             i, j = int(u), int(v)
