@@ -368,7 +368,7 @@ class World:
         same order, walls included; entities do not interact, so each runs its sub-steps in turn)."""
         S = self.cfg.scene_size
         S2, hh = 2 * S, 0.5 * h
-        qx, qy, wx, wy = [], [], [], []
+        pos, vel = [], []    # x, y (vx, vy) per entity
         for (x, y), (ax, ay), c, s in zip(self.epos.tolist(), self.evel.tolist(), ct, st):
             for _ in range(n):
                 bx = (c * ax - s * ay) * decay
@@ -384,12 +384,12 @@ class World:
                 elif y > S:
                     y, by = S2 - y, by * -1.0
                 ax, ay = bx, by
-            qx.append(x)
-            qy.append(y)
-            wx.append(ax)
-            wy.append(ay)
-        self.epos[:, 0], self.epos[:, 1] = qx, qy
-        self.evel = np.array([wx, wy]).T.copy()
+            pos.append(x)
+            pos.append(y)
+            vel.append(ax)
+            vel.append(ay)
+        self.epos.flat = pos      # (in place, row by row)
+        self.evel = np.array(vel).reshape(-1, 2)
 
     def _entity_walls(self) -> None:
         S = self.cfg.scene_size
