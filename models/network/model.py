@@ -594,9 +594,13 @@ class NetworkModel:
             # the frame at which each record is due is its message's (-1: the message, or the
             # first hop a relayed record waits for, was lost)
             if arr_l is not None:
-                k, T = self.k, cfg.frame_s
-                due_msg = _due_frames(arr_l, T, k)
-                due = [due_msg[i] for i in tr.plan.lists()[0]]
+                rec_msg, _, carriers = tr.plan.lists()
+                due_c = _due_frames([arr_l[i] for i in carriers], cfg.frame_s, self.k)
+                if due_c.count(due_c[0]) == len(due_c):   # every record due at one frame
+                    due = due_c[0]
+                else:
+                    at = dict(zip(carriers, due_c))
+                    due = [at[i] for i in rec_msg]
             else:
                 due_msg = self._due(arrival)
                 due_msg[lost] = -1
@@ -795,9 +799,15 @@ class NetworkModel:
 
     def _file(self, due: np.ndarray, fi: np.ndarray, sender: np.ndarray, table: np.ndarray,
               ridx: np.ndarray, epoch: Optional[int] = None, t_send: Optional[float] = None) -> None:
-        """File records under the frame they are due (``due`` (k,) array or list, -1: lost, dropped), in
-        send order; see :meth:`_add_inflight`. ``t_send``: the newest record time of
+        """File records under the frame they are due (``due`` (k,) array or list, or one frame for
+        all of them; -1: lost, dropped), in send order; see :meth:`_add_inflight`. ``t_send``: the newest record time of
         ``table`` when the caller knows it (a frame's table: the frame time)."""
+        if isinstance(due, int):   # every record due at frame ``due`` (-1: lost)
+            if due >= 0 and len(fi):
+                meta = (self._epoch if epoch is None else epoch,
+                        float(table[:, T_COL].max()) if t_send is None else t_send)
+                self._inflight.setdefault(due, []).append((fi, sender, table, ridx, meta))
+            return
         if not len(due):
             return
         if isinstance(due, list) or len(due) <= 64:   # a few records: the extremes in Python

@@ -129,11 +129,13 @@ class TrafficPlan:
         self._lists: Optional[tuple] = None
 
     def lists(self) -> tuple:
-        """The records' messages and the (message, slave) pairs of the frame deliveries as
-        Python lists (built on first use, for the small-batch path of the model)."""
+        """The records' messages, the (message, slave) pairs of the frame deliveries and the
+        messages that carry records (sorted) as Python lists (built on first use, for the
+        small-batch path of the model)."""
         if self._lists is None:
             rec_msg, frame_msg, frame_slave = self._deliveries
-            self._lists = (rec_msg.tolist(), list(zip(frame_msg.tolist(), frame_slave.tolist())))
+            rec = rec_msg.tolist()
+            self._lists = (rec, list(zip(frame_msg.tolist(), frame_slave.tolist())), sorted(set(rec)))
         return self._lists
 
 
