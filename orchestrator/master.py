@@ -239,8 +239,10 @@ class Master:
         posted = []
         for slot in self._early:
             if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
-                slot.inst.post()
+                slot.inst.post(hold=True)     # one message per worker (its units' steps batched)
                 posted.append(slot)
+        for slot in posted:
+            slot.inst.worker.flush()
         self._posted = (t_ns, posted)
 
     def _parallel_step(self, t_ns: int, h_ns: int) -> None:

@@ -121,12 +121,8 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     setters: Dict[tuple, Any] = {}
     clock = time.perf_counter_ns
     ready = _readable(conn, config.spin_s)
-    while True:
-        ready()
-        try:
-            msg = loads(conn.recv_bytes())
-        except (EOFError, OSError):
-            break
+
+    def handle(msg: tuple) -> tuple:
         op, name = msg[0], msg[1]
         try:
             if op == "run":          # ("run", unit, queued calls, read?)
@@ -141,33 +137,41 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                     else:            # ("set", {name: value})
                         inst.set_values(call[1])
                 values = readers[name].read() if msg[3] else None
-                reply = ("ok", (values, clock() - t0))
-            elif op == "load":       # ("load", unit, path, unzip dir)
+                return name, "ok", (values, clock() - t0)
+            if op == "load":         # ("load", unit, path, unzip dir)
                 units[name] = FmuInstance(name, msg[2], msg[3])
-                reply = ("ok", os.getpid())
-            elif op == "reader":     # ("reader", unit, names, check_finite)
+                return name, "ok", os.getpid()
+            if op == "reader":       # ("reader", unit, names, check_finite)
                 readers[name] = units[name].reader(msg[2], msg[3])
-                reply = ("ok", readers[name].names)
-            elif op == "setter":     # ("setter", unit, names, "reals" | "discrete")
+                return name, "ok", readers[name].names
+            if op == "setter":       # ("setter", unit, names, "reals" | "discrete")
                 inst = units[name]
                 setters[name, msg[3]] = (inst.real_setter if msg[3] == "reals" else inst.discrete_setter)(msg[2])
-                reply = ("ok", None)
-            elif op == "call":       # ("call", unit, method, args)
-                reply = ("ok", getattr(units[name], msg[2])(*msg[3]))
-            elif op == "close":
+                return name, "ok", None
+            if op == "call":         # ("call", unit, method, args)
+                return name, "ok", getattr(units[name], msg[2])(*msg[3])
+            if op == "close":
                 for inst in units.values():
                     inst.terminate()
                 units.clear()
-                reply = ("ok", None)
-            else:
-                raise ValueError(f"worker: unknown command {op!r}")
+                return name, "ok", None
+            raise ValueError(f"worker: unknown command {op!r}")
         except BaseException as exc:   # every failure goes back to the master, typed
-            reply = ("err", _portable(exc))
+            return name, "err", _portable(exc)
+
+    while True:
+        ready()
+        try:
+            msg = loads(conn.recv_bytes())
+        except (EOFError, OSError):
+            break
+        # ("batch", "", [messages]): several units' steps in one message, one reply each, in order
+        reply = [handle(m) for m in msg[2]] if msg[0] == "batch" else handle(msg)
         try:
             conn.send_bytes(dumps(reply, 5))
         except (EOFError, OSError):
             break
-        if op == "close":
+        if msg[0] == "close":
             break
     conn.close()
     logging.shutdown()
@@ -201,21 +205,49 @@ class WorkerProcess:
         theirs.close()
         self.closed = False
         self._ready = _readable(self.conn, config.spin_s)   # the master waits for a reply the same way
+        #: messages held for one batch (:meth:`send` with ``hold``, then :meth:`flush`)
+        self._outbox: List[tuple] = []
+        self._outbox_err: Optional[tuple] = None   # (unit, function, time) for a failed flush
+        #: replies read but not taken yet, by unit (a unit has at most one message outstanding)
+        self._arrived: Dict[str, tuple] = {}
 
-    def send(self, msg: tuple, function: str = "", t_ns: Optional[int] = None) -> None:
+    def send(self, msg: tuple, function: str = "", t_ns: Optional[int] = None, hold: bool = False) -> None:
+        """Send ``msg`` now, or with ``hold`` keep it for the next :meth:`flush` (several units'
+        steps then travel as one message)."""
+        self._outbox.append(msg)
+        if self._outbox_err is None:
+            self._outbox_err = (msg[1], function or msg[0], t_ns)
+        if not hold:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send the held messages: one as it is, several as one batch."""
+        box = self._outbox
+        if not box:
+            return
+        msg = box[0] if len(box) == 1 else ("batch", "", list(box))
+        unit, function, t_ns = self._outbox_err
+        self._outbox, self._outbox_err = [], None
         try:
             self.conn.send_bytes(dumps(msg, 5))
         except (OSError, EOFError, ValueError):
-            raise self._died(msg[1], function or msg[0], t_ns) from None
+            raise self._died(unit, function, t_ns) from None
 
     def receive(self, unit: str, function: str, t_ns: Optional[int]) -> Any:
-        """The reply to the oldest message sent; raises the worker's exception, or
-        FmuCallError when the worker is gone."""
-        try:
-            self._ready()
-            kind, payload = loads(self.conn.recv_bytes())
-        except (EOFError, OSError, ValueError):
-            raise self._died(unit, function, t_ns) from None
+        """The reply to ``unit``'s outstanding message (replies are routed by unit: a batch's or
+        another unit's reply read first is kept for its unit); raises the worker's exception,
+        or FmuCallError when the worker is gone."""
+        self.flush()
+        arrived = self._arrived
+        while unit not in arrived:
+            try:
+                self._ready()
+                reply = loads(self.conn.recv_bytes())
+            except (EOFError, OSError, ValueError):
+                raise self._died(unit, function, t_ns) from None
+            for name, kind, payload in (reply if isinstance(reply, list) else (reply,)):
+                arrived[name] = (kind, payload)
+        kind, payload = arrived.pop(unit)
         if kind == "err":
             raise _rebuild(payload)
         return payload
@@ -323,10 +355,11 @@ class RemoteInstance:
             self.worker.receive(self.name, "load", None)
 
     # -- queued calls and their one message ------------------------------------------------------
-    def post(self, read: bool = True) -> None:
-        """Send the queued calls (and a read of the outputs) without waiting for the reply."""
+    def post(self, read: bool = True, hold: bool = False) -> None:
+        """Send the queued calls (and a read of the outputs) without waiting for the reply;
+        ``hold``: in the worker's next batch (``WorkerProcess.flush``)."""
         self._drain()
-        self.worker.send(("run", self.name, self.queue, read), _RUN, self._step_start)
+        self.worker.send(("run", self.name, self.queue, read), _RUN, self._step_start, hold)
         self.queue = []
         self._posted = True
 

@@ -135,3 +135,29 @@ def test_bad_process_number_is_refused(tmp_path, test_fmus):
         load_scenario(scn, {"m1:process": -1})
     with pytest.raises(ScenarioError, match=r"override 'mx:process': no unit 'mx'"):
         load_scenario(scn, {"mx:process": 1})
+
+
+def test_replies_are_routed_to_their_unit(tmp_path, test_fmus):
+    """Two units of one worker posted as one batch and collected in the other order: each gets
+    its own outputs (a reply read for another unit is kept for it)."""
+    from immersim.orchestrator.remote import RemoteInstance, WorkerProcess
+
+    w = WorkerProcess(1)
+    try:
+        insts = {n: RemoteInstance(n, test_fmus["oscillator"], tmp_path / n, w) for n in ("a", "b")}
+        for n, inst in insts.items():
+            inst.start_loading()
+        for n, inst in insts.items():
+            inst.finish_loading()
+            inst.initialize(0, None, {"x0": 1.0 if n == "a" else -2.0})
+        readers = {n: inst.reader(["x"]) for n, inst in insts.items()}
+        for inst in insts.values():
+            inst.do_step(0, 33_000_000)
+            inst.post(hold=True)
+        w.flush()
+        xb, xa = readers["b"].read()[0], readers["a"].read()[0]
+        assert xa > 0.9 and xb < -1.8     # a started at 1, b at -2: not swapped
+    finally:
+        for inst in insts.values():
+            inst.terminate()
+        w.close()
