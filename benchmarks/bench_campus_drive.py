@@ -86,6 +86,24 @@ def run(path: Path, overrides: Dict, log_to: Path | None, cpu: bool = False) -> 
         master_module.perf_counter_ns = clock
 
 
+def fresh_run(overrides: Dict, log_to: Path) -> Dict:
+    """campus_drive in a fresh interpreter (as ``immersim run`` runs it); returns its
+    ``RunResult.timing`` and, under "remote", the units that ran in worker processes."""
+    import json
+    import subprocess
+
+    code = ("import json, logging, os, sys\n"
+            "logging.disable(logging.WARNING)\n"
+            "from immersim.orchestrator.execution import Execution\n"
+            "r = Execution(sys.argv[1], sys.argv[2], overrides=json.loads(sys.argv[3])).run()\n"
+            "sys.stdout.write(json.dumps({**r.timing, 'remote': r.remote_units}) + '\\n')\n"
+            "sys.stdout.flush()\n"
+            "os._exit(0)\n")
+    out = subprocess.run([sys.executable, "-c", code, str(CAMPUS), str(log_to), json.dumps(overrides)],
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def parts(res: RunResult, ex: Execution | None = None) -> Dict[str, float]:
     """Seconds per part of the loop: each unit, logging, master; ``loop`` the whole.
 
@@ -240,19 +258,20 @@ def main() -> None:
                "Jacobi, net in worker 1": {"simulation.algorithm": "jacobi", "net:process": 1},
                "Gauss-Seidel, net in worker 1, plat in worker 2": {"net:process": 1, "plat:process": 2},
                "Gauss-Seidel, plat in worker 1": {"plat:process": 1}}
-        par_res: Dict[str, List[RunResult]] = {k: [] for k in par}
+        par_res: Dict[str, List[dict]] = {k: [] for k in par}
 
         def par_run(name: str) -> Callable[[], float]:
-            def go() -> float:
-                res, _, _ = run(CAMPUS, par[name], tmp / "par.mcap")
-                par_res[name].append(res)
-                return res.timing["loop"]
+            def go() -> float:   # a fresh process per run, as `immersim run` (workers start fresh too)
+                t = fresh_run(par[name], tmp / "par.mcap")
+                par_res[name].append(t)
+                return t["loop"]
             return go
 
         ptimes = interleaved({k: par_run(k) for k in par}, reps + 2)
         lines += ["## 3b. Units in worker processes (`process = N`), wall clock", "",
                   f"The same run (20 s, full logging) with the master algorithm and the units' processes as "
-                  f"overrides; {reps + 2} interleaved runs each, medians of the loop wall time. Worker units "
+                  f"overrides, each in a fresh process as `immersim run` runs it; {reps + 2} interleaved runs "
+                  f"each, medians of the loop wall time. Worker units "
                   "step in parallel with the master's own units where the algorithm allows (README \"Units in "
                   "worker processes\"); the log equals the one-process log of the same algorithm bit for bit "
                   "(`tests/orchestrator/test_remote.py`). A worker unit's time is its worker's, the master's "
@@ -262,12 +281,12 @@ def main() -> None:
         for name in par:
             rs = par_res[name]
             loop = median(ptimes[name])
-            units = sorted({k[5:] for r in rs for k in r.timing if k.startswith("unit:")})
-            cells = ", ".join(f"{u} {median([r.timing['unit:' + u] for r in rs]):.3f}"
-                              + (" (worker)" if u in rs[0].remote_units else "") for u in units)
-            wait = median([r.timing.get("wait", 0.0) for r in rs])
+            units = sorted({k[5:] for r in rs for k in r if k.startswith("unit:")})
+            cells = ", ".join(f"{u} {median([r['unit:' + u] for r in rs]):.3f}"
+                              + (" (worker)" if u in rs[0]["remote"] else "") for u in units)
+            wait = median([r.get("wait", 0.0) for r in rs])
             lines.append(f"| {name} | {loop:.3f} | {sim / loop:.1f}x | {cells} | {wait:.3f} | "
-                         f"{median([r.timing['logging'] for r in rs]):.3f} |")
+                         f"{median([r['logging'] for r in rs]):.3f} |")
             print(name, ptimes[name])
         lines.append("")
 

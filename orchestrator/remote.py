@@ -59,7 +59,7 @@ class RemoteConfig:
         for a core (the master on a loaded machine) gets it; at most this long per step.
     """
 
-    spin_s: float = 0.0005
+    spin_s: float = 0.005
 
 
 # -- errors across the pipe -------------------------------------------------------------------
