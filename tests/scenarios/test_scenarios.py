@@ -66,6 +66,25 @@ def test_campus_drive_short_run(tmp_path):
     assert np.abs(series(out, "plat.stroke[1]")).max() > 1e-3
     # the scenario's washout gains keep the full-throttle launch inside the workspace
     assert not series(out, "plat.flag.outside_workspace").any()
+    # the 3D view: every body's frame on /tf each step, its shape on /scene once a second; an
+    # avatar's transform is its logged pose (+ the box centre's 2.5 m), its yaw a z rotation
+    import json
+
+    from mcap.reader import make_reader
+
+    with open(out, "rb") as fh:
+        msgs = [(c.topic, json.loads(m.data)) for _, c, m in make_reader(fh).iter_messages(topics=["/tf", "/scene"])]
+    tf = [m["transforms"] for t, m in msgs if t == "/tf"]
+    scene = [m["entities"] for t, m in msgs if t == "/scene"]
+    names = {"avatar_1", "avatar_2", "avatar_3", "entity_1", "entity_2", "entity_3", "entity_4", "missile",
+             "tank_a", "tank_b", "tank_c", "tank_0", "tank_1", "tank_2", "tank_3", "platform", "platform_base"}
+    assert len(tf) == 62 and len(scene) == 2 and all({x["child_frame_id"] for x in f} == names for f in tf)
+    assert {e["id"] for e in scene[0]} == names
+    a1 = [next(x for x in f if x["child_frame_id"] == "avatar_1") for f in tf]
+    np.testing.assert_array_equal([x["translation"]["x"] for x in a1], x)
+    assert all(x_["translation"]["z"] == 2.5 for x_ in a1)
+    yaw = series(out, "net.avatar[1].yaw")
+    np.testing.assert_allclose([x_["rotation"]["z"] for x_ in a1], np.sin(yaw / 2), rtol=0, atol=1e-15)
 
 
 def _campus_variant(tmp_path: Path, name: str, drop_jolt: bool) -> Path:
