@@ -149,7 +149,10 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                 setters[name, msg[3]] = (inst.real_setter if msg[3] == "reals" else inst.discrete_setter)(msg[2])
                 return name, "ok", None
             if op == "call":         # ("call", unit, method, args)
-                return name, "ok", getattr(units[name], msg[2])(*msg[3])
+                result = getattr(units[name], msg[2])(*msg[3])
+                if msg[2] == "terminate":   # freed: "close" must not free it again
+                    del units[name]
+                return name, "ok", result
             if op == "close":
                 for inst in units.values():
                     inst.terminate()
