@@ -134,7 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scenario", help="scenario TOML file")
     r.add_argument("-o", "--output", help="MCAP file (default: results/runs/<scenario>.mcap)")
     r.add_argument("--set", action="append", metavar="UNIT.PARAM=VALUE",
-                   help="override a parameter or simulation.stop/step/algorithm/extrapolation/lazy (TOML value)")
+                   help="override a parameter (unit.param), simulation.stop/step/algorithm/extrapolation/lazy, "
+                        "log.encoding/include/exclude, or run a unit in worker process N (unit:process=N); TOML value")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(fn=_cmd_run)
 
