@@ -109,6 +109,64 @@ def _readable(conn, spin_s: float) -> Callable[[], None]:
     return ready
 
 
+class _SharedValues:
+    """A worker unit's outputs in a shared file mapping (``/dev/shm``), instead of a reply.
+
+    Layout, float64: a header ``[sequence, status, busy ns, 0]`` then the values (Reals,
+    Integers, Booleans, in the reader's order). The worker writes the values, then the status,
+    busy time and, last, the sequence number of the post; the master waits for its sequence
+    number (x86 keeps the order of stores, so the values are complete when it appears). A
+    status 1 means the step failed: its error comes as a normal reply.
+
+    Parameters
+    ----------
+    path : str
+        The file (created by the master, sized for ``layout``).
+    layout : tuple of int
+        Counts of Reals, Integers and Booleans.
+    """
+
+    HEADER = 4
+
+    def __init__(self, path: str, layout: tuple) -> None:
+        import mmap
+
+        import numpy as np
+
+        self.path, self.layout = path, tuple(layout)
+        n = self.HEADER + sum(self.layout)
+        with open(path, "r+b") as fh:
+            self._map = mmap.mmap(fh.fileno(), 8 * n)
+        self.a = np.frombuffer(self._map, dtype=np.float64, count=n)
+        self.head, self.data = self.a[:self.HEADER], self.a[self.HEADER:]
+
+    def put(self, seq: int, values: Sequence[Any], busy_ns: int) -> None:
+        self.data[:] = values
+        self.head[1], self.head[2] = 0.0, float(busy_ns)
+        self.head[0] = float(seq)
+
+    def fail(self, seq: int) -> None:
+        self.head[1] = 1.0
+        self.head[0] = float(seq)
+
+    def values(self) -> List[Any]:
+        n_real, n_int, n_bool = self.layout
+        d = self.data
+        out = d[:n_real].tolist()
+        if n_int:
+            out += [int(x) for x in d[n_real:n_real + n_int].tolist()]
+        if n_bool:
+            out += [x != 0.0 for x in d[n_real + n_int:].tolist()]
+        return out
+
+    def close(self) -> None:
+        self.head = self.data = self.a = None
+        try:
+            self._map.close()
+        except BufferError:   # a view still alive: the mapping goes with the process
+            pass
+
+
 # -- the worker side ----------------------------------------------------------------------------
 def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in the worker process
     """Worker main loop: load units, run their queued calls, reply with outputs."""
@@ -119,13 +177,14 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     units: Dict[str, FmuInstance] = {}
     readers: Dict[str, Any] = {}
     setters: Dict[tuple, Any] = {}
+    shared: Dict[str, "_SharedValues"] = {}   # units whose outputs go back through shared memory
     clock = time.perf_counter_ns
     ready = _readable(conn, config.spin_s)
 
     def handle(msg: tuple) -> tuple:
         op, name = msg[0], msg[1]
         try:
-            if op == "run":          # ("run", unit, queued calls, read?)
+            if op == "run":          # ("run", unit, queued calls, read?, sequence number)
                 t0 = clock()
                 inst = units[name]
                 for call in msg[2]:
@@ -137,6 +196,10 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                     else:            # ("set", {name: value})
                         inst.set_values(call[1])
                 values = readers[name].read() if msg[3] else None
+                sv = shared.get(name) if msg[3] else None
+                if sv is not None:   # the outputs through shared memory: no message
+                    sv.put(msg[4], values, clock() - t0)
+                    return None
                 return name, "ok", (values, clock() - t0)
             if op == "load":         # ("load", unit, path, unzip dir)
                 units[name] = FmuInstance(name, msg[2], msg[3])
@@ -144,6 +207,9 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
             if op == "reader":       # ("reader", unit, names, check_finite)
                 readers[name] = units[name].reader(msg[2], msg[3])
                 return name, "ok", readers[name].names
+            if op == "shared":       # ("shared", unit, file, layout): outputs through that file
+                shared[name] = _SharedValues(msg[2], msg[3])
+                return name, "ok", None
             if op == "setter":       # ("setter", unit, names, "reals" | "discrete")
                 inst = units[name]
                 setters[name, msg[3]] = (inst.real_setter if msg[3] == "reals" else inst.discrete_setter)(msg[2])
@@ -160,6 +226,8 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                 return name, "ok", None
             raise ValueError(f"worker: unknown command {op!r}")
         except BaseException as exc:   # every failure goes back to the master, typed
+            if op == "run" and msg[3] and name in shared:
+                shared[name].fail(msg[4])   # the master stops waiting there and reads this reply
             return name, "err", _portable(exc)
 
     while True:
@@ -169,13 +237,20 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
         except (EOFError, OSError):
             break
         # ("batch", "", [messages]): several units' steps in one message, one reply each, in order
-        reply = [handle(m) for m in msg[2]] if msg[0] == "batch" else handle(msg)
+        if msg[0] == "batch":
+            reply = [r for r in map(handle, msg[2]) if r is not None]
+        else:
+            reply = handle(msg)
+        if reply is None or reply == []:   # every output went through shared memory
+            continue
         try:
             conn.send_bytes(dumps(reply, 5))
         except (EOFError, OSError):
             break
         if msg[0] == "close":
             break
+    for sv in shared.values():
+        sv.close()
     conn.close()
     logging.shutdown()
     os._exit(0)   # not the interpreter's teardown: pythonfmu's unloading can abort in it
@@ -299,6 +374,19 @@ class RemoteReader:
     def __init__(self, inst: "RemoteInstance", names: Sequence[str], check_finite: bool) -> None:
         self.inst = inst
         self.names = inst.worker.call(inst.name, "reader", list(names), True, function="reader")
+        fams = [inst.var(n).family for n in self.names]
+        if "string" not in fams and os.path.isdir("/dev/shm"):   # the outputs through shared memory
+            import tempfile
+
+            layout = (fams.count("float"), fams.count("int"), fams.count("bool"))
+            fd, path = tempfile.mkstemp(prefix=f"immersim_{os.getpid()}_{inst.name}_", dir="/dev/shm")
+            with os.fdopen(fd, "wb") as fh:
+                fh.truncate(8 * (_SharedValues.HEADER + sum(layout)))
+            try:
+                inst.worker.call(inst.name, "shared", path, layout, function="reader")
+                inst.shared = _SharedValues(path, layout)
+            finally:
+                os.unlink(path)   # both sides have it mapped; nothing is left behind
 
     def read(self) -> List[Any]:
         return self.inst.collect()
@@ -339,6 +427,10 @@ class RemoteInstance:
         self.queue: List[tuple] = []
         self._posted = False
         self._step_start = 0   # start of the last step queued (errors of a posted step name it)
+        self._seq = 0          # posts so far: the worker writes the shared outputs under this number
+        self._via_shared = False
+        #: the outputs come back through shared memory (set by the reader, unless a String is read)
+        self.shared: Optional[_SharedValues] = None
         if not self.path.exists():
             raise FmuLoadError(f"unit {name}: FMU file {self.path} does not exist")
         md, self.variables = read_model(self.path, name)
@@ -362,7 +454,9 @@ class RemoteInstance:
         """Send the queued calls (and a read of the outputs) without waiting for the reply;
         ``hold``: in the worker's next batch (``WorkerProcess.flush``)."""
         self._drain()
-        self.worker.send(("run", self.name, self.queue, read), _RUN, self._step_start, hold)
+        self._seq += 1
+        self._via_shared = read and self.shared is not None
+        self.worker.send(("run", self.name, self.queue, read, self._seq), _RUN, self._step_start, hold)
         self.queue = []
         self._posted = True
 
@@ -371,9 +465,29 @@ class RemoteInstance:
         if not self._posted:
             self.post()
         self._posted = False
+        if self._via_shared and self._wait_shared():
+            sv = self.shared
+            self.busy_ns += int(sv.head[2])
+            return sv.values()
         values, busy = self.worker.receive(self.name, _RUN, self._step_start)
         self.busy_ns += busy
         return values
+
+    def _wait_shared(self) -> bool:
+        """Wait for the worker to write the outputs of the last post (polling the shared
+        header, yielding the core between polls, checking now and then that the worker is
+        alive). True when they are there, False when the step failed (its error is a reply)."""
+        w = self.worker
+        w.flush()
+        head, seq = self.shared.head, float(self._seq)
+        alive, yield_cpu = w.proc.poll, os.sched_yield
+        k = 0
+        while head[0] != seq:
+            k += 1
+            if not k & 1023 and alive() is not None:
+                raise w._died(self.name, _RUN, self._step_start)
+            yield_cpu()
+        return head[1] == 0.0
 
     def sync(self) -> None:
         """Run the queued calls now (no read)."""
@@ -386,7 +500,8 @@ class RemoteInstance:
         if self._posted:
             self._posted = False
             try:
-                self.worker.receive(self.name, _RUN, self._step_start)
+                if not (self._via_shared and self._wait_shared()):
+                    self.worker.receive(self.name, _RUN, self._step_start)
             except Exception as exc:
                 log.debug("unit %s: a dropped reply failed: %s", self.name, exc)
 
@@ -439,6 +554,9 @@ class RemoteInstance:
             self._call("terminate")
         except Exception as exc:
             log.debug("unit %s: terminate failed: %s", self.name, exc)
+        if self.shared is not None:
+            self.shared.close()
+            self.shared = None
 
 
 if __name__ == "__main__":  # pragma: no cover - a worker process (WorkerProcess starts it)
