@@ -83,16 +83,23 @@ def _numbers(obj, prefix=""):
 
 
 def check_log(path: Path) -> LogCheck:
-    """Read every message of an MCAP log (strict JSON-with-NaN decoding) and every metadata
-    record; list any non-finite number."""
+    """Read every message of an MCAP log (strict JSON-with-NaN decoding, or the "ros1" packing)
+    and every metadata record; list any non-finite number."""
     from mcap.reader import make_reader
 
+    from immersim.orchestrator.mcapio import _schema_of
+
     res = LogCheck()
+    decoders = {}
     with open(path, "rb") as fh:
         reader = make_reader(fh)
-        for _schema, channel, message in reader.iter_messages():
+        for schema, channel, message in reader.iter_messages():
             res.messages[channel.topic] = res.messages.get(channel.topic, 0) + 1
-            obj = json.loads(message.data)  # json accepts NaN/Infinity tokens: we look for them
+            if channel.message_encoding == "json":
+                obj = json.loads(message.data)  # json accepts NaN/Infinity tokens: we look for them
+            else:   # a packed ("ros1") channel: its numbers as they are
+                decode = decoders.get(channel.id) or decoders.setdefault(channel.id, _schema_of(schema, channel)[1])
+                obj = decode(message.data)
             for name, x in _numbers(obj):
                 res.values += 1
                 if not math.isfinite(x):
