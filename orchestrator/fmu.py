@@ -82,6 +82,15 @@ def ns_to_s(t_ns: int) -> float:
 _MODELS: Dict[tuple, tuple] = {}
 
 
+def step_error(unit: str, t_ns: int, h_ns: int, instance_ns: int) -> FmuCallError:
+    """The master's mistake in a ``doStep`` (a step <= 0, or a start time that is not the
+    instance's time, ns), as the error every instance raises for it (its condition is tested
+    inline by the callers: this builds the message only)."""
+    if h_ns <= 0:
+        return FmuCallError(unit, "doStep", t_ns, 3, f"step size {h_ns} ns must be > 0")
+    return FmuCallError(unit, "doStep", t_ns, 3, f"master time {t_ns} ns differs from the instance time {instance_ns} ns")
+
+
 def forget_python_code(folder: Path) -> int:
     """Drop the Python modules and ``sys.path`` entries that live under ``folder``.
 
@@ -394,11 +403,8 @@ class FmuInstance:
 
     def do_step(self, t_ns: int, h_ns: int) -> None:
         """Advance from ``t_ns`` by ``h_ns`` (integer nanoseconds)."""
-        if h_ns <= 0:
-            raise FmuCallError(self.name, "doStep", t_ns, 3, f"step size {h_ns} ns must be > 0")
-        if t_ns != self.t_ns:
-            raise FmuCallError(self.name, "doStep", t_ns, 3,
-                               f"master time {t_ns} ns differs from the instance time {self.t_ns} ns")
+        if h_ns <= 0 or t_ns != self.t_ns:
+            raise step_error(self.name, t_ns, h_ns, self.t_ns)
         if self._fmi2:
             if h_ns != self._h_ns:
                 self._c_h.value, self._h_ns = h_ns / 1e9, h_ns

@@ -131,6 +131,9 @@ class Master:
             before = {src.name: src for src in feeds if rank[src.name] < rank[slot.name]}
             slot.waits_for = list(before.values()) if self.algorithm == "gauss-seidel" else []
         self._early = [slots[n] for n in self.order if slots[n].inst.remote and not slots[n].waits_for]
+        early = set(map(id, self._early))
+        #: the units a Gauss-Seidel step goes through itself (the early ones are posted before it)
+        self._gs_work = [slots[n] for n in self.order if id(slots[n]) not in early]
         for slot in slots.values():
             if slot.other_feeds:
                 slot.other_setter = slot.inst.discrete_setter([name for name, _, _ in slot.other_feeds])
@@ -257,7 +260,6 @@ class Master:
             self.post_remote(t_ns, h_ns)
         pending = self._posted[1]
         self._posted = None
-        early = set(map(id, self._early))
         if self.algorithm == "jacobi":
             work = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
                     for slot in map(slots.__getitem__, self.order) if not slot.inst.remote]
@@ -266,7 +268,7 @@ class Master:
                 slots[name].stepped = False
             for slot in self._early:   # skipped lazily (not posted): stepped, as _advance leaves it
                 slot.stepped = not any(p is slot for p in pending)
-            work = [(slot, None) for slot in map(slots.__getitem__, self.order) if id(slot) not in early]
+            work = [(slot, None) for slot in self._gs_work]
         wait = 0
         t0 = perf_counter_ns()
         for slot, inputs in work:

@@ -98,7 +98,7 @@ def _messages(path: Path, topics: Optional[List[str]] = None):
         return msgs, metadata, True
 
 
-def _schema_of(schema, channel) -> Tuple[Dict, Callable[[bytes], Dict]]:
+def channel_schema(schema, channel) -> Tuple[Dict, Callable[[bytes], Dict]]:
     """The JSON schema of a channel and the decoder of its messages (JSON objects, or the
     "ros1" packing of :func:`~immersim.orchestrator.observers.ros1_struct`)."""
     if channel.message_encoding == "ros1" and "jsonschema" in channel.metadata:
@@ -119,7 +119,7 @@ def read_info(path: Path | str) -> LogInfo:
     for schema, channel, message in msgs:
         ch = info.channels.get(channel.topic)
         if ch is None:
-            ch = info.channels[channel.topic] = Channel(channel.topic, _schema_of(schema, channel)[0],
+            ch = info.channels[channel.topic] = Channel(channel.topic, channel_schema(schema, channel)[0],
                                                         first_ns=message.log_time,
                                                         encoding=channel.message_encoding)
         ch.count += 1
@@ -160,7 +160,7 @@ def read_series(path: Path | str, patterns: List[str]) -> Dict[str, Tuple[np.nda
     for schema, channel, message in msgs:
         decode = decoders.get(channel.id)
         if decode is None:
-            decode = decoders[channel.id] = _schema_of(schema, channel)[1]
+            decode = decoders[channel.id] = channel_schema(schema, channel)[1]
         obj = decode(message.data)
         times[channel.topic].append(message.log_time)
         for v in wanted[channel.topic]:

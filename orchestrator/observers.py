@@ -235,7 +235,7 @@ class McapObserver:
         except OSError as exc:
             raise LogWriteError(f"cannot write the log {self.path}: {exc.strerror or exc}") from None
         self.channels: Dict[str, int] = {}
-        self.encoders: Dict[str, ChannelEncoder] = {}
+        self.encoders: Dict[str, Callable[[Sequence[Any]], bytes]] = {}   # topic -> its message encoder
         self.flush_seconds = flush_seconds
         self._last_flush = -float("inf")  # the first step is flushed at once
         self._closed = False
@@ -255,24 +255,24 @@ class McapObserver:
         schema = json_schema(topic, infos)
         text = json.dumps(schema)
         packer = ros1_struct(schema) if self.encoding == "ros1" else None
-        self.encoders[topic] = enc = ChannelEncoder(infos)
         if packer is None:
             sid = self.writer.register_schema(name=topic, encoding="jsonschema", data=text.encode())
             cid = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-            encode = enc.encode
+            encode = ChannelEncoder(infos).encode
         else:  # the JSON schema rides along as channel metadata: names, units, descriptions
             sid = self.writer.register_schema(name="immersim/" + re.sub(r"[^A-Za-z0-9_]+", "_", topic),
                                               encoding="ros1msg", data=ros1_definition(schema).encode())
             cid = self.writer.register_channel(topic=topic, message_encoding="ros1", schema_id=sid,
                                                metadata={"jsonschema": text})
             pack = packer.pack
-            encode = enc.encode = lambda values: pack(*values)
+            encode = lambda values: pack(*values)   # noqa: E731
         self.channels[topic] = cid
+        self.encoders[topic] = encode
         return cid, encode
 
     def write(self, topic: str, t_ns: int, values: Sequence[Any], sequence: int = 0) -> None:
         """One message (non-finite Reals are written as ``null``)."""
-        data = self.encoders[topic].encode(values)
+        data = self.encoders[topic](values)
         try:
             self.writer.add_message(self.channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
                                     sequence=sequence)

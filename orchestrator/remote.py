@@ -42,7 +42,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence
 
 from . import errors as _errors
 from .errors import FmuCallError, FmuLoadError
-from .fmu import FmuInstance, VarInfo, read_model
+from .fmu import FmuInstance, VarInfo, read_model, step_error
 
 log = logging.getLogger(__name__)
 
@@ -522,11 +522,8 @@ class RemoteInstance:
 
     def do_step(self, t_ns: int, h_ns: int) -> None:
         """Queue a step (checked as ``FmuInstance.do_step`` checks it, here and in the worker)."""
-        if h_ns <= 0:
-            raise FmuCallError(self.name, "doStep", t_ns, 3, f"step size {h_ns} ns must be > 0")
-        if t_ns != self.t_ns:
-            raise FmuCallError(self.name, "doStep", t_ns, 3,
-                               f"master time {t_ns} ns differs from the instance time {self.t_ns} ns")
+        if h_ns <= 0 or t_ns != self.t_ns:
+            raise step_error(self.name, t_ns, h_ns, self.t_ns)
         self.queue.append(("step", t_ns, h_ns))
         self._step_start, self.t_ns = t_ns, t_ns + h_ns
 

@@ -87,7 +87,7 @@ def check_log(path: Path) -> LogCheck:
     and every metadata record; list any non-finite number."""
     from mcap.reader import make_reader
 
-    from immersim.orchestrator.mcapio import _schema_of
+    from immersim.orchestrator.mcapio import channel_schema
 
     res = LogCheck()
     decoders = {}
@@ -98,7 +98,7 @@ def check_log(path: Path) -> LogCheck:
             if channel.message_encoding == "json":
                 obj = json.loads(message.data)  # json accepts NaN/Infinity tokens: we look for them
             else:   # a packed ("ros1") channel: its numbers as they are
-                decode = decoders.get(channel.id) or decoders.setdefault(channel.id, _schema_of(schema, channel)[1])
+                decode = decoders.get(channel.id) or decoders.setdefault(channel.id, channel_schema(schema, channel)[1])
                 obj = decode(message.data)
             for name, x in _numbers(obj):
                 res.values += 1
