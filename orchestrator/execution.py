@@ -300,9 +300,8 @@ class Execution:
                         # a unit in a worker process: the worker's time in its calls (it steps in
                         # parallel); the master's time waiting for workers is "wait"
                         result.timing[f"unit:{name}"] = (s.inst.busy_ns if s.inst.remote else s.busy_ns) / 1e9
-                    if master.remote:   # Gauss-Seidel: a worker unit's round trips are in its busy_ns
-                        result.timing["wait"] = (master.wait_ns + sum(
-                            max(0, s.busy_ns - s.inst.busy_ns) for s in master.slots.values() if s.inst.remote)) / 1e9
+                    if master.remote:   # both algorithms step through Master._parallel_step then
+                        result.timing["wait"] = master.wait_ns / 1e9
                         result.remote_units = [n for n, s in master.slots.items() if s.inst.remote]
             self._finish(result)
         return result
