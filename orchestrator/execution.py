@@ -17,7 +17,7 @@ from typing import Any, Callable, Dict, List, Optional
 from .errors import ImmersimError, LogWriteError
 from .fmu import forget_python_code
 from .master import Master, Slot
-from .observers import McapObserver, write_parameters
+from .logwriter import LogPlan, LogProcess, LogWriter
 from .scenario import Scenario, load_scenario
 from .system import System, check_system, fmu_hashes
 
@@ -135,7 +135,8 @@ class Execution:
         self.progress = progress
         self.system: System = check_system(self.scenario)
         self._tmp = tempfile.TemporaryDirectory(prefix="immersim_run_")
-        self.observer: Optional[McapObserver] = None
+        self.observer: Optional[LogWriter | LogProcess] = None   # the MCAP log
+        self._log_slots: List[Slot] = []
         self.observers: List[Callable[[int, int], None]] = []
         self._observe_ns = 0
 
@@ -194,46 +195,42 @@ class Execution:
 
     def _open_log(self, master: Master) -> None:
         sc, system = self.scenario, self.system
-        obs = self.observer = McapObserver(self.output, encoding=sc.log.encoding)
-        obs.add_metadata("scenario", {"file": str(sc.file), "text": sc.text})
-        obs.add_metadata("fmus", {u: f"{system.paths[u]} sha256={h}" for u, h in fmu_hashes(system).items()})
-        obs.add_metadata("immersim", {
-            "version": _version(), "algorithm": sc.algorithm, "extrapolation": sc.extrapolation,
-            "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
-            "skipped_units": ",".join(system.skipped),
-            "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})
-        #: (channel id, encoder, slot, picker of the logged values from slot.cur or None for all)
-        self._log_plan: List[tuple] = []
-        for name, slot in master.slots.items():
-            logged = system.logged[name]
+        plan = LogPlan(str(self.output), sc.log.encoding)
+        plan.metadata += [
+            ("scenario", {"file": str(sc.file), "text": sc.text}),
+            ("fmus", {u: f"{system.paths[u]} sha256={h}" for u, h in fmu_hashes(system).items()}),
+            ("immersim", {
+                "version": _version(), "algorithm": sc.algorithm, "extrapolation": sc.extrapolation,
+                "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
+                "skipped_units": ",".join(system.skipped),
+                "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})]
+        slots = list(master.slots.values())
+        for s, slot in enumerate(slots):
+            logged = system.logged[slot.name]
             if logged:
-                cid, encode = obs.add_channel(name, [slot.inst.var(n) for n in logged])
                 idx = [slot.index(n) for n in logged]
-                pick = None if idx == list(range(len(slot.read_names))) else _picker(idx)
-                self._log_plan.append((cid, encode, slot, pick))
+                plan.channels.append((slot.name, [slot.inst.var(n) for n in logged], s,
+                                      None if idx == list(range(len(slot.read_names))) else idx))
             if sc.log.parameters:
                 pnames = [n for n, v in slot.inst.variables.items() if v.causality in ("parameter", "structuralParameter")]
                 if pnames:
-                    infos = [slot.inst.var(n) for n in pnames]
-                    write_parameters(obs, name, infos, slot.inst.get_values(pnames), sc.start_ns)
+                    plan.parameters.append((slot.name, [slot.inst.var(n) for n in pnames],
+                                            slot.inst.get_values(pnames), sc.start_ns))
         if sc.foxglove:
-            from .foxglove import FoxgloveObserver
-
-            def lookup(ref: str):
+            rank = {slot.name: s for s, slot in enumerate(slots)}
+            plan.bodies = list(sc.foxglove)
+            for ref in {r for b in sc.foxglove for r in b.refs()}:
                 unit, var = ref.split(".", 1)
-                slot = master.slots[unit]
-                i = slot.index(var)
-                return lambda: slot.cur[i]
-
-            self.observers.append(FoxgloveObserver(obs, sc.foxglove, lookup))
+                plan.refs[ref] = (rank[unit], master.slots[unit].index(var))
+        self._log_slots = slots
+        self.observer = LogProcess(plan) if sc.log.process else LogWriter(plan)
 
     def _observe(self, master: Master, k: int, t_ns: int) -> None:
-        """Log step ``k`` (ending at ``t_ns``): one message per logged unit, then the observers."""
+        """Log step ``k`` (ending at ``t_ns``): one message per logged unit and the 3D view
+        (:class:`~immersim.orchestrator.logwriter.LogWriter`), then the observers."""
         t_start = time.perf_counter_ns()
-        obs = self.observer
-        if obs is not None:
-            obs.write_step(t_ns, k, [(cid, encode(slot.cur if pick is None else pick(slot.cur)))
-                                     for cid, encode, slot, pick in self._log_plan])
+        if self.observer is not None:
+            self.observer.step(k, t_ns, [slot.cur for slot in self._log_slots])
         for fn in self.observers:
             fn(k, t_ns)
         self._observe_ns += time.perf_counter_ns() - t_start
@@ -318,16 +315,10 @@ class Execution:
     def _close_log(self, result: RunResult) -> None:
         """Write the run metadata and finish the MCAP file (raises LogWriteError)."""
         obs = self.observer
-        if obs is None or obs._closed:
+        if obs is None or obs.closed:
             return
-        try:
-            obs.add_metadata("run", {"status": result.status, "steps_done": result.steps_done,
-                                     "steps_total": result.steps_total, "t_ns": result.t_ns,
-                                     "reason": result.reason})
-        except OSError as exc:
-            obs._closed = True
-            raise LogWriteError(f"cannot finish the log {obs.path}: {exc.strerror or exc}") from None
-        obs.close()
+        obs.close({"status": result.status, "steps_done": result.steps_done, "steps_total": result.steps_total,
+                   "t_ns": result.t_ns, "reason": result.reason})
 
     def _finish(self, result: RunResult) -> None:
         try:
@@ -342,6 +333,8 @@ class Execution:
         """Free the FMU instances and remove their extraction (with the Python modules loaded
         from it, see :func:`~immersim.orchestrator.fmu.forget_python_code`). :meth:`run` calls
         it; call it after using :meth:`_setup` directly."""
+        if isinstance(self.observer, LogProcess):
+            self.observer.reap()
         self.system.terminate()
         forget_python_code(Path(self._tmp.name))
         self._tmp.cleanup()
@@ -353,16 +346,6 @@ def _version() -> str:
     from importlib.metadata import version
 
     return version("immersim")
-
-
-def _picker(idx: List[int]) -> Callable[[List[Any]], tuple]:
-    """A function returning ``tuple(values[i] for i in idx)`` (itemgetter, always a tuple)."""
-    from operator import itemgetter
-
-    if len(idx) == 1:
-        i = idx[0]
-        return lambda values: (values[i],)
-    return itemgetter(*idx)
 
 
 def _lazy_capable(inst, scenario: Scenario) -> bool:

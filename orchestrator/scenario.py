@@ -119,6 +119,9 @@ class LogSpec:
     #: (packed little-endian fields with a ROS 1 schema: ~4x cheaper to write, ~2.5x smaller;
     #: Foxglove reads both, orchestrator/mcapio.py too)
     encoding: str = "json"
+    #: write the log in a process of its own (orchestrator/logwriter.py): the master only
+    #: hands each step's values over, the other core encodes, compresses and writes
+    process: bool = False
 
 
 LOG_ENCODINGS = ("json", "ros1")
@@ -362,13 +365,16 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
         if k.startswith("log."):
             raw_log[k.split(".", 1)[1]] = v
     for key in raw_log:
-        if key not in ("include", "exclude", "parameters", "encoding"):
+        if key not in ("include", "exclude", "parameters", "encoding", "process"):
             raise ScenarioError(f"{f}: [log] unknown key {key!r}")
     encoding = raw_log.get("encoding", "json")
     if encoding not in LOG_ENCODINGS:
         raise ScenarioError(f"{f}: [log] encoding {encoding!r} is not one of {', '.join(LOG_ENCODINGS)}")
+    log_process = raw_log.get("process", False)
+    if not isinstance(log_process, bool):
+        raise ScenarioError(f"{f}: [log] process must be true or false, got {log_process!r}")
     logspec = LogSpec(list(raw_log.get("include", ["*"])), list(raw_log.get("exclude", [])),
-                      bool(raw_log.get("parameters", True)), encoding)
+                      bool(raw_log.get("parameters", True)), encoding, log_process)
     from .foxglove import parse_bodies
 
     bodies = parse_bodies(data.get("foxglove"), f)
