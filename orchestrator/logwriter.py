@@ -254,6 +254,19 @@ class LogProcess:
             self.closed = True
             raise LogWriteError(msg[1])
 
+    def _broken(self, t_ns: Optional[int]) -> LogWriteError:
+        """The writer stopped reading: the error it reported before it ended, if any, else
+        that it ended (:meth:`_died`)."""
+        try:
+            if self._poll(0):
+                msg = loads(self.conn.recv_bytes())
+                if msg[0] == "error":
+                    self.closed = True
+                    return LogWriteError(msg[1])
+        except (EOFError, OSError):
+            pass
+        return self._died(t_ns)
+
     def _died(self, t_ns: Optional[int]) -> LogWriteError:
         self.closed = True
         try:
@@ -280,7 +293,7 @@ class LogProcess:
             try:
                 self._send(dumps(("steps", self._pending), 5))
             except OSError:
-                raise self._died(self._t_ns) from None
+                raise self._broken(self._t_ns) from None
             self._pending = []
 
     def close(self, run: Dict[str, Any]) -> None:
@@ -289,10 +302,11 @@ class LogProcess:
             return
         try:
             self.flush()
-            self._send(dumps(("close", run), 5))
+            try:
+                self._send(dumps(("close", run), 5))
+            except OSError:
+                raise self._broken(self._t_ns) from None
             self._reply(self._t_ns)
-        except OSError:
-            raise self._died(self._t_ns) from None
         finally:
             self.closed = True
             self.conn.close()
