@@ -113,7 +113,9 @@ class RunResult:
                   - self.timing.get("logging", 0.0) - wait)
         return (f"loop {loop:.3g} s for {sim:.6g} s simulated ({sim / loop:.1f}x real time); "
                 f"units: {', '.join(parts)}; logging {self.timing.get('logging', 0.0):.3g} s; master {master:.3g} s"
-                + (f"; waiting for workers {wait:.3g} s" if "wait" in self.timing else ""))
+                + (f"; waiting for workers {wait:.3g} s" if "wait" in self.timing else "")
+                + (f"; log writer process {self.timing['log writer cpu']:.3g} s CPU"
+                   if "log writer cpu" in self.timing else ""))
 
 
 class Execution:
@@ -293,6 +295,8 @@ class Execution:
                 if loop_start is not None:
                     result.timing["loop"] = time.perf_counter() - loop_start
                     result.timing["logging"] = self._observe_ns / 1e9
+                    if getattr(self.observer, "cpu_s", None) is not None:   # [log] process: the writer's own
+                        result.timing["log writer cpu"] = self.observer.cpu_s
                     for name, s in master.slots.items():
                         # a unit in a worker process: the worker's time in its calls (it steps in
                         # parallel); the master's time waiting for workers is "wait"

@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import time
 from dataclasses import dataclass, field
 from pickle import dumps, loads
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
@@ -149,11 +150,13 @@ class LogWriter:
 # -- the log-writer process ---------------------------------------------------------------------
 def _serve(conn) -> None:  # pragma: no cover - runs in the writer process
     """The writer process: ``("open", plan)``, then ``("step", k, t_ns, values)`` messages
-    (no reply) and ``("close", run)``; replies ``("ok",)`` or ``("error", message)``. After a
+    (no reply) and ``("close", run)``; replies ``("ok", ...)`` (to the close: with the CPU
+    seconds the writer spent since the file was opened) or ``("error", message)``. After a
     failed step it reports the error once and ignores further steps; at the end of its input
     (the master died) it finishes the file."""
     writer: Optional[LogWriter] = None
     failed = False
+    opened = 0.0
     while True:
         try:
             msg = loads(conn.recv_bytes())
@@ -178,10 +181,11 @@ def _serve(conn) -> None:  # pragma: no cover - runs in the writer process
         try:
             if op == "open":
                 writer = LogWriter(msg[1], msg[2])
+                opened = time.process_time()
             elif op == "close":
                 if writer is not None:
                     writer.close(msg[1])
-                conn.send_bytes(dumps(("ok",), 5))
+                conn.send_bytes(dumps(("ok", time.process_time() - opened), 5))
                 return
             conn.send_bytes(dumps(("ok",), 5))
         except LogWriteError as exc:
@@ -221,6 +225,8 @@ class LogProcess:
 
         self.path = plan.path
         self.closed = False
+        #: CPU seconds the writer spent on the steps and the close (set by a successful :meth:`close`)
+        self.cpu_s: Optional[float] = None
         ours, theirs = socket.socketpair()
         fd = theirs.detach()
         try:
@@ -244,7 +250,7 @@ class LogProcess:
             self.reap()
             raise
 
-    def _reply(self, t_ns: Optional[int]) -> None:
+    def _reply(self, t_ns: Optional[int]) -> tuple:
         """Wait for the writer's reply; raise its error as LogWriteError."""
         try:
             msg = loads(self.conn.recv_bytes())
@@ -253,6 +259,7 @@ class LogProcess:
         if msg[0] == "error":
             self.closed = True
             raise LogWriteError(msg[1])
+        return msg
 
     def _broken(self, t_ns: Optional[int]) -> LogWriteError:
         """The writer stopped reading: the error it reported before it ended, if any, else
@@ -306,7 +313,7 @@ class LogProcess:
                 self._send(dumps(("close", run), 5))
             except OSError:
                 raise self._broken(self._t_ns) from None
-            self._reply(self._t_ns)
+            self.cpu_s = self._reply(self._t_ns)[1]
         finally:
             self.closed = True
             self.conn.close()

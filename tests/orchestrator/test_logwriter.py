@@ -38,6 +38,7 @@ def test_the_writer_process_writes_the_same_file(tmp_path, test_fmus, encoding):
     run_scenario(scn, a)
     res = run_scenario(scn, b, overrides={"log.process": True})
     assert res.status == "completed" and res.steps_done == 61
+    assert res.timing["log writer cpu"] > 0 and "log writer process" in res.timing_summary()
     assert a.read_bytes() == b.read_bytes()
     info = read_info(b)
     assert info.channels["m1"].count == info.channels["/tf"].count == 62
