@@ -1163,6 +1163,11 @@ class NetworkModel:
         slot, grp = self._shown_row(node)
         return self.hist[slot, grp].copy()
 
+    def perceived_list(self, node: int) -> list:
+        """:meth:`perceived_avatars` of ``node`` flattened to a list ``[x0, y0, x1, y1, ...]`` (m)."""
+        slot, grp = self._shown_row(node)
+        return self.hist[slot, grp].ravel().tolist()
+
     def perceived_key(self, node: int) -> tuple:
         """What :meth:`perceived_avatars` of ``node`` returns, as bytes (the history row it
         reads; equal keys, equal positions)."""
