@@ -189,6 +189,7 @@ class NetworkModel:
         # when the object's cell is in the 9-cell neighbourhood of the viewer avatar's cell);
         # None before the first frame: every pair counts as in view at frame 0 (scene file)
         self._view_prev: Optional[tuple] = None
+        self._per_raw: Optional[tuple] = None   # per-object errors not yet made arrays (see per_object_max)
         self.per_object_max = np.zeros(self.n_obj)
         self.per_object_rms = np.zeros(self.n_obj)
         self.metrics = StepMetrics()
@@ -206,7 +207,7 @@ class NetworkModel:
         self._hist_dest: Optional[tuple] = None    # slot positions of the avatar cache rows (_shown_avatars_scalar)
         self._pos_memo: Optional[tuple] = None     # (positions array, as a list)
         self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, flat indices, remote copies)
-        self._cells_memo: Optional[tuple] = None   # (positions array, their cells)
+        self._cells_memo: Optional[tuple] = None   # (positions array, their cells, the cells as a list or None)
         self._exact: Optional[tuple] = None        # (positions array, first frame time it was used)
         self._display_clean: Optional[tuple] = None  # (P, view objects, view owners): errors all 0
         self._pub_memo: Optional[tuple] = None     # ((group version, epoch), published mask, objects)
@@ -568,8 +569,12 @@ class NetworkModel:
         if cm is not None and cm[0] is P:   # the same position array (a scene at rest): the same cells
             cells = cm[1]
         else:
-            cells = self.grid.cell(P, self._positions_list(P) if len(P) <= SCALAR_VIEW else None)
-            self._cells_memo = (P, cells)
+            cl = self.grid._cell_scalar(self._positions_list(P)) if len(P) <= SCALAR_VIEW else None
+            if cl is not None and cm is not None and cm[2] == cl:   # nobody changed cell: the same array
+                cells = cm[1]
+            else:
+                cells = self.grid.cell(P) if cl is None else np.array(cl, np.int64)
+            self._cells_memo = (P, cells, cl)
         view = self._view(cells, online_g)
         vo, vg, fi, frame_size = view
         og = self._view_owners(view)
@@ -709,7 +714,7 @@ class NetworkModel:
         online (a scene at rest, or slow objects in large cells)."""
         memo = self._view_memo
         if (memo is not None and (memo[3] == self._group_version or np.array_equal(memo[1], online_g))
-                and memo[0].tobytes() == cells.tobytes()):   # (the same int64 cells)
+                and (memo[0] is cells or memo[0].tobytes() == cells.tobytes())):   # (the same int64 cells)
             self._view_hit = True
             return memo[2]
         self._view_hit = False
@@ -1130,10 +1135,47 @@ class NetworkModel:
             m.inconsistency_rms = 0.0
             return
         sqrt = math.sqrt
-        per = np.array([sqrt(x) for x in per_max] + [sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
-        self.per_object_max, self.per_object_rms = per[:n_obj], per[n_obj:]
+        self._per_raw = (per_max, s2, cnt)     # the per-object arrays when read (see per_object_max)
         m.inconsistency_max = max(m.inconsistency_max, sqrt(max(err2)))
         m.inconsistency_rms = sqrt(pairwise_sum(err2) / n_valid)   # numpy's sum of the same values
+
+    @property
+    def per_object_max(self) -> np.ndarray:
+        """Eq. 3-1 per object at the last frame (G + E,) m: the largest error of its displayed
+        copies (0 without one). A small view keeps the squared maxima, sums and counts of
+        :meth:`_measure_scalar` and makes both arrays on the first read."""
+        if self._per_raw is not None:
+            self._per_arrays()
+        return self._per_max
+
+    @per_object_max.setter
+    def per_object_max(self, value: np.ndarray) -> None:
+        self._per_arrays()
+        self._per_max = value
+
+    @property
+    def per_object_rms(self) -> np.ndarray:
+        """Eq. 3-2 per object at the last frame (G + E,) m: the RMS error of its counted copies."""
+        if self._per_raw is not None:
+            self._per_arrays()
+        return self._per_rms
+
+    @per_object_rms.setter
+    def per_object_rms(self, value: np.ndarray) -> None:
+        self._per_arrays()
+        self._per_rms = value
+
+    def _per_arrays(self) -> None:
+        """The per-object arrays from :meth:`_measure_scalar`'s lists (squared maxima, sums of
+        squares, counts): ``sqrt(max)`` and ``sqrt(sum / count)`` (0 without a count)."""
+        raw, self._per_raw = self._per_raw, None
+        if raw is None:
+            return
+        per_max, s2, cnt = raw
+        sqrt = math.sqrt
+        per = np.array([sqrt(x) for x in per_max] + [sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
+        n = len(per_max)
+        self._per_max, self._per_rms = per[:n], per[n:]
 
     def _copy_errors(self, t, fi, vo, vg, og, px, py):
         """Squared display errors (k,) m^2 of copies ``fi`` at frame time ``t`` and whether each
