@@ -995,25 +995,29 @@ class NetworkModel:
         the truth ``P[g]``."""
         G, order = self.cfg.groups, self.cfg.prediction_order
         if self._hist_dest is None:   # where cache row i (object i // G, viewer i % G) goes in the slot
-            self._hist_dest = ([2 * ((i % G) * G + i // G) for i in range(G * G)], [2 * (g * G + g) for g in range(G)])
-        dest, diag = self._hist_dest
+            self._hist_dest = ([(i, 2 * ((i % G) * G + i // G)) for i in range(G * G) if i % G != i // G],
+                               [2 * (g * G + g) for g in range(G)])
+        dest, diag = self._hist_dest     # (the rows of other groups' avatars; the diagonal is the truth)
         out = [0.0] * (2 * G * G)
         rows = self.cache[:G * G, :self._ncol].tolist()
         if order == 1:
-            for c, j in zip(rows, dest):
+            for i, j in dest:
+                c = rows[i]
                 dt = t - c[T_COL]
                 out[j] = c[1] + c[3] * dt
                 out[j + 1] = c[2] + c[4] * dt
+        elif order == 0:
+            for i, j in dest:
+                c = rows[i]
+                out[j] = c[1]
+                out[j + 1] = c[2]
         else:
-            for c, j in zip(rows, dest):
-                if order == 0:
-                    out[j] = c[1]
-                    out[j + 1] = c[2]
-                else:
-                    dt = t - c[T_COL]
-                    hd = 0.5 * dt
-                    out[j] = c[1] + dt * (c[3] + hd * c[5])
-                    out[j + 1] = c[2] + dt * (c[4] + hd * c[6])
+            for i, j in dest:
+                c = rows[i]
+                dt = t - c[T_COL]
+                hd = 0.5 * dt
+                out[j] = c[1] + dt * (c[3] + hd * c[5])
+                out[j + 1] = c[2] + dt * (c[4] + hd * c[6])
         for j, (x, y) in zip(diag, self._positions_list(P)):   # a master shows its own avatar as it is
             out[j] = x
             out[j + 1] = y
@@ -1094,8 +1098,8 @@ class NetworkModel:
             remote = np.flatnonzero(og != vg)
             memo = self._scalar_view_memo = (og, vo, fi, remote.tolist(), vo[remote].tolist(), fi[remote])
         order, enter = self.cfg.prediction_order, self.enter_col
-        rows = np.take(self.cache, memo[5], axis=0).tolist()
-        pos = self._positions_list(P)
+        rows = np.take(self.cache, memo[5], axis=0).tolist() if memo[3] else []
+        pos = self._positions_list(P) if memo[3] else None
         n_obj = self.n_obj
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
         err2 = [0.0] * len(fi)    # the own copies (and remote ones without a record) count as 0
@@ -1130,7 +1134,7 @@ class NetworkModel:
             self._display_clean = (P, vo, og)
         n_valid = sum(cnt)
         if n_valid == 0:
-            self.per_object_max, self.per_object_rms = np.zeros(n_obj), np.zeros(n_obj)
+            self._per_raw = (per_max, s2, cnt)     # (all zeros)
             m.inconsistency_max = max(m.inconsistency_max, 0.0)
             m.inconsistency_rms = 0.0
             return
