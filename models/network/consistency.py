@@ -57,11 +57,13 @@ class SceneGrid:
         quotient ``x / size * C`` truncated toward zero and clipped to the grid. None when a
         quotient is not finite or too large for an exact int64 cast (the array code then)."""
         size, C = self.size, self.C
+        Cf = float(C)     # (the same products and comparisons as with the int, without converting it each time)
         hi = C - 1
         out = []
         for x, y in pos:
-            u, v = x / size * C, y / size * C
-            if 0.0 <= u < C and 0.0 <= v < C:     # inside the grid: no clipping
+            u = x / size * Cf
+            v = y / size * Cf
+            if 0.0 <= u < Cf and 0.0 <= v < Cf:     # inside the grid: no clipping
                 out.append(int(u) * C + int(v))
                 continue
             if not (-CELL_LIMIT < u < CELL_LIMIT and -CELL_LIMIT < v < CELL_LIMIT):
