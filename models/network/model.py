@@ -52,6 +52,7 @@ MEASURE_CHUNK = 16384   # copies per chunk of the per-copy display error (fits a
 REST_DISPLAY = True
 SCALAR_VIEW = 64        # at most this many view pairs: the display error in Python floats
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
+FEW_RECORDS = 4          # at most this many records in a frame's small lossless batch: filed as lists (see _file_rows)
 
 
 def _due_frames(arrivals: list, T: float, k: int) -> list:
@@ -595,6 +596,7 @@ class NetworkModel:
         arr_l = self._transmit_floats(tr)    # a small lossless batch in Python floats (or None)
         if arr_l is None:
             arrival, lost = self._transmit(tr)
+        due = None
         if len(tr.rec_msg):
             # the frame at which each record is due is its message's (-1: the message, or the
             # first hop a relayed record waits for, was lost)
@@ -613,6 +615,13 @@ class NetworkModel:
                 if tr.plan.wait is not None:
                     hop = tr.rec_hop1
                     due[(hop >= 0) & np.take(lost, np.maximum(hop, 0))] = -1
+            snap = self._owner_snap
+            if snap is None or snap[0] != self._epoch:
+                snap = self._owner_snap = (self._epoch, self.owner.copy(), None)
+            if arr_l is not None and len(tr.rec_msg) <= FEW_RECORDS and memo is not None:
+                self._file_rows(due, memo, tr, snap, t, P, V, A)
+                due = None
+        if due is not None:
             # one record table per frame (objects x cache width, rows like the cache's); pairs
             # refer to it by object; the senders are the owners now (one snapshot per epoch)
             table = self._table(self._obj_ids, t, P, V, A)
@@ -622,9 +631,6 @@ class NetworkModel:
                     memo["rec_fi"] = rec_fi
             else:
                 rec_fi = memo["rec_fi"]
-            snap = self._owner_snap
-            if snap is None or snap[0] != self._epoch:
-                snap = self._owner_snap = (self._epoch, self.owner.copy())
             self._file(due, rec_fi, snap[1], table, tr.rec_obj, t_send=float(t))
         if len(tr.frame_msg):
             nxt = self.k + 1
@@ -855,6 +861,71 @@ class NetworkModel:
         for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(due)]):
             self._inflight.setdefault(int(due[lo]), []).append((fi[lo:hi], sender, table, ridx[lo:hi], meta))
 
+    def _file_rows(self, due, memo: dict, tr: Traffic, snap: tuple, t: float, P, V, A) -> None:
+        """File a frame's few records (at most ``FEW_RECORDS``, a small lossless batch) as Python
+        lists: the rows of :meth:`_table` of the records' objects alone (the same values and
+        record ids; the frame's table id is used up as by :meth:`_table`), their flat cache
+        indices and senders (the owners now, ``snap``), under the frame each is due (``due``: one
+        frame for all, or one per record; -1: never). :meth:`_deliver` writes them row by row."""
+        rl = memo.get("rec_l")
+        if rl is None:   # the records' flat indices and objects as lists (kept with the messages)
+            rl = memo["rec_l"] = (self.index(tr.rec_viewer, tr.rec_obj).tolist(), tr.rec_obj.tolist())
+        fi, objs = rl
+        if snap[2] is None:
+            snap = self._owner_snap = (snap[0], snap[1], snap[1].tolist())
+        owners = snap[2]
+        uid = self._uid
+        self._uid += 1
+        pos = self._positions_list(P)
+        ncol = self._ncol
+        rows = []
+        for o in objs:
+            row = [t] + pos[o]
+            if ncol >= 5:
+                row += V[o].tolist()
+                if ncol >= 7:
+                    row += A[o].tolist()
+            row.append(o * RID_OBJECT + uid)    # (= _obj_rid[o] + uid, exact)
+            rows.append(row)
+        senders = [owners[o] for o in objs]
+        meta = (self._epoch, float(t))
+        if isinstance(due, int):
+            if due >= 0:
+                self._inflight.setdefault(due, []).append((fi, senders, rows, None, meta))
+            return
+        by_due: dict = {}
+        for d, f, w, r in zip(due, fi, senders, rows):
+            if d >= 0:
+                part = by_due.get(d)
+                if part is None:
+                    part = by_due[d] = ([], [], [])
+                part[0].append(f)
+                part[1].append(w)
+                part[2].append(r)
+        for d, (f, w, r) in by_due.items():
+            self._inflight.setdefault(d, []).append((f, w, r, None, meta))
+
+    def _deliver_rows(self, fi: list, senders: list, rows: list, epoch: int, t_send: float) -> None:
+        """:meth:`_deliver` of a chunk filed by :meth:`_file_rows`: the same sender check
+        (§3.6.1), the same "newer than the cached record" test and the same cache writes, row by row."""
+        G = self.cfg.groups
+        if epoch != self._epoch:   # owners changed since it was sent: check the senders
+            own = self.owner.tolist()
+            keep = [i for i, (f, w) in enumerate(zip(fi, senders)) if w == own[f // G]]
+            if len(keep) < len(fi):
+                self.metrics.rejected_updates += len(fi) - len(keep)
+                fi, rows = [fi[i] for i in keep], [rows[i] for i in keep]
+        cache = self.cache
+        if t_send < self._newest:   # possibly older than what the cache holds
+            keep = [i for i, (f, r) in enumerate(zip(fi, rows)) if r[0] > cache[f, T_COL]]
+            if len(keep) < len(fi):
+                fi, rows = [fi[i] for i in keep], [rows[i] for i in keep]
+        n = self.rid_col + 1
+        for f, r in zip(fi, rows):
+            cache[f, :n] = r
+        if self._groups is not None:
+            self._groups.touch(np.array(fi, np.int64))
+
     def _deliver(self, t: float) -> None:
         """Apply every record that has arrived by ``t``; reject records from non-owners (§3.6.1).
 
@@ -865,16 +936,19 @@ class NetworkModel:
         G = self.cfg.groups
         for key in sorted(k for k in self._inflight if k <= self.k):
             for fi, sender, table, ridx, (epoch, t_send) in self._inflight.pop(key):
-                if epoch != self._epoch:  # owners changed since it was sent: check the senders
-                    valid = np.take(sender, ridx) == np.take(self.owner, fi // G)
-                    if not valid.all():
-                        self.metrics.rejected_updates += int((~valid).sum())
-                        fi, ridx = fi[valid], ridx[valid]
-                if t_send < self._newest:  # possibly older than what the cache holds
-                    newer = table[ridx, T_COL] > self.cache[fi, T_COL]
-                    if not newer.all():
-                        fi, ridx = fi[newer], ridx[newer]
-                self._scatter(fi, table, ridx)
+                if ridx is None:   # a few records as lists (_file_rows)
+                    self._deliver_rows(fi, sender, table, epoch, t_send)
+                else:
+                    if epoch != self._epoch:  # owners changed since it was sent: check the senders
+                        valid = np.take(sender, ridx) == np.take(self.owner, fi // G)
+                        if not valid.all():
+                            self.metrics.rejected_updates += int((~valid).sum())
+                            fi, ridx = fi[valid], ridx[valid]
+                    if t_send < self._newest:  # possibly older than what the cache holds
+                        newer = table[ridx, T_COL] > self.cache[fi, T_COL]
+                        if not newer.all():
+                            fi, ridx = fi[newer], ridx[newer]
+                    self._scatter(fi, table, ridx)
                 self._newest = max(self._newest, t_send)
                 ex = self._exact
                 if epoch == -1 or ex is None or t_send < ex[1]:   # not a record of the resting scene
