@@ -595,6 +595,11 @@ class FclBackend(CollisionBackend):
         A0, A1, B0, B1 = self._prev_T[a], self._T[a], self._prev_T[b], self._T[b]
         mu = (np.linalg.norm(A1[:3, 3] - A0[:3, 3]) + rotation_angle(A1[:3, :3] @ A0[:3, :3].T) * self._radius[a]
               + np.linalg.norm(B1[:3, 3] - B0[:3, 3]) + rotation_angle(B1[:3, :3] @ B0[:3, :3].T) * self._radius[b])
+        if d0 is not None:  # the first iteration of the loop below, before any fcl object is made
+            if d0 <= self.toi_tol:
+                return 0.0
+            if mu <= 0 or 0.0 + d0 / mu > s_max:
+                return None
         oa = fcl.CollisionObject(self.geoms[self.scene.bodies[a].mesh_key], fcl_transform(A0))
         ob = fcl.CollisionObject(self.geoms[self.scene.bodies[b].mesh_key], fcl_transform(B0))
         req = fcl.DistanceRequest()
