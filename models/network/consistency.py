@@ -269,7 +269,7 @@ def _all_pairs(n: int, m: int):
 
 def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, entity_pos: np.ndarray,
                   current: np.ndarray, frame_s: float, scale: float, min_axis: float,
-                  foci: str = "frame", etree=None) -> np.ndarray:
+                  foci: str = "frame", etree=None, lists=None) -> np.ndarray:
     """Owning avatar (group index) of every entity, or the current one where nobody claims it.
 
     ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
@@ -280,14 +280,19 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     :class:`PointIndex` the Mahalanobis candidates are the entities in the box of half-width
     ``a`` around each centre (``d <= 1`` implies ``|x - c| <= a``: the same owners).
     The result may be ``current`` itself when no entity changes owner (small scenes).
+    ``lists``: ``avatar_pos``, ``avatar_vel`` and ``entity_pos`` as lists of ``[x, y]`` when the
+    caller has them (small scenes read them instead of the arrays).
     """
     if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
         return current
     if etree is None and len(avatar_pos) * len(entity_pos) <= SCALAR_PAIRS and avatar_pos.shape[1] == 2:
-        out = _assign_owners_scalar(rule, avatar_pos.tolist(), avatar_vel.tolist(), entity_pos.tolist(), current,
-                                    frame_s, scale, min_axis, foci)
+        if lists is None:
+            lists = (avatar_pos.tolist(), avatar_vel.tolist(), entity_pos.tolist())
+        out = _assign_owners_scalar(rule, *lists, current, frame_s, scale, min_axis, foci)
         if out is not None:
             return out
+    if avatar_vel is None:   # (given as a list only)
+        avatar_vel = np.array(lists[1])
     a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis, foci)
     centre = avatar_pos + shift if rule == "mahalanobis" else avatar_pos
     if etree is None and len(centre) * len(entity_pos) <= BRUTE_FORCE_PAIRS:

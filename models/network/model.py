@@ -513,7 +513,15 @@ class NetworkModel:
         # one k-d tree of the entities shared by contacts and ownership (large scenes only:
         # small ones use brute force, cheaper than a tree built every frame)
         etree = w.entity_index() if cfg.entities and cfg.groups * cfg.entities > 4096 else None
-        ai, ei, dv = w.contacts(etree)
+        # a small scene without DIS below order 2 takes its positions first (contacts change
+        # velocities, not positions) as a list too, and its velocities only where read (lazy)
+        lazy = (cfg.dis_threshold <= 0 and cfg.prediction_order < 2 and self.n_obj <= SCALAR_VIEW
+                and (cfg.entities or w._fixed_key is None))    # (a resting scene: state()'s kept arrays)
+        pl = None
+        if lazy:
+            P = w.positions()
+            pl = self._positions_list(P)
+        ai, ei, dv = w.contacts(etree, pl)
         if len(ai):
             ai, ei, dv = ai[online_g[ai]], ei[online_g[ai]], dv[online_g[ai]]
             self.metrics.contacts += len(ai)
@@ -530,12 +538,16 @@ class NetworkModel:
                 self.metrics.remote_contacts += int(remote.sum())
         # 2. ownership (§3.6.2)
         # accelerations only where read: order-2 records, the DIS test's last published state
-        P, V, A = w.state(acc=cfg.prediction_order >= 2 or cfg.dis_threshold > 0)
+        if lazy:
+            V = A = None
+        else:
+            P, V, A = w.state(acc=cfg.prediction_order >= 2 or cfg.dis_threshold > 0)
         if cfg.ownership != "none" and cfg.entities:
             cur = self.owner[G:]
             if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
-                new = assign_owners(cfg.ownership, w.apos, V[:G], w.epos, cur, cfg.frame_s, cfg.ownership_scale,
-                                    cfg.ownership_min_axis, cfg.ownership_foci, etree)
+                new = assign_owners(cfg.ownership, w.apos, None if lazy else V[:G], w.epos, cur, cfg.frame_s,
+                                    cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci, etree,
+                                    (pl[:G], w.avatar_velocities(), pl[G:]) if lazy else None)
             else:
                 cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
                 new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
@@ -624,6 +636,8 @@ class NetworkModel:
         if due is not None:
             # one record table per frame (objects x cache width, rows like the cache's); pairs
             # refer to it by object; the senders are the owners now (one snapshot per epoch)
+            if V is None:
+                V = w.state(acc=False)[1]
             table = self._table(self._obj_ids, t, P, V, A)
             if memo is None or memo.get("rec_fi") is None:
                 rec_fi = self.index(tr.rec_viewer, tr.rec_obj)
@@ -878,11 +892,13 @@ class NetworkModel:
         self._uid += 1
         pos = self._positions_list(P)
         ncol = self._ncol
+        if ncol >= 5:   # V's rows (avatars' speed (cos, sin) yaw, the entities' velocities)
+            vel = V.tolist() if V is not None else self.world.avatar_velocities() + self.world.evel.tolist()
         rows = []
         for o in objs:
             row = [t] + pos[o]
             if ncol >= 5:
-                row += V[o].tolist()
+                row += vel[o]
                 if ncol >= 7:
                     row += A[o].tolist()
             row.append(o * RID_OBJECT + uid)    # (= _obj_rid[o] + uid, exact)
