@@ -133,6 +133,7 @@ class network(TableSlave):
         self._perceived_names = [f"perceived[{p}].{c}" for p in q for c in "xy"]
         self._entity_names = [f"entity[{e}].{c}" for e in range(1, min(E, N_ENTITY_OUT) + 1) for c in "xyz"]
         self._n_entity_out = len(self._entity_names) // 3
+        self._entity_z = [c for z in self.model.world.ez[:self._n_entity_out].tolist() for c in (0.0, 0.0, z)]
         self._real_out_names = (self._avatar_names + self._perceived_names + self._entity_names
                                 + ["inconsistency_max", "inconsistency_rms"])
         self._int_out_names = ("desync_frames", "messages", "bytes", "handovers", "dropped_frames", "rejected_updates",
@@ -193,9 +194,12 @@ class network(TableSlave):
         out = w.avatar_outputs(h)                     # AVATAR_FIELDS per avatar
         out += m.perceived_list(self._slave)         # perceived x, y per avatar
         n = self._n_entity_out
-        if n:
-            for (x, y), z in zip(w.epos[:n].tolist(), w.ez[:n].tolist()):
-                out += (x, y, z)
+        if n:   # x, y, z per entity: the positions into a copy of [0, 0, z, ...] (z is constant)
+            ent = self._entity_z[:]
+            ep = w.epos[:n]
+            ent[0::3] = ep[:, 0].tolist()
+            ent[1::3] = ep[:, 1].tolist()
+            out += ent
         out.append(float(s.inconsistency_max))
         out.append(float(s.inconsistency_rms))
         v.update(zip(self._real_out_names, out))

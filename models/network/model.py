@@ -185,7 +185,8 @@ class NetworkModel:
         self._newest = -np.inf     # newest record time written into the cache so far
         #: FRAME packets on their way to slaves: (arrival s (inf: lost), slave node, frame k)
         self._frames: List[tuple] = []
-        self.hist = np.zeros((HIST, G, G, 2))
+        self._hist = np.zeros((HIST, G, G, 2))
+        self._hist_rows: Dict[int, list] = {}   # history slots of small scenes not yet in the array (see hist)
         # subscription: object cells and online viewers of the last frame (a pair is in view
         # when the object's cell is in the 9-cell neighbourhood of the viewer avatar's cell);
         # None before the first frame: every pair counts as in view at frame 0 (scene file)
@@ -1061,11 +1062,11 @@ class NetworkModel:
             else:
                 self._measure(t, P, vg, vo, fi, og, cells, online_g)
         # displayed avatars at every master (for slaves showing an older frame)
-        slot = self.hist[self.k % HIST]
         sl, diag, sl_list = self._slave_nodes()
-        if G * G <= SCALAR_VIEW:
-            slot.flat = self._shown_avatars_scalar(t, P)
+        if G * G <= SCALAR_VIEW:   # (as a list, into the array when read: see hist)
+            self._hist_rows[self.k % HIST] = self._shown_avatars_scalar(t, P)
         else:
+            slot = self.hist[self.k % HIST]
             blk = self.cache[:G * G]                  # avatars are objects 0..G-1: object-major block
             av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
             slot[...] = av.reshape(G, G, 2).transpose(1, 0, 2)
@@ -1302,7 +1303,24 @@ class NetworkModel:
     def perceived_list(self, node: int) -> list:
         """:meth:`perceived_avatars` of ``node`` flattened to a list ``[x0, y0, x1, y1, ...]`` (m)."""
         slot, grp = self._shown_row(node)
+        row = self._hist_rows.get(slot)
+        if row is not None:    # a small scene's slot not yet in the array: its group's part
+            n = 2 * self.cfg.groups
+            return row[n * grp:n * (grp + 1)]
         return self.hist[slot, grp].ravel().tolist()
+
+    @property
+    def hist(self) -> np.ndarray:
+        """Displayed avatars (HIST, viewer group, avatar, xy) m of the last ``HIST`` frames, slot
+        ``k % HIST`` for frame ``k`` (for slaves that show an older frame). Small scenes keep a
+        frame's slot as the flat list of :meth:`_shown_avatars_scalar` until the array is read."""
+        rows = self._hist_rows
+        if rows:
+            h = self._hist
+            for slot, row in rows.items():
+                h[slot].flat = row
+            rows.clear()
+        return self._hist
 
     def perceived_key(self, node: int) -> tuple:
         """What :meth:`perceived_avatars` of ``node`` returns, as bytes (the history row it
