@@ -7,6 +7,8 @@ ControllerPackets to the group's master and act when they arrive; collision resp
 :class:`immersim.models.network.NetworkModel`.
 """
 
+from operator import itemgetter
+
 from immersim.fmus.common import OUTPUTS_UNCHANGED, TableSlave, Var
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.config import OWNERSHIP_RULES, TOPOLOGIES
@@ -130,6 +132,15 @@ class network(TableSlave):
         self._avatar_names = [f"avatar[{p}].{n}" for p in q for n in AVATAR_FIELDS]
         self._perceived_names = [f"perceived[{p}].{c}" for p in q for c in "xy"]
         self._entity_names = [f"entity[{e}].{c}" for e in range(1, min(E, N_ENTITY_OUT) + 1) for c in "xyz"]
+        self._n_entity_out = len(self._entity_names) // 3
+        self._entity_z = [c for z in self.model.world.ez[:self._n_entity_out].tolist() for c in (0.0, 0.0, z)]
+        self._real_out_names = (self._avatar_names + self._perceived_names + self._entity_names
+                                + ["inconsistency_max", "inconsistency_rms"])
+        self._int_out_names = ("desync_frames", "messages", "bytes", "handovers", "dropped_frames", "rejected_updates",
+                               "online_nodes")
+        self._in_get = itemgetter("latency_scale", *(n for names in self._in_names for n in names))
+        self._last_in = None     # the inputs of the last step that bounced no avatar (see step_model)
+        self._jolt = True        # the world's jolt may be non-zero
         self.values.update({f"avatar[{p}].{n}": 0.0 for p in range(G + 1, CAPACITY + 1) for n in AVATAR_FIELDS})
         self.values.update({f"perceived[{p}].{c}": 0.0 for p in range(G + 1, CAPACITY + 1) for c in "xy"})
         self.values.update({f"entity[{e}].{c}": 0.0 for e in range(E + 1, N_ENTITY_OUT + 1) for c in "xyz"})
@@ -140,14 +151,21 @@ class network(TableSlave):
 
     def step_model(self, t, h):
         v, m = self.values, self.model
-        if v["latency_scale"] < 0:
-            raise ValueError(f"{self.instance_name}: input latency_scale = {v['latency_scale']} must be >= 0 (t = {t:g} s)")
-        m.latency_scale = v["latency_scale"]
-        m.world.jolt[:] = 0.0
-        for p, (thr, steer, active, nx, ny) in enumerate(self._in_names):
-            m.set_input(p, v[thr], v[steer], t)
-            if v[active]:
-                m.bounce(p, (v[nx], v[ny]))
+        ins = self._in_get(v)     # latency_scale, then throttle, steer, active, nx, ny per player
+        if ins[0] < 0:
+            raise ValueError(f"{self.instance_name}: input latency_scale = {ins[0]} must be >= 0 (t = {t:g} s)")
+        m.latency_scale = ins[0]
+        if self._jolt:            # (the jolt is zero unless a bounce set it)
+            m.world.jolt[:] = 0.0
+            self._jolt = False
+        if ins != self._last_in:   # (unchanged inputs: set_input would return at once)
+            for p in range(len(self._in_names)):
+                j = 1 + 5 * p
+                m.set_input(p, ins[j], ins[j + 1], t)
+                if ins[j + 2]:
+                    m.bounce(p, (ins[j + 3], ins[j + 4]))
+                    self._jolt = True
+            self._last_in = ins if not self._jolt else None   # an active contact bounces every step
         m.step(h)
         rest = m.at_rest()
         key = self._output_key(h) if rest else None
@@ -172,20 +190,22 @@ class network(TableSlave):
 
     def _write_outputs(self, h=None, rest=None):
         v, m = self.values, self.model
-        w = m.world
-        v.update(zip(self._avatar_names, w.avatar_outputs(h)))   # AVATAR_FIELDS per avatar
-        v.update(zip(self._perceived_names, m.perceived_avatars(self._slave).ravel().tolist()))
-        n = len(self._entity_names) // 3
-        if n:
-            ex, ey, ez = w.epos[:n, 0].tolist(), w.epos[:n, 1].tolist(), w.ez[:n].tolist()
-            v.update(zip(self._entity_names, [c for e in zip(ex, ey, ez) for c in e]))
-        s = m.metrics
-        v["inconsistency_max"], v["inconsistency_rms"] = float(s.inconsistency_max), float(s.inconsistency_rms)
-        v["desync_frames"] = int(s.desync_frames)
-        v["messages"], v["bytes"] = int(s.frame_messages), int(s.frame_bytes)
-        v["handovers"], v["dropped_frames"] = int(s.handovers), int(s.dropped_frames)
-        v["rejected_updates"] = int(s.rejected_updates)
-        v["online_nodes"] = int(s.online_nodes)
+        w, s = m.world, m.metrics
+        out = w.avatar_outputs(h)                     # AVATAR_FIELDS per avatar
+        out += m.perceived_list(self._slave)         # perceived x, y per avatar
+        n = self._n_entity_out
+        if n:   # x, y, z per entity: the positions into a copy of [0, 0, z, ...] (z is constant)
+            ent = self._entity_z[:]
+            ep = w.epos[:n]
+            ent[0::3] = ep[:, 0].tolist()
+            ent[1::3] = ep[:, 1].tolist()
+            out += ent
+        out.append(float(s.inconsistency_max))
+        out.append(float(s.inconsistency_rms))
+        v.update(zip(self._real_out_names, out))
+        v.update(zip(self._int_out_names, (int(s.desync_frames), int(s.frame_messages), int(s.frame_bytes),
+                                           int(s.handovers), int(s.dropped_frames), int(s.rejected_updates),
+                                           int(s.online_nodes))))
         v["at_rest"] = bool(m.at_rest() if rest is None else rest)
 
     def get_model_state(self):
@@ -193,4 +213,5 @@ class network(TableSlave):
 
     def set_model_state(self, state):
         self.model.set_state(state)
+        self._last_in, self._jolt = None, True   # the restored model's inputs and jolt
         self._key = None            # the restored outputs are in self.values; rewrite after the next step

@@ -57,11 +57,13 @@ class SceneGrid:
         quotient ``x / size * C`` truncated toward zero and clipped to the grid. None when a
         quotient is not finite or too large for an exact int64 cast (the array code then)."""
         size, C = self.size, self.C
+        Cf = float(C)     # (the same products and comparisons as with the int, without converting it each time)
         hi = C - 1
         out = []
         for x, y in pos:
-            u, v = x / size * C, y / size * C
-            if 0.0 <= u < C and 0.0 <= v < C:     # inside the grid: no clipping
+            u = x / size * Cf
+            v = y / size * Cf
+            if 0.0 <= u < Cf and 0.0 <= v < Cf:     # inside the grid: no clipping
                 out.append(int(u) * C + int(v))
                 continue
             if not (-CELL_LIMIT < u < CELL_LIMIT and -CELL_LIMIT < v < CELL_LIMIT):
@@ -267,7 +269,7 @@ def _all_pairs(n: int, m: int):
 
 def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, entity_pos: np.ndarray,
                   current: np.ndarray, frame_s: float, scale: float, min_axis: float,
-                  foci: str = "frame", etree=None) -> np.ndarray:
+                  foci: str = "frame", etree=None, lists=None) -> np.ndarray:
     """Owning avatar (group index) of every entity, or the current one where nobody claims it.
 
     ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
@@ -278,14 +280,19 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     :class:`PointIndex` the Mahalanobis candidates are the entities in the box of half-width
     ``a`` around each centre (``d <= 1`` implies ``|x - c| <= a``: the same owners).
     The result may be ``current`` itself when no entity changes owner (small scenes).
+    ``lists``: ``avatar_pos``, ``avatar_vel`` and ``entity_pos`` as lists of ``[x, y]`` when the
+    caller has them (small scenes read them instead of the arrays).
     """
     if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
         return current
     if etree is None and len(avatar_pos) * len(entity_pos) <= SCALAR_PAIRS and avatar_pos.shape[1] == 2:
-        out = _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, frame_s, scale, min_axis,
-                                    foci)
+        if lists is None:
+            lists = (avatar_pos.tolist(), avatar_vel.tolist(), entity_pos.tolist())
+        out = _assign_owners_scalar(rule, *lists, current, frame_s, scale, min_axis, foci)
         if out is not None:
             return out
+    if avatar_vel is None:   # (given as a list only)
+        avatar_vel = np.array(lists[1])
     a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis, foci)
     centre = avatar_pos + shift if rule == "mahalanobis" else avatar_pos
     if etree is None and len(centre) * len(entity_pos) <= BRUTE_FORCE_PAIRS:
@@ -331,10 +338,11 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
     :func:`mahalanobis_ellipsoid` (IEEE double either way: squares as products, square roots
     correctly rounded), the winner of each entity the lowest (distance, avatar). None for a
     degenerate ellipsoid (``a = 0`` or ``b = 0``: the array code's NaN/inf semantics);
-    ``current`` itself when no entity changes owner."""
+    ``current`` itself when no entity changes owner. Positions and velocities are lists of
+    ``[x, y]``."""
     maha = rule == "mahalanobis"
     av = []      # per avatar: index, centre, the culling bound, long axis, a^2, b^2, reach a
-    for i, ((axi, ayi), (vxi, vyi)) in enumerate(zip(avatar_pos.tolist(), avatar_vel.tolist())):
+    for i, ((axi, ayi), (vxi, vyi)) in enumerate(zip(avatar_pos, avatar_vel)):
         speed = math.sqrt(vxi * vxi + vyi * vyi)
         D = speed * frame_s
         a = max(D * scale, min_axis)
@@ -356,10 +364,13 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
         # with |r|^2 > a^2 (1 + 1e-9) has d > 1 (d > a) whatever the rounding: skipped
         a2 = a * a
         av.append((i, cxi, cyi, a2 * (1.0 + 1e-9), u0, u1, a2, b * b, a))
-    moved = []        # (entity, new owner) where the owner changes
-    for j, ((x, y), cur) in enumerate(zip(entity_pos.tolist(), current.tolist())):
-        best, who = None, -1
-        for i, cxi, cyi, far, u0, u1, a2, b2, reach in av:
+    # avatar by avatar over the entities (the same winner: avatars in index order, a later one
+    # wins only with a strictly smaller distance)
+    ents = entity_pos
+    best = [None] * len(ents)
+    who = [-1] * len(ents)
+    for i, cxi, cyi, far, u0, u1, a2, b2, reach in av:
+        for j, (x, y) in enumerate(ents):
             rx = x - cxi
             rr = rx * rx
             if rr > far:      # |r|^2 >= rx^2 > a^2 (with margin): outside the sphere of radius a
@@ -381,10 +392,10 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
                 d = math.sqrt(rr)
                 if not d <= reach:
                     continue
-            if best is None or d < best:
-                best, who = d, i
-        if who >= 0 and who != cur:
-            moved.append((j, who))
+            b = best[j]
+            if b is None or d < b:
+                best[j], who[j] = d, i
+    moved = [(j, w) for j, (w, cur) in enumerate(zip(who, current.tolist())) if w >= 0 and w != cur]
     if not moved:
         return current
     out = current.copy()

@@ -241,10 +241,10 @@ class TransmitPlan:
         if n == 0:
             return arrival
         d = (rng.standard_exponential(n) if self._draw is None else rng.exponential(self._draw, n)).tolist()
+        # (base latency, draw and mean are >= 0: np.maximum(base + draw * mean, 0.0) is the sum itself)
         if heads is None:
             for i, j, mean, base in rows:
-                x = base + d[j] * mean
-                arrival[i] = scale * (0.0 if x < 0.0 else x) + send[i]     # np.maximum(x, 0.0)
+                arrival[i] = scale * (base + d[j] * mean) + send[i]
             return arrival
         busy = busy_until.tolist()
         start0 = []
@@ -253,10 +253,9 @@ class TransmitPlan:
             start0.append(a if a >= b else b)                 # np.maximum(a, b)
         ends = [0.0] * len(heads)
         for i, j, mean, base, g, c, b0 in rows:
-            x = base + d[j] * mean
             a, tq = start0[g], send[i]
             e = (a if a >= tq else tq) + c - b0
-            arrival[i] = scale * (0.0 if x < 0.0 else x) + e
+            arrival[i] = scale * (base + d[j] * mean) + e
             ends[g] = e                                       # the group's last message ends last
         for s, e in zip(s_last, ends):
             busy_until[s] = e

@@ -52,6 +52,7 @@ MEASURE_CHUNK = 16384   # copies per chunk of the per-copy display error (fits a
 REST_DISPLAY = True
 SCALAR_VIEW = 64        # at most this many view pairs: the display error in Python floats
 GROUPS_MIN_PAIRS = 4096  # more view pairs than this: the display metric keeps record groups (see _measure)
+FEW_RECORDS = 4          # at most this many records in a frame's small lossless batch: filed as lists (see _file_rows)
 
 
 def _due_frames(arrivals: list, T: float, k: int) -> list:
@@ -184,11 +185,13 @@ class NetworkModel:
         self._newest = -np.inf     # newest record time written into the cache so far
         #: FRAME packets on their way to slaves: (arrival s (inf: lost), slave node, frame k)
         self._frames: List[tuple] = []
-        self.hist = np.zeros((HIST, G, G, 2))
+        self._hist = np.zeros((HIST, G, G, 2))
+        self._hist_rows: Dict[int, list] = {}   # history slots of small scenes not yet in the array (see hist)
         # subscription: object cells and online viewers of the last frame (a pair is in view
         # when the object's cell is in the 9-cell neighbourhood of the viewer avatar's cell);
         # None before the first frame: every pair counts as in view at frame 0 (scene file)
         self._view_prev: Optional[tuple] = None
+        self._per_raw: Optional[tuple] = None   # per-object errors not yet made arrays (see per_object_max)
         self.per_object_max = np.zeros(self.n_obj)
         self.per_object_rms = np.zeros(self.n_obj)
         self.metrics = StepMetrics()
@@ -206,7 +209,7 @@ class NetworkModel:
         self._hist_dest: Optional[tuple] = None    # slot positions of the avatar cache rows (_shown_avatars_scalar)
         self._pos_memo: Optional[tuple] = None     # (positions array, as a list)
         self._scalar_view_memo: Optional[tuple] = None  # (view owners, objects, flat indices, remote copies)
-        self._cells_memo: Optional[tuple] = None   # (positions array, their cells)
+        self._cells_memo: Optional[tuple] = None   # (positions array, their cells, the cells as a list or None)
         self._exact: Optional[tuple] = None        # (positions array, first frame time it was used)
         self._display_clean: Optional[tuple] = None  # (P, view objects, view owners): errors all 0
         self._pub_memo: Optional[tuple] = None     # ((group version, epoch), published mask, objects)
@@ -511,7 +514,15 @@ class NetworkModel:
         # one k-d tree of the entities shared by contacts and ownership (large scenes only:
         # small ones use brute force, cheaper than a tree built every frame)
         etree = w.entity_index() if cfg.entities and cfg.groups * cfg.entities > 4096 else None
-        ai, ei, dv = w.contacts(etree)
+        # a small scene without DIS below order 2 takes its positions first (contacts change
+        # velocities, not positions) as a list too, and its velocities only where read (lazy)
+        lazy = (cfg.dis_threshold <= 0 and cfg.prediction_order < 2 and self.n_obj <= SCALAR_VIEW
+                and (cfg.entities or w._fixed_key is None))    # (a resting scene: state()'s kept arrays)
+        pl = None
+        if lazy:
+            P = w.positions()
+            pl = self._positions_list(P)
+        ai, ei, dv = w.contacts(etree, pl)
         if len(ai):
             ai, ei, dv = ai[online_g[ai]], ei[online_g[ai]], dv[online_g[ai]]
             self.metrics.contacts += len(ai)
@@ -528,12 +539,16 @@ class NetworkModel:
                 self.metrics.remote_contacts += int(remote.sum())
         # 2. ownership (§3.6.2)
         # accelerations only where read: order-2 records, the DIS test's last published state
-        P, V, A = w.state(acc=cfg.prediction_order >= 2 or cfg.dis_threshold > 0)
+        if lazy:
+            V = A = None
+        else:
+            P, V, A = w.state(acc=cfg.prediction_order >= 2 or cfg.dis_threshold > 0)
         if cfg.ownership != "none" and cfg.entities:
             cur = self.owner[G:]
             if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
-                new = assign_owners(cfg.ownership, w.apos, V[:G], w.epos, cur, cfg.frame_s, cfg.ownership_scale,
-                                    cfg.ownership_min_axis, cfg.ownership_foci, etree)
+                new = assign_owners(cfg.ownership, w.apos, None if lazy else V[:G], w.epos, cur, cfg.frame_s,
+                                    cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci, etree,
+                                    (pl[:G], w.avatar_velocities(), pl[G:]) if lazy else None)
             else:
                 cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
                 new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
@@ -568,8 +583,12 @@ class NetworkModel:
         if cm is not None and cm[0] is P:   # the same position array (a scene at rest): the same cells
             cells = cm[1]
         else:
-            cells = self.grid.cell(P, self._positions_list(P) if len(P) <= SCALAR_VIEW else None)
-            self._cells_memo = (P, cells)
+            cl = self.grid._cell_scalar(self._positions_list(P)) if len(P) <= SCALAR_VIEW else None
+            if cl is not None and cm is not None and cm[2] == cl:   # nobody changed cell: the same array
+                cells = cm[1]
+            else:
+                cells = self.grid.cell(P) if cl is None else np.array(cl, np.int64)
+            self._cells_memo = (P, cells, cl)
         view = self._view(cells, online_g)
         vo, vg, fi, frame_size = view
         og = self._view_owners(view)
@@ -590,6 +609,7 @@ class NetworkModel:
         arr_l = self._transmit_floats(tr)    # a small lossless batch in Python floats (or None)
         if arr_l is None:
             arrival, lost = self._transmit(tr)
+        due = None
         if len(tr.rec_msg):
             # the frame at which each record is due is its message's (-1: the message, or the
             # first hop a relayed record waits for, was lost)
@@ -608,8 +628,17 @@ class NetworkModel:
                 if tr.plan.wait is not None:
                     hop = tr.rec_hop1
                     due[(hop >= 0) & np.take(lost, np.maximum(hop, 0))] = -1
+            snap = self._owner_snap
+            if snap is None or snap[0] != self._epoch:
+                snap = self._owner_snap = (self._epoch, self.owner.copy(), None)
+            if arr_l is not None and len(tr.rec_msg) <= FEW_RECORDS and memo is not None:
+                self._file_rows(due, memo, tr, snap, t, P, V, A)
+                due = None
+        if due is not None:
             # one record table per frame (objects x cache width, rows like the cache's); pairs
             # refer to it by object; the senders are the owners now (one snapshot per epoch)
+            if V is None:
+                V = w.state(acc=False)[1]
             table = self._table(self._obj_ids, t, P, V, A)
             if memo is None or memo.get("rec_fi") is None:
                 rec_fi = self.index(tr.rec_viewer, tr.rec_obj)
@@ -617,9 +646,6 @@ class NetworkModel:
                     memo["rec_fi"] = rec_fi
             else:
                 rec_fi = memo["rec_fi"]
-            snap = self._owner_snap
-            if snap is None or snap[0] != self._epoch:
-                snap = self._owner_snap = (self._epoch, self.owner.copy())
             self._file(due, rec_fi, snap[1], table, tr.rec_obj, t_send=float(t))
         if len(tr.frame_msg):
             nxt = self.k + 1
@@ -709,7 +735,7 @@ class NetworkModel:
         online (a scene at rest, or slow objects in large cells)."""
         memo = self._view_memo
         if (memo is not None and (memo[3] == self._group_version or np.array_equal(memo[1], online_g))
-                and memo[0].tobytes() == cells.tobytes()):   # (the same int64 cells)
+                and (memo[0] is cells or memo[0].tobytes() == cells.tobytes())):   # (the same int64 cells)
             self._view_hit = True
             return memo[2]
         self._view_hit = False
@@ -850,6 +876,73 @@ class NetworkModel:
         for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(due)]):
             self._inflight.setdefault(int(due[lo]), []).append((fi[lo:hi], sender, table, ridx[lo:hi], meta))
 
+    def _file_rows(self, due, memo: dict, tr: Traffic, snap: tuple, t: float, P, V, A) -> None:
+        """File a frame's few records (at most ``FEW_RECORDS``, a small lossless batch) as Python
+        lists: the rows of :meth:`_table` of the records' objects alone (the same values and
+        record ids; the frame's table id is used up as by :meth:`_table`), their flat cache
+        indices and senders (the owners now, ``snap``), under the frame each is due (``due``: one
+        frame for all, or one per record; -1: never). :meth:`_deliver` writes them row by row."""
+        rl = memo.get("rec_l")
+        if rl is None:   # the records' flat indices and objects as lists (kept with the messages)
+            rl = memo["rec_l"] = (self.index(tr.rec_viewer, tr.rec_obj).tolist(), tr.rec_obj.tolist())
+        fi, objs = rl
+        if snap[2] is None:
+            snap = self._owner_snap = (snap[0], snap[1], snap[1].tolist())
+        owners = snap[2]
+        uid = self._uid
+        self._uid += 1
+        pos = self._positions_list(P)
+        ncol = self._ncol
+        if ncol >= 5:   # V's rows (avatars' speed (cos, sin) yaw, the entities' velocities)
+            vel = V.tolist() if V is not None else self.world.avatar_velocities() + self.world.evel.tolist()
+        rows = []
+        for o in objs:
+            row = [t] + pos[o]
+            if ncol >= 5:
+                row += vel[o]
+                if ncol >= 7:
+                    row += A[o].tolist()
+            row.append(o * RID_OBJECT + uid)    # (= _obj_rid[o] + uid, exact)
+            rows.append(row)
+        senders = [owners[o] for o in objs]
+        meta = (self._epoch, float(t))
+        if isinstance(due, int):
+            if due >= 0:
+                self._inflight.setdefault(due, []).append((fi, senders, rows, None, meta))
+            return
+        by_due: dict = {}
+        for d, f, w, r in zip(due, fi, senders, rows):
+            if d >= 0:
+                part = by_due.get(d)
+                if part is None:
+                    part = by_due[d] = ([], [], [])
+                part[0].append(f)
+                part[1].append(w)
+                part[2].append(r)
+        for d, (f, w, r) in by_due.items():
+            self._inflight.setdefault(d, []).append((f, w, r, None, meta))
+
+    def _deliver_rows(self, fi: list, senders: list, rows: list, epoch: int, t_send: float) -> None:
+        """:meth:`_deliver` of a chunk filed by :meth:`_file_rows`: the same sender check
+        (§3.6.1), the same "newer than the cached record" test and the same cache writes, row by row."""
+        G = self.cfg.groups
+        if epoch != self._epoch:   # owners changed since it was sent: check the senders
+            own = self.owner.tolist()
+            keep = [i for i, (f, w) in enumerate(zip(fi, senders)) if w == own[f // G]]
+            if len(keep) < len(fi):
+                self.metrics.rejected_updates += len(fi) - len(keep)
+                fi, rows = [fi[i] for i in keep], [rows[i] for i in keep]
+        cache = self.cache
+        if t_send < self._newest:   # possibly older than what the cache holds
+            keep = [i for i, (f, r) in enumerate(zip(fi, rows)) if r[0] > cache[f, T_COL]]
+            if len(keep) < len(fi):
+                fi, rows = [fi[i] for i in keep], [rows[i] for i in keep]
+        n = self.rid_col + 1
+        for f, r in zip(fi, rows):
+            cache[f, :n] = r
+        if self._groups is not None:
+            self._groups.touch(np.array(fi, np.int64))
+
     def _deliver(self, t: float) -> None:
         """Apply every record that has arrived by ``t``; reject records from non-owners (§3.6.1).
 
@@ -860,16 +953,19 @@ class NetworkModel:
         G = self.cfg.groups
         for key in sorted(k for k in self._inflight if k <= self.k):
             for fi, sender, table, ridx, (epoch, t_send) in self._inflight.pop(key):
-                if epoch != self._epoch:  # owners changed since it was sent: check the senders
-                    valid = np.take(sender, ridx) == np.take(self.owner, fi // G)
-                    if not valid.all():
-                        self.metrics.rejected_updates += int((~valid).sum())
-                        fi, ridx = fi[valid], ridx[valid]
-                if t_send < self._newest:  # possibly older than what the cache holds
-                    newer = table[ridx, T_COL] > self.cache[fi, T_COL]
-                    if not newer.all():
-                        fi, ridx = fi[newer], ridx[newer]
-                self._scatter(fi, table, ridx)
+                if ridx is None:   # a few records as lists (_file_rows)
+                    self._deliver_rows(fi, sender, table, epoch, t_send)
+                else:
+                    if epoch != self._epoch:  # owners changed since it was sent: check the senders
+                        valid = np.take(sender, ridx) == np.take(self.owner, fi // G)
+                        if not valid.all():
+                            self.metrics.rejected_updates += int((~valid).sum())
+                            fi, ridx = fi[valid], ridx[valid]
+                    if t_send < self._newest:  # possibly older than what the cache holds
+                        newer = table[ridx, T_COL] > self.cache[fi, T_COL]
+                        if not newer.all():
+                            fi, ridx = fi[newer], ridx[newer]
+                    self._scatter(fi, table, ridx)
                 self._newest = max(self._newest, t_send)
                 ex = self._exact
                 if epoch == -1 or ex is None or t_send < ex[1]:   # not a record of the resting scene
@@ -966,11 +1062,11 @@ class NetworkModel:
             else:
                 self._measure(t, P, vg, vo, fi, og, cells, online_g)
         # displayed avatars at every master (for slaves showing an older frame)
-        slot = self.hist[self.k % HIST]
         sl, diag, sl_list = self._slave_nodes()
-        if G * G <= SCALAR_VIEW:
-            slot.flat = self._shown_avatars_scalar(t, P)
+        if G * G <= SCALAR_VIEW:   # (as a list, into the array when read: see hist)
+            self._hist_rows[self.k % HIST] = self._shown_avatars_scalar(t, P)
         else:
+            slot = self.hist[self.k % HIST]
             blk = self.cache[:G * G]                  # avatars are objects 0..G-1: object-major block
             av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
             slot[...] = av.reshape(G, G, 2).transpose(1, 0, 2)
@@ -990,25 +1086,29 @@ class NetworkModel:
         the truth ``P[g]``."""
         G, order = self.cfg.groups, self.cfg.prediction_order
         if self._hist_dest is None:   # where cache row i (object i // G, viewer i % G) goes in the slot
-            self._hist_dest = ([2 * ((i % G) * G + i // G) for i in range(G * G)], [2 * (g * G + g) for g in range(G)])
-        dest, diag = self._hist_dest
+            self._hist_dest = ([(i, 2 * ((i % G) * G + i // G)) for i in range(G * G) if i % G != i // G],
+                               [2 * (g * G + g) for g in range(G)])
+        dest, diag = self._hist_dest     # (the rows of other groups' avatars; the diagonal is the truth)
         out = [0.0] * (2 * G * G)
         rows = self.cache[:G * G, :self._ncol].tolist()
         if order == 1:
-            for c, j in zip(rows, dest):
+            for i, j in dest:
+                c = rows[i]
                 dt = t - c[T_COL]
                 out[j] = c[1] + c[3] * dt
                 out[j + 1] = c[2] + c[4] * dt
+        elif order == 0:
+            for i, j in dest:
+                c = rows[i]
+                out[j] = c[1]
+                out[j + 1] = c[2]
         else:
-            for c, j in zip(rows, dest):
-                if order == 0:
-                    out[j] = c[1]
-                    out[j + 1] = c[2]
-                else:
-                    dt = t - c[T_COL]
-                    hd = 0.5 * dt
-                    out[j] = c[1] + dt * (c[3] + hd * c[5])
-                    out[j + 1] = c[2] + dt * (c[4] + hd * c[6])
+            for i, j in dest:
+                c = rows[i]
+                dt = t - c[T_COL]
+                hd = 0.5 * dt
+                out[j] = c[1] + dt * (c[3] + hd * c[5])
+                out[j + 1] = c[2] + dt * (c[4] + hd * c[6])
         for j, (x, y) in zip(diag, self._positions_list(P)):   # a master shows its own avatar as it is
             out[j] = x
             out[j + 1] = y
@@ -1089,8 +1189,8 @@ class NetworkModel:
             remote = np.flatnonzero(og != vg)
             memo = self._scalar_view_memo = (og, vo, fi, remote.tolist(), vo[remote].tolist(), fi[remote])
         order, enter = self.cfg.prediction_order, self.enter_col
-        rows = np.take(self.cache, memo[5], axis=0).tolist()
-        pos = self._positions_list(P)
+        rows = np.take(self.cache, memo[5], axis=0).tolist() if memo[3] else []
+        pos = self._positions_list(P) if memo[3] else None
         n_obj = self.n_obj
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
         err2 = [0.0] * len(fi)    # the own copies (and remote ones without a record) count as 0
@@ -1125,15 +1225,52 @@ class NetworkModel:
             self._display_clean = (P, vo, og)
         n_valid = sum(cnt)
         if n_valid == 0:
-            self.per_object_max, self.per_object_rms = np.zeros(n_obj), np.zeros(n_obj)
+            self._per_raw = (per_max, s2, cnt)     # (all zeros)
             m.inconsistency_max = max(m.inconsistency_max, 0.0)
             m.inconsistency_rms = 0.0
             return
         sqrt = math.sqrt
-        per = np.array([sqrt(x) for x in per_max] + [sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
-        self.per_object_max, self.per_object_rms = per[:n_obj], per[n_obj:]
+        self._per_raw = (per_max, s2, cnt)     # the per-object arrays when read (see per_object_max)
         m.inconsistency_max = max(m.inconsistency_max, sqrt(max(err2)))
         m.inconsistency_rms = sqrt(pairwise_sum(err2) / n_valid)   # numpy's sum of the same values
+
+    @property
+    def per_object_max(self) -> np.ndarray:
+        """Eq. 3-1 per object at the last frame (G + E,) m: the largest error of its displayed
+        copies (0 without one). A small view keeps the squared maxima, sums and counts of
+        :meth:`_measure_scalar` and makes both arrays on the first read."""
+        if self._per_raw is not None:
+            self._per_arrays()
+        return self._per_max
+
+    @per_object_max.setter
+    def per_object_max(self, value: np.ndarray) -> None:
+        self._per_arrays()
+        self._per_max = value
+
+    @property
+    def per_object_rms(self) -> np.ndarray:
+        """Eq. 3-2 per object at the last frame (G + E,) m: the RMS error of its counted copies."""
+        if self._per_raw is not None:
+            self._per_arrays()
+        return self._per_rms
+
+    @per_object_rms.setter
+    def per_object_rms(self, value: np.ndarray) -> None:
+        self._per_arrays()
+        self._per_rms = value
+
+    def _per_arrays(self) -> None:
+        """The per-object arrays from :meth:`_measure_scalar`'s lists (squared maxima, sums of
+        squares, counts): ``sqrt(max)`` and ``sqrt(sum / count)`` (0 without a count)."""
+        raw, self._per_raw = self._per_raw, None
+        if raw is None:
+            return
+        per_max, s2, cnt = raw
+        sqrt = math.sqrt
+        per = np.array([sqrt(x) for x in per_max] + [sqrt(a / k) if k > 0 else 0.0 for a, k in zip(s2, cnt)])
+        n = len(per_max)
+        self._per_max, self._per_rms = per[:n], per[n:]
 
     def _copy_errors(self, t, fi, vo, vg, og, px, py):
         """Squared display errors (k,) m^2 of copies ``fi`` at frame time ``t`` and whether each
@@ -1162,6 +1299,28 @@ class NetworkModel:
         """Positions (G, 2) of every avatar as shown by render node ``node`` now (m)."""
         slot, grp = self._shown_row(node)
         return self.hist[slot, grp].copy()
+
+    def perceived_list(self, node: int) -> list:
+        """:meth:`perceived_avatars` of ``node`` flattened to a list ``[x0, y0, x1, y1, ...]`` (m)."""
+        slot, grp = self._shown_row(node)
+        row = self._hist_rows.get(slot)
+        if row is not None:    # a small scene's slot not yet in the array: its group's part
+            n = 2 * self.cfg.groups
+            return row[n * grp:n * (grp + 1)]
+        return self.hist[slot, grp].ravel().tolist()
+
+    @property
+    def hist(self) -> np.ndarray:
+        """Displayed avatars (HIST, viewer group, avatar, xy) m of the last ``HIST`` frames, slot
+        ``k % HIST`` for frame ``k`` (for slaves that show an older frame). Small scenes keep a
+        frame's slot as the flat list of :meth:`_shown_avatars_scalar` until the array is read."""
+        rows = self._hist_rows
+        if rows:
+            h = self._hist
+            for slot, row in rows.items():
+                h[slot].flat = row
+            rows.clear()
+        return self._hist
 
     def perceived_key(self, node: int) -> tuple:
         """What :meth:`perceived_avatars` of ``node`` returns, as bytes (the history row it

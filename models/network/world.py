@@ -174,27 +174,37 @@ class World:
             self._state_memo = (self._avatar_key(), P, V, A)
         return P, V, A
 
-    def _headings(self):
+    def _headings(self, lists: bool = False):
         """``np.cos(yaw), np.sin(yaw)`` (G,) (read-only), kept while the headings stay (the frame's
-        :meth:`state` and the step's :meth:`avatar_outputs` read the same ones)."""
+        :meth:`state` and the step's :meth:`avatar_outputs` read the same ones); ``lists``: the
+        same values as two lists of Python floats."""
         key = self.yaw.tobytes()
         memo = self._trig_memo
         if memo is None or memo[0] != key:
             c, s = np.cos(self.yaw), np.sin(self.yaw)
             c.flags.writeable = s.flags.writeable = False
-            memo = self._trig_memo = (key, c, s)
+            memo = self._trig_memo = [key, c, s, None]
+        if lists:
+            if memo[3] is None:
+                memo[3] = (memo[1].tolist(), memo[2].tolist())
+            return memo[3]
         return memo[1], memo[2]
+
+    def avatar_velocities(self) -> list:
+        """Avatar velocities ``[[vx, vy], ...]`` (m/s) in Python floats: the rows of :attr:`avel`
+        and of the avatars' V in :meth:`state` (the same products)."""
+        c, s = self._headings(lists=True)
+        return [[a * v, b * v] for a, b, v in zip(c, s, self.speed.tolist())]
 
     def avatar_outputs(self, h=None) -> list:
         """Per avatar ``x, y, z, yaw, vx, vy``, the body-frame specific force (m/s^2, gravity
         included on z: ``accel, v * yaw rate, g``), the body-frame angular rate (rad/s:
         ``0, 0, yaw rate``), the jolt (m/s) and ``jolt / h`` (m/s^2, 0 without ``h``): 14
         Python floats per avatar in one flat list (the same products as :attr:`avel`)."""
-        c, s = self._headings()
+        c, s = self._headings(lists=True)
         out = []
         for (x, y), w, v, c, s, a, yr, j in zip(self.apos.tolist(), self.yaw.tolist(), self.speed.tolist(),
-                                                c.tolist(), s.tolist(), self.accel.tolist(),
-                                                self.yaw_rate.tolist(), self.jolt.tolist()):
+                                                c, s, self.accel.tolist(), self.yaw_rate.tolist(), self.jolt.tolist()):
             out += (x, y, 0.0, w, c * v, s * v, a, v * yr, G_ACC, 0.0, 0.0, yr, j, j / h if h else 0.0)
         return out
 
@@ -296,6 +306,35 @@ class World:
         for i, (v0, th, k, yw, (xi, yi)) in enumerate(zip(sp, thr, ks, yaw, xy)):
             a0 = yr = 0.0
             push = acc * th     # max_accel * throttle (the same every sub-step)
+            if not still:       # (the same sub-steps without the fixed-point test; the
+                vp, jw = v0, -1  # acceleration of the last one only, the one kept)
+                for j in range(n):
+                    v1 = v0 + (push - drag * v0) * h
+                    if v1 < nms:
+                        v1 = nms
+                    elif v1 > ms:
+                        v1 = ms
+                    vm = 0.5 * (v0 + v1)
+                    yr = vm * k
+                    yaw_m = yw + 0.5 * yr * h
+                    step = vm * h
+                    xn = step * cos(yaw_m) + xi
+                    yn = step * sin(yaw_m) + yi
+                    yw2 = (yw + yr * h + pi) % two_pi - pi
+                    if xn < 0.0 or yn < 0.0 or xn > S or yn > S:    # a wall: the array code
+                        jw, vw = j, v1     # (the acceleration is the one before the reflection)
+                        p, w, v = _reflect_avatars(np.array([[xn, yn]]), np.array([yw2]), np.array([v1]), S)
+                        (xn, yn), = p.tolist()
+                        yw2, v1 = float(w[0]), float(v[0])
+                    vp, xi, yi, yw, v0 = v0, xn, yn, yw2, v1
+                first = False
+                out[2 * i] = xi
+                out[2 * i + 1] = yi
+                out[2 * G + i] = yw
+                out[3 * G + i] = v0
+                out[4 * G + i] = ((vw if jw == n - 1 else v0) - vp) / h
+                out[5 * G + i] = yr
+                continue
             for j in range(n):
                 a = push - drag * v0
                 v1 = v0 + a * h     # clipped to [-ms, ms] (np.minimum(np.maximum(., -ms), ms))
@@ -452,8 +491,10 @@ class World:
         k-d tree is built only on a frame with a contact candidate."""
         return PointIndex(self.epos)
 
-    def contacts(self, etree=None):
-        """Approaching avatar-entity pairs in contact: (avatar, entity, dv of entity (k, 2))."""
+    def contacts(self, etree=None, pos_list=None):
+        """Approaching avatar-entity pairs in contact: (avatar, entity, dv of entity (k, 2)).
+        ``pos_list``: every position (avatars, then entities) as a list of ``[x, y]`` when the
+        caller has it (the tiny scenes' pre-check reads it)."""
         G, E = len(self.speed), len(self.evel)
         if G == 0 or E == 0:
             return _NO_CONTACTS
@@ -476,7 +517,8 @@ class World:
         elif etree is None and G * E <= SCALAR_CONTACT_PAIRS:
             # tiny scenes: the same brute-force check in Python floats (the same differences,
             # squares and bound)
-            if not _any_within(self.apos.tolist(), self.epos.tolist(), r * r * (1.0 + 1e-9)):
+            a, b = (self.apos.tolist(), self.epos.tolist()) if pos_list is None else (pos_list[:G], pos_list[G:])
+            if not _any_within(a, b, r * r * (1.0 + 1e-9)):
                 return _NO_CONTACTS
         elif etree is None and G * E <= 4096:
             # small scenes: a brute-force distance check finds the (rare) frames with a contact;

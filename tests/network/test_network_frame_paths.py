@@ -10,7 +10,8 @@ it replaces, bit for bit.
   of a few view pairs, in Python vs the array code;
 * avatars sub-stepped one by one (resting, reversing, at the walls) vs the array code;
 * whole runs with every such shortcut vs the array paths (campus size, lossy links, order 2,
-  client-server), with joins, graceful leaves and crashes (the online-node count included).
+  client-server), with joins, graceful leaves and crashes (the online-node count included);
+* a frame's few records filed and delivered as lists vs a record table per frame.
 """
 import math
 from dataclasses import replace
@@ -146,6 +147,7 @@ def test_frame_shortcuts_change_nothing(monkeypatch, case):
     monkeypatch.setattr(cons, "SCALAR_VIEW_PAIRS", -1)          # view pairs in arrays
     monkeypatch.setattr(nodes_mod, "SCALAR_MESSAGES", -1)       # messages built in arrays
     monkeypatch.setattr(model_mod, "SCALAR_VIEW", -1)           # display in arrays
+    monkeypatch.setattr(model_mod, "FEW_RECORDS", -1)           # every frame's records in a table
     monkeypatch.setattr(world_mod, "SCALAR_AVATARS", 0)         # kinematics in arrays
     monkeypatch.setattr(world_mod, "SCALAR_ENTITIES", 0)
     plain, po = _run(cfg)
@@ -262,3 +264,55 @@ def test_small_hybrid_messages_equal_the_array_code(monkeypatch):
         for name in names:
             a, b = getattr(f, name), getattr(ref, name)
             assert np.array_equal(a, b) and a.dtype == b.dtype, name
+
+
+FEW_CASES = [
+    dict(),                                                              # the campus_drive size
+    dict(prediction_order=2, entities=12, scene_size=40.0, entity_speed=5.0),   # order 2, hand-overs
+    dict(prediction_order=0, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(15.0, 25.0, 0.0, 0.2)}),
+    dict(groups=2, driven_groups=2, render_nodes=2, entities=1, grid=False),
+]
+
+
+@pytest.mark.parametrize("case", range(len(FEW_CASES)))
+def test_few_records_as_lists_change_nothing(monkeypatch, case):
+    """A frame's few records filed and delivered as lists (``FEW_RECORDS``) vs the record table
+    of every frame: the same caches, owners, rejected and late records, RNG and outputs. The
+    third case (a slow, jittery WAN) reorders records (the "newer than the cached one" test);
+    latency bursts and bounces hand entities over with records in flight (the sender check)."""
+    cfg = replace(NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=5, scene_size=60.0,
+                                entity_speed=3.0, links=LINKS), **FEW_CASES[case])
+
+    def trace():
+        m = NetworkModel(cfg)
+        out = []
+        for k in range(260):
+            m.latency_scale = 4.0 if 60 <= k < 90 else 1.0
+            for g in range(cfg.groups):
+                m.set_input(g, 0.0 if k < 10 else 0.9 - 0.3 * g, 0.3 * (g - 1) if k > 40 else 0.0)
+            if k % 13 == 12:
+                m.bounce(k % cfg.groups, (-1.0, 0.4))
+            out.append((m.step(T).as_dict(), m.perceived_avatars(1).tolist(), m.per_object_max.tolist(),
+                        m.per_object_rms.tolist()))
+        return m, out
+
+    calls = {"rows": 0, "epoch": 0, "older": 0}
+    deliver_rows = model_mod.NetworkModel._deliver_rows
+
+    def counted(self, fi, senders, rows, epoch, t_send):
+        calls["rows"] += 1
+        calls["epoch"] += epoch != self._epoch       # owners changed while in flight: checked
+        calls["older"] += t_send < self._newest      # possibly older than the cache: compared
+        return deliver_rows(self, fi, senders, rows, epoch, t_send)
+
+    monkeypatch.setattr(model_mod.NetworkModel, "_deliver_rows", counted)
+    fast, fo = trace()
+    assert calls["rows"] > 50 and (case == 3 or calls["epoch"] > 0) and (case != 2 or calls["older"] > 0)
+    monkeypatch.setattr(model_mod, "FEW_RECORDS", -1)
+    plain, po = trace()
+    assert fo == po
+    for name in ("cache", "owner", "hist", "shown_frame", "busy"):
+        assert np.array_equal(getattr(fast, name), getattr(plain, name)), name
+    assert fast.rng.bit_generator.state == plain.rng.bit_generator.state
+    assert fast.totals.by_type == plain.totals.by_type and fast._uid == plain._uid
+    assert case == 3 or sum(s["handovers"] for s, *_ in fo) > 0

@@ -64,6 +64,26 @@ def test_scalar_ownership_equals_the_array_code(monkeypatch, rule, foci):
         np.testing.assert_array_equal(fast, plain)
 
 
+def test_ownership_from_lists_equals_the_arrays():
+    """``assign_owners`` given the positions and velocities as lists (the small frame's; the
+    velocity array left out) gives the array call's owners, degenerate ellipsoids included
+    (``min_axis`` 0 and a resting avatar: the array code from the listed velocities)."""
+    rng = np.random.default_rng(8)
+    for trial in range(200):
+        G, E = int(rng.integers(1, 5)), int(rng.integers(1, 12))
+        apos = rng.uniform(0, 20, (G, 2))
+        vel = rng.normal(0, 8, (G, 2)) * (rng.random((G, 1)) < 0.7)
+        epos = rng.uniform(0, 20, (E, 2))
+        cur = rng.integers(0, G, E)
+        min_axis = 0.0 if trial % 5 == 0 else 5.0
+        for rule in ("mahalanobis", "euclidean"):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ref = cons.assign_owners(rule, apos, vel, epos, cur, T, 30.0, min_axis)
+                out = cons.assign_owners(rule, apos, None, epos, cur, T, 30.0, min_axis,
+                                         lists=(apos.tolist(), vel.tolist(), epos.tolist()))
+            np.testing.assert_array_equal(out, ref)
+
+
 def _trace(cfg, steps, bounce_every=0):
     m = NetworkModel(cfg)
     out = []
