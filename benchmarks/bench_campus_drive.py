@@ -261,12 +261,12 @@ def main() -> None:
 
         # 3b. master algorithm and units in worker processes (wall clock only: two processes)
         par = {"as shipped (Gauss-Seidel, one process)": {},
+               "Gauss-Seidel, log in a writer process (`[log] process`)": {"log.process": True},
+               "Gauss-Seidel, plat in worker 1": {"plat:process": 1},
                "Jacobi, one process": {"simulation.algorithm": "jacobi"},
-               "Jacobi, coll + plat in worker 1": {"simulation.algorithm": "jacobi", "coll:process": 1,
-                                                   "plat:process": 1},
                "Jacobi, net in worker 1": {"simulation.algorithm": "jacobi", "net:process": 1},
-               "Gauss-Seidel, net in worker 1, plat in worker 2": {"net:process": 1, "plat:process": 2},
-               "Gauss-Seidel, plat in worker 1": {"plat:process": 1}}
+               "Jacobi, net in worker 1, log in a writer process": {"simulation.algorithm": "jacobi",
+                                                                    "net:process": 1, "log.process": True}}
         par_res: Dict[str, List[dict]] = {k: [] for k in par}
 
         def par_run(name: str) -> Callable[[], float]:
@@ -278,14 +278,15 @@ def main() -> None:
             return go
 
         ptimes = interleaved({k: par_run(k) for k in par}, reps + 2)
-        lines += ["## 3b. Units in worker processes (`process = N`), wall clock", "",
+        lines += ["## 3b. Units in worker processes (`process = N`) and the log in a writer process, wall clock", "",
                   f"The same run (20 s, full logging) with the master algorithm and the units' processes as "
                   f"overrides, each in a fresh process as `immersim run` runs it; {reps + 2} interleaved runs "
                   f"each, medians of the loop wall time. Worker units "
                   "step in parallel with the master's own units where the algorithm allows (README \"Units in "
                   "worker processes\"); the log equals the one-process log of the same algorithm bit for bit "
                   "(`tests/orchestrator/test_remote.py`). A worker unit's time is its worker's, the master's "
-                  "time waiting for replies is `wait`.", "",
+                  "time waiting for replies is `wait`. With `[log] process` the master's logging is the "
+                  "hand-over of the values; the writer process's own CPU time is given beside it.", "",
                   "| configuration | loop s (median) | real-time factor | per unit s (median; worker units marked) "
                   "| wait s | logging s |", "|---|---|---|---|---|---|"]
         for name in par:
@@ -295,8 +296,10 @@ def main() -> None:
             cells = ", ".join(f"{u} {median([r['unit:' + u] for r in rs]):.3f}"
                               + (" (worker)" if u in rs[0]["remote"] else "") for u in units)
             wait = median([r.get("wait", 0.0) for r in rs])
+            writer = [r["log writer cpu"] for r in rs if "log writer cpu" in r]
             lines.append(f"| {name} | {loop:.3f} | {sim / loop:.1f}x | {cells} | {wait:.3f} | "
-                         f"{median([r['logging'] for r in rs]):.3f} |")
+                         f"{median([r['logging'] for r in rs]):.3f}"
+                         + (f" (writer process: {median(writer):.3f} CPU)" if writer else "") + " |")
             print(name, ptimes[name])
         lines.append("")
 
