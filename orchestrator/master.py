@@ -21,6 +21,7 @@ nothing).
 from __future__ import annotations
 
 import logging
+from math import copysign
 from time import perf_counter_ns
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
@@ -72,6 +73,16 @@ class Slot:
         if not self.reader.check_finite:  # a reader made without the check: the same error
             self.reader._raise_nonfinite(values)
         self.prev, self.cur = self.cur, values
+
+
+def _same_floats(a: tuple, b: tuple) -> bool:
+    """The two tuples hold the same floats, bit for bit but for NaN payloads (``==`` and the
+    signs of zeros: 0.0 == -0.0, and a model may tell them apart)."""
+    if a != b:
+        return False
+    if 0.0 not in a:
+        return True
+    return all(x != 0.0 or copysign(1.0, x) == copysign(1.0, y) for x, y in zip(a, b))
 
 
 class Master:
@@ -166,10 +177,15 @@ class Master:
         return tuple(vals), others, tuple(forced)
 
     def _apply(self, slot: Slot, inputs: tuple) -> None:
+        """Set a step's inputs. Values equal to those the last step set are not set again (an
+        FMU keeps an input until it is set: FMI 2.0 §3.2.3), unless a fault forced some input
+        then (it may have overwritten one of them)."""
         vals, others, forced = inputs
-        if slot.setter is not None:
+        prev = slot.applied
+        fresh = prev is None or bool(prev[2])
+        if slot.setter is not None and (fresh or not _same_floats(vals, prev[0])):
             slot.setter.set(vals)
-        if others:
+        if others and (fresh or others != prev[1]):
             slot.other_setter.set(others)
         if forced:
             slot.inst.set_values(dict(forced))
