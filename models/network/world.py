@@ -423,10 +423,8 @@ class World:
                 elif y > S:
                     y, by = S2 - y, by * -1.0
                 ax, ay = bx, by
-            pos.append(x)
-            pos.append(y)
-            vel.append(ax)
-            vel.append(ay)
+            pos += (x, y)
+            vel += (ax, ay)
         self.epos.flat = pos      # (in place, row by row)
         self.evel = np.array(vel).reshape(-1, 2)
 
