@@ -58,6 +58,11 @@ class SceneGrid:
         quotient is not finite or too large for an exact int64 cast (the array code then)."""
         size, C = self.size, self.C
         Cf = float(C)     # (the same products and comparisons as with the int, without converting it each time)
+        # every position inside the grid (the common case): one comprehension
+        out = [int(u) * C + int(v) if 0.0 <= (u := x / size * Cf) < Cf and 0.0 <= (v := y / size * Cf) < Cf
+               else -1 for x, y in pos]
+        if -1 not in out:
+            return out
         hi = C - 1
         out = []
         for x, y in pos:

@@ -1017,15 +1017,10 @@ class NetworkModel:
             return
         k = self.k
         lim = t + 1e-12
-        show, later = [], []
-        for x in fr:
-            f = x[2]
-            if f > k:
-                later.append(x)
-            elif f == k and x[0] <= lim:
-                show.append(x[1])
+        later = [x for x in fr if x[2] > k]
         if len(later) == len(fr):   # every FRAME is due later
             return
+        show = [x[1] for x in fr if x[2] == k and x[0] <= lim]
         if len(show) <= SCALAR_VIEW:   # a few: element by element (cheaper than a fancy assignment)
             sf = self.shown_frame
             for node in show:
