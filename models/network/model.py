@@ -714,9 +714,19 @@ class NetworkModel:
 
     @staticmethod
     def _resend(memo: dict, t: float) -> Traffic:
-        """The memo's messages sent at ``t`` (the memo's Traffic, its send times replaced)."""
+        """The memo's messages sent at ``t`` (the memo's Traffic, its send times replaced). A
+        batch timed in Python floats (:meth:`_transmit_floats`) gets them as a list
+        (``send_list``, the same sums) and no array (``send_t`` None until an array is made)."""
         tr = memo["tr"]
-        tr.send_t = t + memo["delay"]
+        plan = tr.plan
+        if plan.second is None and plan.hop1.floats is not None:
+            dl = memo.get("delay_l")
+            if dl is None:
+                dl = memo["delay_l"] = memo["delay"].tolist()
+            tr.send_list = [t + d for d in dl]
+            tr.send_t = None
+        else:
+            tr.send_t = t + memo["delay"]
         return tr
 
     def _view_owners(self, view: tuple) -> np.ndarray:
@@ -773,7 +783,8 @@ class NetworkModel:
         if plan.second is not None or plan.hop1.floats is None:
             return None
         self._count_batch(plan)
-        return plan.hop1.run_floats(self.rng, tr.send_t.tolist(), self.busy, self.latency_scale)
+        send = tr.send_list if tr.send_t is None else tr.send_t.tolist()
+        return plan.hop1.run_floats(self.rng, send, self.busy, self.latency_scale)
 
     def _transmit(self, tr: Traffic):
         """Arrival times and losses of a frame's messages (first hops, then relayed hops)."""
@@ -1054,6 +1065,8 @@ class NetworkModel:
                 m = self.metrics
                 m.inconsistency_max = max(m.inconsistency_max, 0.0)
                 m.inconsistency_rms = 0.0
+            elif fi is not None and og is not None and len(fi) <= SCALAR_VIEW and self._groups is None:
+                self._measure_scalar(t, P, vo, vg, fi, og)     # (what _measure does for a small view)
             else:
                 self._measure(t, P, vg, vo, fi, og, cells, online_g)
         # displayed avatars at every master (for slaves showing an older frame)
