@@ -175,15 +175,13 @@ class World:
         return P, V, A
 
     def _headings(self, lists: bool = False):
-        """``np.cos(yaw), np.sin(yaw)`` (G,) (read-only), kept while the headings stay (the frame's
+        """``np.cos(yaw), np.sin(yaw)`` (G,) (not to be written), kept while the headings stay (the frame's
         :meth:`state` and the step's :meth:`avatar_outputs` read the same ones); ``lists``: the
         same values as two lists of Python floats."""
         key = self.yaw.tobytes()
         memo = self._trig_memo
         if memo is None or memo[0] != key:
-            c, s = np.cos(self.yaw), np.sin(self.yaw)
-            c.flags.writeable = s.flags.writeable = False
-            memo = self._trig_memo = [key, c, s, None]
+            memo = self._trig_memo = [key, np.cos(self.yaw), np.sin(self.yaw), None]   # (callers only read them)
         if lists:
             if memo[3] is None:
                 memo[3] = (memo[1].tolist(), memo[2].tolist())
