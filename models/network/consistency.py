@@ -375,11 +375,10 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
     best = [None] * len(ents)
     who = [-1] * len(ents)
     for i, cxi, cyi, far, u0, u1, a2, b2, reach in av:
-        for j, (x, y) in enumerate(ents):
+        # |r|^2 >= rx^2 > a^2 (with margin): outside the sphere of radius a (NaN: never claimed either way)
+        for j in [j for j, (x, _) in enumerate(ents) if (x - cxi) * (x - cxi) <= far]:
+            x, y = ents[j]
             rx = x - cxi
-            rr = rx * rx
-            if rr > far:      # |r|^2 >= rx^2 > a^2 (with margin): outside the sphere of radius a
-                continue
             ry = y - cyi
             rr = rx * rx + ry * ry
             if rr > far:      # |r| > a (with margin): outside the sphere that holds the ellipsoid

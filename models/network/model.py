@@ -546,9 +546,10 @@ class NetworkModel:
         if cfg.ownership != "none" and cfg.entities:
             cur = self.owner[G:]
             if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
+                vl = w.avatar_velocities() if lazy else None
                 new = assign_owners(cfg.ownership, w.apos, None if lazy else V[:G], w.epos, cur, cfg.frame_s,
                                     cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci, etree,
-                                    (pl[:G], w.avatar_velocities(), pl[G:]) if lazy else None)
+                                    (pl[:G], vl, pl[G:]) if lazy else None)
             else:
                 cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
                 new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
