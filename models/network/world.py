@@ -194,16 +194,25 @@ class World:
         c, s = self._headings(lists=True)
         return [[a * v, b * v] for a, b, v in zip(c, s, self.speed.tolist())]
 
-    def avatar_outputs(self, h=None) -> list:
+    #: indices of the constant fields of :meth:`avatar_outputs` (z, f_z, w_x, w_y: flat ground)
+    CONSTANT_OUTPUTS = (2, 8, 9, 10)
+
+    def avatar_outputs(self, h=None, constants: bool = True) -> list:
         """Per avatar ``x, y, z, yaw, vx, vy``, the body-frame specific force (m/s^2, gravity
         included on z: ``accel, v * yaw rate, g``), the body-frame angular rate (rad/s:
         ``0, 0, yaw rate``), the jolt (m/s) and ``jolt / h`` (m/s^2, 0 without ``h``): 14
-        Python floats per avatar in one flat list (the same products as :attr:`avel`)."""
+        Python floats per avatar in one flat list (the same products as :attr:`avel`).
+        ``constants`` False: without the four that never change (:attr:`CONSTANT_OUTPUTS`), 10 per avatar."""
         c, s = self._headings(lists=True)
         out = []
-        for (x, y), w, v, c, s, a, yr, j in zip(self.apos.tolist(), self.yaw.tolist(), self.speed.tolist(),
-                                                c, s, self.accel.tolist(), self.yaw_rate.tolist(), self.jolt.tolist()):
-            out += (x, y, 0.0, w, c * v, s * v, a, v * yr, G_ACC, 0.0, 0.0, yr, j, j / h if h else 0.0)
+        rows = zip(self.apos.tolist(), self.yaw.tolist(), self.speed.tolist(), c, s, self.accel.tolist(),
+                   self.yaw_rate.tolist(), self.jolt.tolist())
+        if constants:
+            for (x, y), w, v, c, s, a, yr, j in rows:
+                out += (x, y, 0.0, w, c * v, s * v, a, v * yr, G_ACC, 0.0, 0.0, yr, j, j / h if h else 0.0)
+        else:
+            for (x, y), w, v, c, s, a, yr, j in rows:
+                out += (x, y, w, c * v, s * v, a, v * yr, yr, j, j / h if h else 0.0)
         return out
 
     def moving(self, eps: float = 1e-9) -> bool:
