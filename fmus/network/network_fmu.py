@@ -11,6 +11,7 @@ from operator import itemgetter
 
 from immersim.fmus.common import OUTPUTS_UNCHANGED, TableSlave, Var
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network.world import World
 from immersim.models.network.config import OWNERSHIP_RULES, TOPOLOGIES
 
 CAPACITY = 4
@@ -121,7 +122,7 @@ class network(TableSlave):
         self._key = None         # see _output_key
         self._slave = 1 if cfg.render_nodes > 1 else 0
         self._names()
-        self._write_outputs()
+        self._write_outputs(full=True)
 
     def _names(self):
         """Variable names used every step, built once (no string formatting per step)."""
@@ -133,8 +134,10 @@ class network(TableSlave):
         self._perceived_names = [f"perceived[{p}].{c}" for p in q for c in "xy"]
         self._entity_names = [f"entity[{e}].{c}" for e in range(1, min(E, N_ENTITY_OUT) + 1) for c in "xyz"]
         self._n_entity_out = len(self._entity_names) // 3
-        self._entity_z = [c for z in self.model.world.ez[:self._n_entity_out].tolist() for c in (0.0, 0.0, z)]
-        self._real_out_names = (self._avatar_names + self._perceived_names + self._entity_names
+        # written every step: the outputs that change (the constant ones once, in _write_outputs(full=True))
+        const = World.CONSTANT_OUTPUTS
+        self._real_out_names = ([name for i, name in enumerate(self._avatar_names) if i % len(AVATAR_FIELDS) not in const]
+                                + self._perceived_names + [n for n in self._entity_names if not n.endswith(".z")]
                                 + ["inconsistency_max", "inconsistency_rms"])
         self._int_out_names = ("desync_frames", "messages", "bytes", "handovers", "dropped_frames", "rejected_updates",
                                "online_nodes")
@@ -188,18 +191,19 @@ class network(TableSlave):
                 s.inconsistency_max, s.inconsistency_rms, s.desync_frames, s.frame_messages, s.frame_bytes,
                 s.handovers, s.dropped_frames, s.rejected_updates, s.online_nodes)
 
-    def _write_outputs(self, h=None, rest=None):
+    def _write_outputs(self, h=None, rest=None, full=False):
+        """Write the outputs; ``full``: the constant ones too (avatars' z, f_z, w_x, w_y and the
+        entities' z, set once at set-up: no step changes them)."""
         v, m = self.values, self.model
         w, s = m.world, m.metrics
-        out = w.avatar_outputs(h)                     # AVATAR_FIELDS per avatar
+        if full:
+            v.update(zip(self._avatar_names, w.avatar_outputs(h)))
+            v.update(zip(self._entity_names[2::3], w.ez[:self._n_entity_out].tolist()))
+        out = w.avatar_outputs(h, constants=False)   # AVATAR_FIELDS per avatar, the constant ones left out
         out += m.perceived_list(self._slave)         # perceived x, y per avatar
         n = self._n_entity_out
-        if n:   # x, y, z per entity: the positions into a copy of [0, 0, z, ...] (z is constant)
-            ent = self._entity_z[:]
-            ep = w.epos[:n]
-            ent[0::3] = ep[:, 0].tolist()
-            ent[1::3] = ep[:, 1].tolist()
-            out += ent
+        if n:   # x, y per entity
+            out += w.epos[:n].ravel().tolist()
         out.append(float(s.inconsistency_max))
         out.append(float(s.inconsistency_rms))
         v.update(zip(self._real_out_names, out))

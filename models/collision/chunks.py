@@ -47,8 +47,8 @@ CHUNK_MIN_FACES = 1024
 #: m; a chunk whose lower bound is within this of the best distance so far is not visited
 CHUNK_TIE = 1e-12
 #: m; :func:`chunk_min_distance` skips a chunk only when its bound exceeds the best distance so
-#: far by this (the bounds' rounding, coordinates up to 1e3 m: ~1e-13 m)
-CHUNK_MIN_MARGIN = 1e-12
+#: far by this (far above the rounding of the bounds: coordinates up to 1e4 m, ~1e-11 m)
+CHUNK_MIN_MARGIN = 1e-9
 #: the other body of a chunked query has at most this many triangles (boxes, low-poly
 #: proxies): each chunk query pairs the chunk's triangles with all of the other body's that
 #: its BVH cannot prune, and a body of long triangles (the missile's 2.5 m side strips,
@@ -199,10 +199,10 @@ def chunk_min_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", lb: np
     every chunk that could hold a smaller distance: chunks are visited by increasing bound
     ``max(lb, lower)`` and the visit stops at the first whose bound exceeds the best distance
     so far by ``CHUNK_MIN_MARGIN`` (a chunk whose distance is at least the best cannot lower
-    the minimum; ties do not change the value). Each chunk's distance is computed by fcl with the arithmetic of the
-    whole-mesh query (same vertex coordinates, same transforms, same order of the objects), so
-    the minimum is the number ``fcl.distance(other, whole mesh)`` returns (conservative
-    advancement needs only that number).
+    the minimum; ties do not change the value). Each chunk's distance is computed by fcl with
+    the arithmetic of the whole-mesh query (same vertex coordinates, same transforms, same
+    order of the objects), so the minimum is the number ``fcl.distance(other, whole mesh)``
+    returns (conservative advancement needs only that number).
 
     Parameters
     ----------

@@ -634,8 +634,8 @@ class FclBackend(CollisionBackend):
                     # rounding of the interpolation moves it by ulps), a tag of its own
                     self._ca_tag += 1
                     lb, _ = chunk_lower_bounds(whole_chunks, TB, TA, hull, box_c, box_h)
-                    d, lower = chunk_min_distance(whole_chunks, ("ca", self._ca_tag), fcl_transform(TB) if tf_b is None else tf_b, lb,
-                                                  lower, oa, req)
+                    tf_now = fcl_transform(TB) if tf_b is None else tf_b
+                    d, lower = chunk_min_distance(whole_chunks, ("ca", self._ca_tag), tf_now, lb, lower, oa, req)
                 elif chunks is None:
                     d = fcl.distance(oa, ob, req, fcl.DistanceResult())
                 else:
@@ -652,8 +652,9 @@ class FclBackend(CollisionBackend):
             if s > s_max:
                 return None
             if lower is not None:
-                # no surface point of a moves farther than mu (s - s_last) from the last pose
-                # (b is static): each chunk's distance shrank by at most that (less its rounding)
+                # no surface point of a or b moves farther than mu (s - s_last) between the two
+                # poses (mu bounds both; b is static up to the rounding of its interpolation):
+                # each chunk's distance shrank by at most that, less the rounding margins
                 lower -= mu * (s - s_last) * (1.0 + self.CA_MOTION_REL) + self.CA_MOTION_ABS
             if path_a is None:
                 path_a, path_b = Slerp(A0, A1), (Slerp(B0, B1) if chunks is None else None)

@@ -58,6 +58,11 @@ class SceneGrid:
         quotient is not finite or too large for an exact int64 cast (the array code then)."""
         size, C = self.size, self.C
         Cf = float(C)     # (the same products and comparisons as with the int, without converting it each time)
+        # every position inside the grid (the common case): one comprehension
+        out = [int(u) * C + int(v) if 0.0 <= (u := x / size * Cf) < Cf and 0.0 <= (v := y / size * Cf) < Cf
+               else -1 for x, y in pos]
+        if -1 not in out:
+            return out
         hi = C - 1
         out = []
         for x, y in pos:
@@ -370,11 +375,10 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
     best = [None] * len(ents)
     who = [-1] * len(ents)
     for i, cxi, cyi, far, u0, u1, a2, b2, reach in av:
-        for j, (x, y) in enumerate(ents):
+        # |r|^2 >= rx^2 > a^2 (with margin): outside the sphere of radius a (NaN: never claimed either way)
+        for j in [j for j, (x, _) in enumerate(ents) if (x - cxi) * (x - cxi) <= far]:
+            x, y = ents[j]
             rx = x - cxi
-            rr = rx * rx
-            if rr > far:      # |r|^2 >= rx^2 > a^2 (with margin): outside the sphere of radius a
-                continue
             ry = y - cyi
             rr = rx * rx + ry * ry
             if rr > far:      # |r| > a (with margin): outside the sphere that holds the ellipsoid

@@ -247,10 +247,8 @@ class TransmitPlan:
                 arrival[i] = scale * (base + d[j] * mean) + send[i]
             return arrival
         busy = busy_until.tolist()
-        start0 = []
-        for i, s in heads:   # the uplink is free at max(send, busy until)
-            a, b = send[i], busy[s]
-            start0.append(a if a >= b else b)                 # np.maximum(a, b)
+        # the uplink is free at max(send, busy until) (np.maximum(a, b))
+        start0 = [a if a >= b else b for a, b in ((send[i], busy[s]) for i, s in heads)]
         ends = [0.0] * len(heads)
         for i, j, mean, base, g, c, b0 in rows:
             a, tq = start0[g], send[i]

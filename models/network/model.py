@@ -546,9 +546,10 @@ class NetworkModel:
         if cfg.ownership != "none" and cfg.entities:
             cur = self.owner[G:]
             if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
+                vl = w.avatar_velocities() if lazy else None
                 new = assign_owners(cfg.ownership, w.apos, None if lazy else V[:G], w.epos, cur, cfg.frame_s,
                                     cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci, etree,
-                                    (pl[:G], w.avatar_velocities(), pl[G:]) if lazy else None)
+                                    (pl[:G], vl, pl[G:]) if lazy else None)
             else:
                 cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
                 new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
@@ -714,9 +715,19 @@ class NetworkModel:
 
     @staticmethod
     def _resend(memo: dict, t: float) -> Traffic:
-        """The memo's messages sent at ``t`` (the memo's Traffic, its send times replaced)."""
+        """The memo's messages sent at ``t`` (the memo's Traffic, its send times replaced). A
+        batch timed in Python floats (:meth:`_transmit_floats`) gets them as a list
+        (``send_list``, the same sums) and no array (``send_t`` None until an array is made)."""
         tr = memo["tr"]
-        tr.send_t = t + memo["delay"]
+        plan = tr.plan
+        if plan.second is None and plan.hop1.floats is not None:
+            dl = memo.get("delay_l")
+            if dl is None:
+                dl = memo["delay_l"] = memo["delay"].tolist()
+            tr.send_list = [t + d for d in dl]
+            tr.send_t = None
+        else:
+            tr.send_t = t + memo["delay"]
         return tr
 
     def _view_owners(self, view: tuple) -> np.ndarray:
@@ -773,7 +784,8 @@ class NetworkModel:
         if plan.second is not None or plan.hop1.floats is None:
             return None
         self._count_batch(plan)
-        return plan.hop1.run_floats(self.rng, tr.send_t.tolist(), self.busy, self.latency_scale)
+        send = tr.send_list if tr.send_t is None else tr.send_t.tolist()
+        return plan.hop1.run_floats(self.rng, send, self.busy, self.latency_scale)
 
     def _transmit(self, tr: Traffic):
         """Arrival times and losses of a frame's messages (first hops, then relayed hops)."""
@@ -1017,15 +1029,10 @@ class NetworkModel:
             return
         k = self.k
         lim = t + 1e-12
-        show, later = [], []
-        for x in fr:
-            f = x[2]
-            if f > k:
-                later.append(x)
-            elif f == k and x[0] <= lim:
-                show.append(x[1])
+        later = [x for x in fr if x[2] > k]
         if len(later) == len(fr):   # every FRAME is due later
             return
+        show = [x[1] for x in fr if x[2] == k and x[0] <= lim]
         if len(show) <= SCALAR_VIEW:   # a few: element by element (cheaper than a fancy assignment)
             sf = self.shown_frame
             for node in show:
@@ -1059,6 +1066,8 @@ class NetworkModel:
                 m = self.metrics
                 m.inconsistency_max = max(m.inconsistency_max, 0.0)
                 m.inconsistency_rms = 0.0
+            elif fi is not None and og is not None and len(fi) <= SCALAR_VIEW and self._groups is None:
+                self._measure_scalar(t, P, vo, vg, fi, og)     # (what _measure does for a small view)
             else:
                 self._measure(t, P, vg, vo, fi, og, cells, online_g)
         # displayed avatars at every master (for slaves showing an older frame)

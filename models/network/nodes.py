@@ -99,6 +99,8 @@ class Traffic:
     rec_hop1: np.ndarray
     #: the :class:`TrafficPlan` of these messages, once built (shared by copies with other send times)
     plan: Optional["TrafficPlan"] = None
+    #: the send times as a list when a reuse left ``send_t`` None (a batch timed in Python floats)
+    send_list: Optional[list] = None
 
 
 class TrafficPlan:

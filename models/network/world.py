@@ -175,15 +175,13 @@ class World:
         return P, V, A
 
     def _headings(self, lists: bool = False):
-        """``np.cos(yaw), np.sin(yaw)`` (G,) (read-only), kept while the headings stay (the frame's
+        """``np.cos(yaw), np.sin(yaw)`` (G,) (not to be written), kept while the headings stay (the frame's
         :meth:`state` and the step's :meth:`avatar_outputs` read the same ones); ``lists``: the
         same values as two lists of Python floats."""
         key = self.yaw.tobytes()
         memo = self._trig_memo
         if memo is None or memo[0] != key:
-            c, s = np.cos(self.yaw), np.sin(self.yaw)
-            c.flags.writeable = s.flags.writeable = False
-            memo = self._trig_memo = [key, c, s, None]
+            memo = self._trig_memo = [key, np.cos(self.yaw), np.sin(self.yaw), None]   # (callers only read them)
         if lists:
             if memo[3] is None:
                 memo[3] = (memo[1].tolist(), memo[2].tolist())
@@ -196,16 +194,25 @@ class World:
         c, s = self._headings(lists=True)
         return [[a * v, b * v] for a, b, v in zip(c, s, self.speed.tolist())]
 
-    def avatar_outputs(self, h=None) -> list:
+    #: indices of the constant fields of :meth:`avatar_outputs` (z, f_z, w_x, w_y: flat ground)
+    CONSTANT_OUTPUTS = (2, 8, 9, 10)
+
+    def avatar_outputs(self, h=None, constants: bool = True) -> list:
         """Per avatar ``x, y, z, yaw, vx, vy``, the body-frame specific force (m/s^2, gravity
         included on z: ``accel, v * yaw rate, g``), the body-frame angular rate (rad/s:
         ``0, 0, yaw rate``), the jolt (m/s) and ``jolt / h`` (m/s^2, 0 without ``h``): 14
-        Python floats per avatar in one flat list (the same products as :attr:`avel`)."""
+        Python floats per avatar in one flat list (the same products as :attr:`avel`).
+        ``constants`` False: without the four that never change (:attr:`CONSTANT_OUTPUTS`), 10 per avatar."""
         c, s = self._headings(lists=True)
         out = []
-        for (x, y), w, v, c, s, a, yr, j in zip(self.apos.tolist(), self.yaw.tolist(), self.speed.tolist(),
-                                                c, s, self.accel.tolist(), self.yaw_rate.tolist(), self.jolt.tolist()):
-            out += (x, y, 0.0, w, c * v, s * v, a, v * yr, G_ACC, 0.0, 0.0, yr, j, j / h if h else 0.0)
+        rows = zip(self.apos.tolist(), self.yaw.tolist(), self.speed.tolist(), c, s, self.accel.tolist(),
+                   self.yaw_rate.tolist(), self.jolt.tolist())
+        if constants:
+            for (x, y), w, v, c, s, a, yr, j in rows:
+                out += (x, y, 0.0, w, c * v, s * v, a, v * yr, G_ACC, 0.0, 0.0, yr, j, j / h if h else 0.0)
+        else:
+            for (x, y), w, v, c, s, a, yr, j in rows:
+                out += (x, y, w, c * v, s * v, a, v * yr, yr, j, j / h if h else 0.0)
         return out
 
     def moving(self, eps: float = 1e-9) -> bool:
@@ -423,10 +430,8 @@ class World:
                 elif y > S:
                     y, by = S2 - y, by * -1.0
                 ax, ay = bx, by
-            pos.append(x)
-            pos.append(y)
-            vel.append(ax)
-            vel.append(ay)
+            pos += (x, y)
+            vel += (ax, ay)
         self.epos.flat = pos      # (in place, row by row)
         self.evel = np.array(vel).reshape(-1, 2)
 

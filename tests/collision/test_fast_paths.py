@@ -158,3 +158,26 @@ def test_chunked_conservative_advancement_changes_no_output(turn):
     tois = [r[0][0][5] for r in out_fast]
     assert any(struct.unpack("d", t)[0] > 0 for t in tois)  # an impact inside a step
     assert len(used) >= 5  # its advancement went chunk by chunk
+
+
+def test_chunked_conservative_advancement_on_random_fast_moves():
+    """Random fast moves of the missile (translation and rotation, 0.3-1.5 m per step) around a
+    yawed tank, hitting, grazing and missing it: every output is the whole-mesh path's."""
+    spec = "missile:name=missile,x=0,y=0,z=9;tank:name=t,tris=5.4k,x=1,y=-0.5,yaw=0.7"
+    rng = np.random.default_rng(5)
+    traj, pose = [], np.array([-4.0, 0.0, 3.0, 0.0, 0.3, 0.0])
+    for _ in range(60):
+        step = np.r_[rng.normal(0, 0.6, 3), rng.normal(0, 0.15, 3)]
+        step[:2] += 0.15 * (np.array([1.0, -0.5]) - pose[:2])  # drawn towards the tank
+        pose = pose + step
+        pose[2] = float(np.clip(pose[2], 0.3, 5.0))
+        traj.append((tuple(pose.tolist()),))
+    scene = parse_scene(spec)
+    fast = make_backend("fcl", scene, "missile vs t", BackendConfig(max_distance=2.0))
+    full = make_backend("fcl", scene, "missile vs t", BackendConfig(max_distance=2.0))
+    full.CA_CHUNKS = False
+    out = _run(fast, traj)
+    assert out == _run(full, traj)
+    tois = [struct.unpack("d", r[0][0][5])[0] for r in out]
+    assert sum(t > 0 for t in tois) >= 3  # impacts inside steps
+    assert sum(r[0][0][0] for r in out) >= 3  # and contacts at the end of steps
