@@ -316,3 +316,35 @@ def test_few_records_as_lists_change_nothing(monkeypatch, case):
     assert fast.rng.bit_generator.state == plain.rng.bit_generator.state
     assert fast.totals.by_type == plain.totals.by_type and fast._uid == plain._uid
     assert case == 3 or sum(s["handovers"] for s, *_ in fo) > 0
+
+
+def test_history_slots_kept_as_lists_read_as_the_array():
+    """A small scene's history slots stay lists until the array is read: what every render node
+    perceives from the lists equals the array's rows (slaves lagging behind included), and the
+    array equals the one the array code writes."""
+    cfg = NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=2,       # a slow LAN: late FRAMEs
+                        links={"lan": LinkClass(22.0, 10.0, 0.0, 1000.0), "wan": LinkClass(25.0, 12.0, 0.0, 100.0)})
+
+    def trace(read_lists):
+        m = NetworkModel(cfg)
+        seen = []
+        for k in range(150):
+            m.latency_scale = 3.0 if 40 <= k < 70 else 1.0        # a burst: slaves lag further
+            for g in range(3):
+                m.set_input(g, 0.8 - 0.2 * g, 0.2 * (g - 1))
+            m.step(T)
+            if read_lists:
+                assert m.k % model_mod.HIST in m._hist_rows          # this frame's slot: a list
+                lists = [m.perceived_list(node) for node in range(m.reg.n_render)]
+                arrays = [m.perceived_avatars(node).ravel().tolist() for node in range(m.reg.n_render)]
+                assert lists == arrays and not m._hist_rows
+                seen.append(lists)
+        return m, seen
+
+    fast, seen = trace(True)
+    assert any(s[1] != s[0] for s in seen)                  # a slave showed an older frame
+    assert max(int(x) for x in fast.shown_frame) <= fast.k
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(model_mod, "SCALAR_VIEW", -1)              # history slots written by the array code
+        plain, _ = trace(False)
+    assert np.array_equal(fast.hist, plain.hist)
