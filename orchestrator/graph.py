@@ -5,7 +5,10 @@ scenario file's order. A cycle (algebraic loop across units) is broken at a docu
 inside each strongly connected component, units step in scenario order, and every connection
 that goes *backwards* in that order (from a unit stepped later to one stepped earlier) is
 *delayed*: its destination reads the source's value from the previous macro step, as under
-Jacobi. The delayed connections are reported.
+Jacobi. A connection the scenario declares ``delayed`` is delayed wherever its units step and
+does not order them (it is left out of the graph): two units joined only by delayed
+connections step on each other's previous values, so they may step at the same time. The
+delayed connections are reported.
 """
 from __future__ import annotations
 
@@ -64,12 +67,13 @@ def gauss_seidel_order(units: Sequence[str], connections: Sequence[Connection]) 
     order : list of str
         Stepping order.
     delayed : list of Connection
-        Connections whose destination steps before their source (the places a cycle is broken).
+        Connections whose destination steps before their source (the places a cycle is broken)
+        and those declared ``delayed``.
     """
     units = list(units)
     edges: Dict[str, Set[str]] = {u: set() for u in units}
     for c in connections:
-        if c.src_unit != c.dst_unit:
+        if c.src_unit != c.dst_unit and not c.delayed:
             edges[c.src_unit].add(c.dst_unit)
     comps = strongly_connected(units, edges)
     comp_of = {u: i for i, comp in enumerate(comps) for u in comp}
@@ -94,5 +98,5 @@ def gauss_seidel_order(units: Sequence[str], connections: Sequence[Connection]) 
                 ready.append(j)
         ready.sort(key=first.get)
     pos = {u: k for k, u in enumerate(order)}
-    delayed = [c for c in connections if pos[c.src_unit] >= pos[c.dst_unit]]
+    delayed = [c for c in connections if c.delayed or pos[c.src_unit] >= pos[c.dst_unit]]
     return order, delayed

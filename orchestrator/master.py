@@ -4,8 +4,10 @@ units in worker processes (``process = N``, :mod:`.remote`) step in parallel und
 Each unit occupies a :class:`Slot` holding the values it last reported (``cur``) and the
 ones before (``prev``). Before a unit steps over ``[t, t+h]`` its inputs are gathered:
 
-* from a connection whose source has *not* stepped yet in this macro step (Jacobi, or a
-  delayed Gauss-Seidel connection): ZOH uses ``y(t)``; linear extrapolation uses
+* from a connection whose source has *not* stepped yet in this macro step (Jacobi, a
+  Gauss-Seidel connection delayed where a cycle is broken, or one the scenario declares
+  ``delayed``: its destination's inputs are then gathered at the step's start, before any unit
+  steps): ZOH uses ``y(t)``; linear extrapolation uses
   ``y(t) + (y(t) - y(t-h))/2``, the extrapolated value at the middle of the step;
 * from a source that has already stepped (Gauss-Seidel): ZOH uses ``y(t+h)``; linear uses
   ``(y(t) + y(t+h))/2``, the interpolated mid-step value.
@@ -29,6 +31,7 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 from .fmu import DiscreteSetter, FmuInstance, RealSetter, ValueReader
 from .graph import gauss_seidel_order
 from .manipulators import Fault, signal
+from .errors import ScenarioError
 from .scenario import Connection, Scenario
 
 log = logging.getLogger(__name__)
@@ -109,8 +112,9 @@ class Master:
         if self.algorithm == "gauss-seidel":
             self.order, self.delayed = gauss_seidel_order(list(slots), connections)
             for c in self.delayed:
-                log.warning("Gauss-Seidel: cycle broken at %s (its destination steps first and reads the "
-                            "value of the previous step)", c)
+                if not c.delayed:
+                    log.warning("Gauss-Seidel: cycle broken at %s (its destination steps first and reads the "
+                                "value of the previous step)", c)
         else:
             self.order, self.delayed = list(slots), list(connections)
         delayed = set(self.delayed)
@@ -138,9 +142,25 @@ class Master:
         # the sources a unit waits for (the units before it that feed it)
         rank = {name: i for i, name in enumerate(self.order)}
         for slot in slots.values():
-            feeds = [f[1] for f in slot.float_feeds] + [f[1] for f in slot.other_feeds]
-            before = {src.name: src for src in feeds if rank[src.name] < rank[slot.name]}
+            before = {c.src_unit: slots[c.src_unit] for c in connections
+                      if c.dst_unit == slot.name and c not in delayed and rank[c.src_unit] < rank[slot.name]}
             slot.waits_for = list(before.values()) if self.algorithm == "gauss-seidel" else []
+        #: Gauss-Seidel: units fed through a declared-delayed connection by a unit that steps
+        #: before them; their inputs are gathered at the step's start, before that unit steps
+        self._start_gathered: List[Slot] = []
+        if self.algorithm == "gauss-seidel":
+            for slot in map(slots.__getitem__, self.order):
+                ahead = [c for c in connections if c.dst_unit == slot.name and c.delayed
+                         and rank[c.src_unit] < rank[slot.name]]
+                if ahead and slot.waits_for:
+                    fresh = next(c for c in connections if c.dst_unit == slot.name and c not in delayed
+                                 and rank[c.src_unit] < rank[slot.name])
+                    raise ScenarioError(
+                        f"{scenario.file}: connection {ahead[0]} is delayed but {slot.name} also reads "
+                        f"{fresh} in the same step: a unit reads all the units stepped before it either "
+                        f"fresh or delayed (declare this one delayed too, or neither)")
+                if ahead and not slot.inst.remote:
+                    self._start_gathered.append(slot)
         self._early = [slots[n] for n in self.order if slots[n].inst.remote and not slots[n].waits_for]
         early = set(map(id, self._early))
         #: the units a Gauss-Seidel step goes through itself (the early ones are posted before it)
@@ -233,10 +253,14 @@ class Master:
             return
         for name in self.order:
             slots[name].stepped = False
+        ready = {id(slot): self._gather(slot, t_ns) for slot in self._start_gathered}
         t0 = perf_counter_ns()
         for name in self.order:
             slot = slots[name]
-            if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
+            inputs = ready.get(id(slot)) if ready else None
+            if inputs is None and slot.has_inputs:
+                inputs = self._gather(slot, t_ns)
+            if self._advance(slot, t_ns, h_ns, inputs):
                 slot.read()
             slot.stepped = True
             t1 = perf_counter_ns()
@@ -284,7 +308,8 @@ class Master:
                 slots[name].stepped = False
             for slot in self._early:   # skipped lazily (not posted): stepped, as _advance leaves it
                 slot.stepped = not any(p is slot for p in pending)
-            work = [(slot, None) for slot in self._gs_work]
+            ready = {id(slot): self._gather(slot, t_ns) for slot in self._start_gathered}
+            work = [(slot, ready.get(id(slot))) for slot in self._gs_work]
         wait = 0
         t0 = perf_counter_ns()
         for slot, inputs in work:
@@ -295,7 +320,7 @@ class Master:
                     src.stepped = True
             t1 = perf_counter_ns()
             wait += t1 - t0
-            if self.algorithm != "jacobi" and slot.has_inputs:
+            if self.algorithm != "jacobi" and slot.has_inputs and inputs is None:
                 inputs = self._gather(slot, t_ns)
             if self._advance(slot, t_ns, h_ns, inputs):
                 if slot.inst.remote:

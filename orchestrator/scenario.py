@@ -22,6 +22,7 @@ Example::
     gain = 1.0                   # optional, Real only: to = gain * from + offset
     offset = 0.0
     extrapolation = "zoh"        # optional: this connection only (e.g. event-like signals)
+    delayed = true               # optional (Gauss-Seidel): read the previous step's value, as Jacobi
 
     [[inputs]]                   # scenario inputs (manipulators)
     target = "net.avatar[1].throttle"
@@ -80,6 +81,9 @@ class Connection:
     gain: float = 1.0
     offset: float = 0.0
     extrapolation: Optional[str] = None  # None: the scenario's simulation.extrapolation
+    #: Gauss-Seidel: the destination always reads the source's value of the previous step (as
+    #: under Jacobi), and the connection does not order the two units
+    delayed: bool = False
 
     @property
     def scaled(self) -> bool:
@@ -306,16 +310,19 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
         raise ScenarioError(f"{f}: 'connections' must be an array")
     for i, c in enumerate(raw_conns):
         where = f"{f}: connections[{i}]"
-        gain, offset, extrap = 1.0, 0.0, None
+        gain, offset, extrap, delayed = 1.0, 0.0, None, False
         if isinstance(c, str):
             if "->" not in c:
                 raise ScenarioError(f"{where}: {c!r} is not of the form 'unit.out -> unit.in'")
             src, dst = (s.strip() for s in c.split("->", 1))
         elif isinstance(c, dict):
-            unknown = set(c) - {"from", "to", "gain", "offset", "extrapolation"}
+            unknown = set(c) - {"from", "to", "gain", "offset", "extrapolation", "delayed"}
             if unknown:
                 raise ScenarioError(f"{where}: unknown key {sorted(unknown)[0]!r} "
-                                    "(from, to, gain, offset, extrapolation)")
+                                    "(from, to, gain, offset, extrapolation, delayed)")
+            delayed = c.get("delayed", False)
+            if not isinstance(delayed, bool):
+                raise ScenarioError(f"{where}: delayed must be true or false, got {delayed!r}")
             extrap = c.get("extrapolation")
             if extrap is not None and extrap not in EXTRAPOLATIONS:
                 raise ScenarioError(f"{where}: extrapolation {extrap!r} is not one of {', '.join(EXTRAPOLATIONS)}")
@@ -329,7 +336,7 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
             raise ScenarioError(f"{where} must be a string 'a.x -> b.y' or a table with from/to")
         su, sv = check_ref(src, where)
         du, dv = check_ref(dst, where)
-        conn = Connection(su, sv, du, dv, gain, offset, extrap)
+        conn = Connection(su, sv, du, dv, gain, offset, extrap, delayed)
         if any((x.dst_unit, x.dst_var) == (du, dv) for x in connections):
             raise ScenarioError(f"{where}: input {du}.{dv} is already connected")
         connections.append(conn)

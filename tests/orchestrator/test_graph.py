@@ -33,3 +33,15 @@ def test_cycle_breaking_follows_file_order_inside_the_cycle():
 def test_self_loop_is_delayed():
     order, delayed = gauss_seidel_order(["a"], [c("a", "a")])
     assert order == ["a"] and delayed == [c("a", "a")]
+
+
+def test_declared_delayed_connections_do_not_order_their_units():
+    """``delayed = true``: left out of the graph and always delayed. net <-> coll both declared
+    delayed, net -> plat fresh: net and coll are independent in a step, plat follows net."""
+    d = lambda a, b: Connection(a, "y", b, "u", delayed=True)   # noqa: E731
+    conns = [d("net", "coll"), d("coll", "net"), c("net", "plat")]
+    order, delayed = gauss_seidel_order(["plat", "coll", "net"], conns)
+    assert order == ["coll", "net", "plat"] and delayed == [d("net", "coll"), d("coll", "net")]
+    # one direction declared: the other orders the units (here against the file order)
+    order, delayed = gauss_seidel_order(["a", "b"], [d("a", "b"), c("b", "a")])
+    assert order == ["b", "a"] and delayed == [d("a", "b")]
