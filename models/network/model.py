@@ -968,7 +968,11 @@ class NetworkModel:
         (reordering) is ignored.
         """
         G = self.cfg.groups
-        for key in sorted(k for k in self._inflight if k <= self.k):
+        k = self.k
+        due = [key for key in self._inflight if key <= k]
+        if len(due) > 1:
+            due.sort()
+        for key in due:
             for fi, sender, table, ridx, (epoch, t_send) in self._inflight.pop(key):
                 if ridx is None:   # a few records as lists (_file_rows)
                     self._deliver_rows(fi, sender, table, epoch, t_send)
