@@ -518,7 +518,7 @@ class NetworkModel:
         # velocities, not positions) as a list too, and its velocities only where read (lazy)
         lazy = (cfg.dis_threshold <= 0 and cfg.prediction_order < 2 and self.n_obj <= SCALAR_VIEW
                 and (cfg.entities or w._fixed_key is None))    # (a resting scene: state()'s kept arrays)
-        pl = None
+        pl = vl = None     # (positions list; avatar velocities list when ownership computed them)
         if lazy:
             P = w.positions()
             pl = self._positions_list(P)
@@ -633,7 +633,7 @@ class NetworkModel:
             if snap is None or snap[0] != self._epoch:
                 snap = self._owner_snap = (self._epoch, self.owner.copy(), None)
             if arr_l is not None and len(tr.rec_msg) <= FEW_RECORDS and memo is not None:
-                self._file_rows(due, memo, tr, snap, t, P, V, A)
+                self._file_rows(due, memo, tr, snap, t, P, V, A, vl)
                 due = None
         if due is not None:
             # one record table per frame (objects x cache width, rows like the cache's); pairs
@@ -888,12 +888,14 @@ class NetworkModel:
         for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, len(due)]):
             self._inflight.setdefault(int(due[lo]), []).append((fi[lo:hi], sender, table, ridx[lo:hi], meta))
 
-    def _file_rows(self, due, memo: dict, tr: Traffic, snap: tuple, t: float, P, V, A) -> None:
+    def _file_rows(self, due, memo: dict, tr: Traffic, snap: tuple, t: float, P, V, A, vl=None) -> None:
         """File a frame's few records (at most ``FEW_RECORDS``, a small lossless batch) as Python
         lists: the rows of :meth:`_table` of the records' objects alone (the same values and
         record ids; the frame's table id is used up as by :meth:`_table`), their flat cache
         indices and senders (the owners now, ``snap``), under the frame each is due (``due``: one
-        frame for all, or one per record; -1: never). :meth:`_deliver` writes them row by row."""
+        frame for all, or one per record; -1: never). :meth:`_deliver` writes them row by row.
+        ``V`` None: the velocity rows from ``vl`` (the avatars', :meth:`World.avatar_velocities`,
+        when the caller has them) and the entities' velocities."""
         rl = memo.get("rec_l")
         if rl is None:   # the records' flat indices and objects as lists (kept with the messages)
             rl = memo["rec_l"] = (self.index(tr.rec_viewer, tr.rec_obj).tolist(), tr.rec_obj.tolist())
@@ -905,13 +907,16 @@ class NetworkModel:
         self._uid += 1
         pos = self._positions_list(P)
         ncol = self._ncol
-        if ncol >= 5:   # V's rows (avatars' speed (cos, sin) yaw, the entities' velocities)
-            vel = V.tolist() if V is not None else self.world.avatar_velocities() + self.world.evel.tolist()
+        if ncol >= 5 and V is None:   # V's rows: avatars' speed (cos, sin) yaw, the entities' velocities
+            G = self.cfg.groups
+            if vl is None:
+                vl = self.world.avatar_velocities()
+            ev = self.world.evel
         rows = []
         for o in objs:
             row = [t] + pos[o]
             if ncol >= 5:
-                row += vel[o]
+                row += V[o].tolist() if V is not None else vl[o] if o < G else ev[o - G].tolist()
                 if ncol >= 7:
                     row += A[o].tolist()
             row.append(o * RID_OBJECT + uid)    # (= _obj_rid[o] + uid, exact)
@@ -963,7 +968,11 @@ class NetworkModel:
         (reordering) is ignored.
         """
         G = self.cfg.groups
-        for key in sorted(k for k in self._inflight if k <= self.k):
+        k = self.k
+        due = [key for key in self._inflight if key <= k]
+        if len(due) > 1:
+            due.sort()
+        for key in due:
             for fi, sender, table, ridx, (epoch, t_send) in self._inflight.pop(key):
                 if ridx is None:   # a few records as lists (_file_rows)
                     self._deliver_rows(fi, sender, table, epoch, t_send)
