@@ -17,12 +17,15 @@ A scenario lists the bodies to draw; each body's pose comes from logged signals 
 Every macro step the observer writes one ``/tf`` message (all frames), and once per
 simulated second one ``/scene`` message (one entity per body, frame-locked to its frame, never
 expiring), JSON-encoded under Foxglove's schema names, so opening the log in Foxglove's 3D panel shows the platform, the avatars and
-the scene moving. It only reads values.
+the scene moving. It only reads values. In a log with ``[log] encoding = "ros1"`` the ``/tf``
+messages are ROS 1 ``tf2_msgs/TFMessage`` (what ROS 1 tools and Foxglove read as ``/tf``), packed
+with one ``struct`` call per step (:class:`Ros1Transforms`); ``/scene`` stays JSON.
 """
 from __future__ import annotations
 
 import json
 import math
+import struct
 
 import orjson
 from dataclasses import dataclass
@@ -123,6 +126,77 @@ def euler_quaternion(e1: float, e2: float, e3: float, order: str = "xyz") -> Tup
     return _qmul(_qmul(qx, qy), qz) if order == "xyz" else _qmul(_qmul(qz, qy), qx)
 
 
+#: ROS 1 message definition of ``tf2_msgs/TFMessage`` with its dependencies (the text a ROS 1
+#: bag stores; ``mcap_ros1`` and Foxglove parse it)
+TF_MESSAGE_DEFINITION = "\n".join([
+    "geometry_msgs/TransformStamped[] transforms", "",
+    "=" * 80, "MSG: geometry_msgs/TransformStamped",
+    "std_msgs/Header header", "string child_frame_id", "geometry_msgs/Transform transform", "",
+    "=" * 80, "MSG: std_msgs/Header", "uint32 seq", "time stamp", "string frame_id", "",
+    "=" * 80, "MSG: geometry_msgs/Transform",
+    "geometry_msgs/Vector3 translation", "geometry_msgs/Quaternion rotation", "",
+    "=" * 80, "MSG: geometry_msgs/Vector3", "float64 x", "float64 y", "float64 z", "",
+    "=" * 80, "MSG: geometry_msgs/Quaternion", "float64 x", "float64 y", "float64 z", "float64 w", ""])
+
+
+class Ros1Transforms:
+    """A ``tf2_msgs/TFMessage`` of a fixed list of frames, packed by one ``struct``.
+
+    Per transform: header (seq, stamp sec and nsec, parent frame id), child frame id,
+    translation (x, y, z) and rotation quaternion (x, y, z, w), little-endian as ROS 1
+    serializes them; the frame ids are fixed, so the message has a fixed layout.
+
+    Parameters
+    ----------
+    frames : list of (parent, child)
+    """
+
+    def __init__(self, frames: Sequence[Tuple[str, str]]) -> None:
+        fmt, args, self._base = ["<I"], [len(frames)], []
+        for parent, child in frames:
+            p, c = parent.encode(), child.encode()
+            self._base.append(len(args))
+            fmt.append(f"IIII{len(p)}sI{len(c)}s7d")
+            args += [0, 0, 0, len(p), p, len(c), c] + [0.0] * 7
+        self._struct, self._args = struct.Struct("".join(fmt)), args
+
+    def pack(self, seq: int, t_ns: int, poses: Sequence[float]) -> bytes:
+        """The message at ``t_ns``; ``poses``: 7 numbers per frame (translation, quaternion)."""
+        a = self._args
+        sec, nsec = divmod(t_ns, 1_000_000_000)
+        for i, b in enumerate(self._base):
+            a[b], a[b + 1], a[b + 2] = seq, sec, nsec
+            a[b + 7:b + 14] = poses[7 * i:7 * i + 7]
+        return self._struct.pack(*a)
+
+    @staticmethod
+    def decode(data: bytes) -> List[Dict[str, Any]]:
+        """The transforms of a packed message, as the JSON ``/tf`` messages hold them."""
+        (n,), off, out = struct.unpack_from("<I", data), 4, []
+        for _ in range(n):
+            _, sec, nsec, lp = struct.unpack_from("<4I", data, off)
+            off += 16
+            parent = data[off:off + lp].decode()
+            (lc,) = struct.unpack_from("<I", data, off + lp)
+            off += lp + 4
+            child = data[off:off + lc].decode()
+            v = struct.unpack_from("<7d", data, off + lc)
+            off += lc + 56
+            out.append({"timestamp": {"sec": sec, "nsec": nsec}, "parent_frame_id": parent, "child_frame_id": child,
+                        "translation": dict(zip("xyz", v[:3])), "rotation": dict(zip("xyzw", v[3:]))})
+        return out
+
+
+def read_transforms(path) -> List[Tuple[int, List[Dict[str, Any]]]]:
+    """``(log time ns, transforms)`` of every ``/tf`` message of a log, JSON or ROS 1."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        return [(m.log_time, Ros1Transforms.decode(m.data) if c.message_encoding == "ros1"
+                 else json.loads(m.data)["transforms"])
+                for _, c, m in make_reader(fh).iter_messages(topics=["/tf"])]
+
+
 class FoxgloveObserver:
     """Writes ``/tf`` and ``/scene`` into an open :class:`~immersim.orchestrator.observers.McapObserver`.
 
@@ -174,9 +248,21 @@ class FoxgloveObserver:
         self._period_ns = int(round(scene_period_s * 1e9))
         self._next_scene = None
         w = mcap.writer
-        sid = w.register_schema(name="foxglove.FrameTransforms", encoding="jsonschema",
-                                data=json.dumps(FRAME_TRANSFORMS_SCHEMA).encode())
-        self._tf = w.register_channel(topic="/tf", message_encoding="json", schema_id=sid)
+        self._ros1: Ros1Transforms | None = None
+        if getattr(mcap, "encoding", "json") == "ros1":
+            sid = w.register_schema(name="tf2_msgs/TFMessage", encoding="ros1msg",
+                                    data=TF_MESSAGE_DEFINITION.encode())
+            self._tf = w.register_channel(topic="/tf", message_encoding="ros1", schema_id=sid)
+            tfs = self._msg["transforms"]
+            self._ros1 = Ros1Transforms([(t["parent_frame_id"], t["child_frame_id"]) for t in tfs])
+            self._poses = [v for t in tfs for v in (*t["translation"].values(), *t["rotation"].values())]
+            index = {id(t["translation"]): i for i, t in enumerate(tfs)}
+            self._updaters = [self._updater(7 * index[id(translation)], moves, spin, order)
+                              for translation, moves, _, spin, order in self._moving]
+        else:
+            sid = w.register_schema(name="foxglove.FrameTransforms", encoding="jsonschema",
+                                    data=json.dumps(FRAME_TRANSFORMS_SCHEMA).encode())
+            self._tf = w.register_channel(topic="/tf", message_encoding="json", schema_id=sid)
         sid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
                                 data=json.dumps(SCENE_UPDATE_SCHEMA).encode())
         self._scene = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid)
@@ -188,7 +274,49 @@ class FoxgloveObserver:
         return ({"x": v[0] + body.offset[0], "y": v[1] + body.offset[1], "z": v[2] + body.offset[2]},
                 {"x": qx, "y": qy, "z": qz, "w": qw})
 
+    @staticmethod
+    def _updater(o: int, moves, spin, order: str) -> Callable[[List[float]], None]:
+        """A function writing one moving body's translation and quaternion into ``poses[o:o+7]``
+        (the ROS 1 path), with the arithmetic of the JSON path in :meth:`__call__`."""
+        sin, cos = math.sin, math.cos
+
+        def moved(poses: List[float]) -> None:
+            pass
+
+        if moves is not None:
+            (px, py, pz), (ox, oy, oz) = moves
+            gx, gy, gz = (g if callable(g) else (lambda v=g: v) for g in (px, py, pz))
+
+            def moved(poses: List[float]) -> None:  # noqa: F811 - the moving variant
+                poses[o], poses[o + 1], poses[o + 2] = gx() + ox, gy() + oy, gz() + oz
+        if spin is None:
+            return moved
+        if len(spin) == 2:
+            (axis, get), iw = spin, o + 6
+            ia = o + 3 + axis
+
+            def update(poses: List[float]) -> None:
+                moved(poses)
+                half = 0.5 * get()
+                poses[ia], poses[iw] = sin(half), cos(half)
+            return update
+        e1, e2, e3 = spin
+
+        def update_euler(poses: List[float]) -> None:
+            moved(poses)
+            poses[o + 3:o + 7] = euler_quaternion(e1(), e2(), e3(), order)
+        return update_euler
+
     def __call__(self, k: int, t_ns: int) -> None:
+        if self._ros1 is not None:
+            poses = self._poses
+            for update in self._updaters:
+                update(poses)
+            w = self.mcap.writer
+            w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k,
+                          data=self._ros1.pack(k, t_ns, poses))
+            self._scene_due(k, t_ns)
+            return
         stamp = self._stamp
         stamp["sec"], stamp["nsec"] = divmod(t_ns, 1_000_000_000)
         sin, cos = math.sin, math.cos
@@ -209,10 +337,15 @@ class FoxgloveObserver:
                 rotation["x"], rotation["y"], rotation["z"], rotation["w"] = q
         w = self.mcap.writer
         w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k, data=orjson.dumps(self._msg))
+        self._scene_due(k, t_ns)
+
+    def _scene_due(self, k: int, t_ns: int) -> None:
+        """``/scene`` at the first step and then once per ``scene_period_s``."""
         if self._next_scene is None or t_ns >= self._next_scene:
             self._next_scene = t_ns + self._period_ns
-            w.add_message(self._scene, log_time=t_ns, publish_time=t_ns, sequence=k,
-                          data=orjson.dumps({"deletions": [], "entities": self._entities(stamp)}))
+            stamp = dict(zip(("sec", "nsec"), divmod(t_ns, 1_000_000_000)))
+            self.mcap.writer.add_message(self._scene, log_time=t_ns, publish_time=t_ns, sequence=k,
+                                         data=orjson.dumps({"deletions": [], "entities": self._entities(stamp)}))
 
     def _entities(self, stamp: Dict[str, int]) -> List[Dict[str, Any]]:
         entities = []

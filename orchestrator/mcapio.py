@@ -100,8 +100,11 @@ def _messages(path: Path, topics: Optional[List[str]] = None):
 
 def channel_schema(schema, channel) -> Tuple[Dict, Callable[[bytes], Dict]]:
     """The JSON schema of a channel and the decoder of its messages (JSON objects, or the
-    "ros1" packing of :func:`~immersim.orchestrator.observers.ros1_struct`)."""
-    if channel.message_encoding == "ros1" and "jsonschema" in channel.metadata:
+    "ros1" packing of :func:`~immersim.orchestrator.observers.ros1_struct`). A ros1 channel
+    without a JSON schema (the 3D view's ``/tf``) has no signals."""
+    if channel.message_encoding == "ros1":
+        if "jsonschema" not in channel.metadata:   # not a unit's channel (e.g. the 3D view's /tf)
+            return {"title": schema.name if schema else channel.topic, "properties": {}}, lambda data: {}
         from .observers import ros1_struct
 
         js = json.loads(channel.metadata["jsonschema"])

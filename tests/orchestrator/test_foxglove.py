@@ -91,3 +91,54 @@ offset = [0.0, 0.0, 0.5]
         assert tr["translation"] == {"x": 1.0, "y": 2.0, "z": 0.5}
         assert tr["rotation"]["z"] == pytest.approx(np.sqrt(0.5), abs=1e-15) and tr["rotation"]["x"] == 0.0
         assert tr["timestamp"]["sec"] * 10**9 + tr["timestamp"]["nsec"] == t
+
+
+def test_ros1_tf_equals_the_json_tf_and_decodes_with_the_reference_decoder(tmp_path, test_fmus):
+    """``[log] encoding = "ros1"``: /tf as ROS 1 tf2_msgs/TFMessage holds the transforms of the
+    JSON log bit for bit (our decoder), mcap_ros1's DecoderFactory reads the same numbers, and
+    the log's signals stay readable ("*" selects no /tf array)."""
+    from mcap_ros1.decoder import DecoderFactory
+
+    from immersim.orchestrator.foxglove import read_transforms
+
+    body = '''
+[[foxglove.bodies]]
+name = "mass1"
+position = ["m1.x", 0.0, 0.5]
+euler = [0.0, 0.0, "m2.x"]
+order = "zyx"
+size = [0.2, 0.2, 0.2]
+
+[[foxglove.bodies]]
+name = "plate"
+position = ["m2.x", "m1.x", 1.0]
+euler = ["m1.x", "m2.x", 0.3]
+order = "xyz"
+offset = [0.1, 0.2, 0.3]
+
+[[foxglove.bodies]]
+name = "post"
+position = [1.0, 2.0, 0.0]
+euler = [0.0, 0.5, 0.0]
+'''
+    logs = {}
+    for enc in ("json", "ros1"):
+        scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=0.66, name=f"{enc}.toml",
+                                  extra=f'[log]\nencoding = "{enc}"\n' + body)
+        logs[enc] = tmp_path / f"{enc}.mcap"
+        run_scenario(scn, logs[enc])
+    a, b = read_transforms(logs["json"]), read_transforms(logs["ros1"])
+    assert len(a) == 21 and a == b
+    with open(logs["ros1"], "rb") as fh:
+        decoded = [(m.log_time, d) for _, c, m, d in make_reader(fh, decoder_factories=[DecoderFactory()])
+                   .iter_decoded_messages(topics=["/tf"])]
+    assert [t for t, _ in decoded] == [t for t, _ in b]
+    for (t, ours), (_, ref) in zip(b, decoded):
+        for x, y in zip(ours, ref.transforms):
+            assert (y.header.frame_id, y.child_frame_id) == (x["parent_frame_id"], x["child_frame_id"])
+            assert y.header.stamp.secs * 10**9 + y.header.stamp.nsecs == t
+            assert [y.transform.translation.x, y.transform.translation.y, y.transform.translation.z] == \
+                list(x["translation"].values())
+            assert [y.transform.rotation.x, y.transform.rotation.y, y.transform.rotation.z,
+                    y.transform.rotation.w] == list(x["rotation"].values())
+    assert read_series(logs["ros1"], ["*"]).keys() == read_series(logs["json"], ["*"]).keys()

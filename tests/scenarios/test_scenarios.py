@@ -72,10 +72,11 @@ def test_campus_drive_short_run(tmp_path):
 
     from mcap.reader import make_reader
 
-    with open(out, "rb") as fh:
-        msgs = [(c.topic, json.loads(m.data)) for _, c, m in make_reader(fh).iter_messages(topics=["/tf", "/scene"])]
-    tf = [m["transforms"] for t, m in msgs if t == "/tf"]
-    scene = [m["entities"] for t, m in msgs if t == "/scene"]
+    from immersim.orchestrator.foxglove import read_transforms
+
+    with open(out, "rb") as fh:   # /scene is JSON; /tf is ROS 1 in this ros1 log
+        scene = [json.loads(m.data)["entities"] for _, c, m in make_reader(fh).iter_messages(topics=["/scene"])]
+    tf = [transforms for _, transforms in read_transforms(out)]
     names = {"avatar_1", "avatar_2", "avatar_3", "entity_1", "entity_2", "entity_3", "entity_4", "missile",
              "tank_a", "tank_b", "tank_c", "tank_0", "tank_1", "tank_2", "tank_3", "platform", "platform_base"}
     assert len(tf) == 62 and len(scene) == 2 and all({x["child_frame_id"] for x in f} == names for f in tf)
