@@ -264,6 +264,7 @@ class Execution:
                     from tqdm import tqdm
                     bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None)
                 t0, h, stop = sc.start_ns, sc.step_ns, sc.stop_ns
+                master.schedule = (t0, stop, h)
                 loop_start = time.perf_counter()
                 for k in range(n):
                     if sigint.requested:

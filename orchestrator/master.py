@@ -65,6 +65,7 @@ class Slot:
     skipped_steps: int = 0
     busy_ns: int = 0  # wall time spent in this unit's FMI calls (gather, step, read)
     waits_for: List["Slot"] = field(default_factory=list)  # Gauss-Seidel: units before it that feed it
+    sources: List["Slot"] = field(default_factory=list)    # a worker unit posted early: the units feeding it
 
     def index(self, name: str) -> int:
         return self.read_names.index(name)
@@ -91,6 +92,10 @@ def _same_floats(a: tuple, b: tuple) -> bool:
 class Master:
     """Steps a set of slots with Jacobi or Gauss-Seidel.
 
+    ``POST_AHEAD`` (default True): a worker unit's next step is posted as soon as its inputs
+    are known (:meth:`_post_ahead`); False posts it only when the step is over (the log is the
+    same either way, tests/orchestrator/test_remote.py).
+
     Parameters
     ----------
     scenario : Scenario
@@ -100,6 +105,8 @@ class Master:
         Connections among the slots.
     """
 
+    POST_AHEAD = True
+
     def __init__(self, scenario: Scenario, slots: Dict[str, Slot], connections: List[Connection]) -> None:
         self.algorithm = scenario.algorithm
         self.slots = slots
@@ -107,7 +114,11 @@ class Master:
         #: the Jacobi step spent waiting for their replies after stepping its own units
         self.remote = any(s.inst.remote for s in slots.values())
         self.wait_ns = 0
-        self._posted: Optional[tuple] = None   # (step start, slots posted) of post_remote
+        self._posted: Optional[tuple] = None   # (step start, slots posted, ids handled) of post_remote
+        #: (start, end, macro step) of the run in ns, set by the execution: lets a worker unit's
+        #: next step be posted during this one (:meth:`_post_ahead`); None: no posting ahead
+        self.schedule: Optional[Tuple[int, int, int]] = None
+        self._ahead_error: Optional[Exception] = None   # a failed post ahead, raised at the next step
         self._early: List[Slot] = []           # worker units that can start a step at once
         if self.algorithm == "gauss-seidel":
             self.order, self.delayed = gauss_seidel_order(list(slots), connections)
@@ -162,6 +173,9 @@ class Master:
                 if ahead and not slot.inst.remote:
                     self._start_gathered.append(slot)
         self._early = [slots[n] for n in self.order if slots[n].inst.remote and not slots[n].waits_for]
+        for slot in self._early:   # the units whose outputs its next step's inputs are made of
+            slot.sources = list({c.src_unit: slots[c.src_unit] for c in connections
+                                 if c.dst_unit == slot.name}.values())
         early = set(map(id, self._early))
         #: the units a Gauss-Seidel step goes through itself (the early ones are posted before it)
         self._gs_work = [slots[n] for n in self.order if id(slots[n]) not in early]
@@ -211,10 +225,15 @@ class Master:
             slot.inst.set_values(dict(forced))
         slot.applied = inputs
 
+    @staticmethod
+    def _skips(slot: Slot, inputs: Optional[tuple]) -> bool:
+        """The slot is at rest and its inputs are those of its last step: it is skipped lazily."""
+        return (slot.rest_idx is not None and slot.cur[slot.rest_idx] and inputs == slot.applied
+                and not (inputs is not None and inputs[2]))
+
     def _advance(self, slot: Slot, t_ns: int, h_ns: int, inputs: Optional[tuple]) -> bool:
         """Step one slot (or skip it lazily). Returns whether the FMU was called."""
-        if (slot.rest_idx is not None and slot.cur[slot.rest_idx] and inputs == slot.applied
-                and not (inputs is not None and inputs[2])):
+        if self._skips(slot, inputs):
             if slot.pending_ns == 0:
                 slot.pending_start = t_ns
             slot.pending_ns += h_ns
@@ -278,15 +297,56 @@ class Master:
     def post_remote(self, t_ns: int, h_ns: int) -> None:
         """Gather the inputs of the worker units that can start the step from ``t_ns`` at once
         (:attr:`pipelined`: their inputs are outputs at ``t_ns``) and post their steps, one
-        message each, without waiting; :meth:`step` at ``t_ns`` takes their replies."""
-        posted = []
+        message each, without waiting; :meth:`step` at ``t_ns`` takes their replies. Units
+        posted already (:meth:`_post_ahead`) are left as they are."""
+        if self._ahead_error is not None:
+            exc, self._ahead_error = self._ahead_error, None
+            raise exc
+        if self._posted is not None and self._posted[0] != t_ns:
+            self._posted = None
+        posted, handled = self._posted[1:] if self._posted is not None else ([], set())
+        held = []
         for slot in self._early:
+            if id(slot) in handled:
+                continue
+            handled.add(id(slot))
             if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
                 slot.inst.post(hold=True)     # one message per worker (its units' steps batched)
-                posted.append(slot)
-        for slot in posted:
+                held.append(slot)
+        for slot in held:
             slot.inst.worker.flush()
-        self._posted = (t_ns, posted)
+        self._posted = (t_ns, posted + held, handled)
+
+    def _post_ahead(self, t_ns: int, h_ns: int, pending: List[Slot]) -> None:
+        """During the step from ``t_ns``: post the next step of each worker unit whose inputs are
+        known already (its last step collected, every unit feeding it stepped), so the worker goes
+        on while this process finishes the step (and logs it). A unit that would be skipped
+        lazily is left to :meth:`post_remote` (the skip changes the values it is read with)."""
+        if self.schedule is None or not self.POST_AHEAD:
+            return
+        start, stop, h = self.schedule
+        t_next = t_ns + h_ns
+        if t_next >= stop:
+            return
+        h_next = min(t_next + h, stop) - t_next
+        if self._posted is None or self._posted[0] != t_next:
+            self._posted = (t_next, [], set())
+        _, posted, handled = self._posted
+        for slot in self._early:
+            if (id(slot) in handled or any(p is slot for p in pending)
+                    or not all(src.stepped for src in slot.sources)):
+                continue
+            inputs = self._gather(slot, t_next) if slot.has_inputs else None
+            if self._skips(slot, inputs):
+                continue
+            handled.add(id(slot))
+            try:
+                self._advance(slot, t_next, h_next, inputs)
+                slot.inst.post()
+            except Exception as exc:   # (a dead worker): raised where the next step starts, as it
+                self._ahead_error = exc   # would be without posting ahead; this step completes
+                return
+            posted.append(slot)
 
     def _parallel_step(self, t_ns: int, h_ns: int) -> None:
         """A step with units in worker processes. Those that can start at once are posted (now,
@@ -296,18 +356,19 @@ class Master:
         stepped, and a reply is taken when a later unit needs it. Every reply is taken before
         the step ends. The inputs every unit gets are those of the one-process algorithm."""
         slots = self.slots
-        if self._posted is None or self._posted[0] != t_ns:
+        if (self._posted is None or self._posted[0] != t_ns or len(self._posted[2]) < len(self._early)
+                or self._ahead_error is not None):
             self.post_remote(t_ns, h_ns)
-        pending = self._posted[1]
+        pending = list(self._posted[1])
         self._posted = None
+        for name in self.order:
+            slots[name].stepped = False
+        for slot in self._early:   # skipped lazily (not posted): stepped, as _advance leaves it
+            slot.stepped = not any(p is slot for p in pending)
         if self.algorithm == "jacobi":
             work = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
                     for slot in map(slots.__getitem__, self.order) if not slot.inst.remote]
         else:
-            for name in self.order:
-                slots[name].stepped = False
-            for slot in self._early:   # skipped lazily (not posted): stepped, as _advance leaves it
-                slot.stepped = not any(p is slot for p in pending)
             ready = {id(slot): self._gather(slot, t_ns) for slot in self._start_gathered}
             work = [(slot, ready.get(id(slot))) for slot in self._gs_work]
         wait = 0
@@ -318,6 +379,7 @@ class Master:
                     pending = [p for p in pending if p is not src]
                     src.read()
                     src.stepped = True
+                    self._post_ahead(t_ns, h_ns, pending)
             t1 = perf_counter_ns()
             wait += t1 - t0
             if self.algorithm != "jacobi" and slot.has_inputs and inputs is None:
@@ -330,11 +392,14 @@ class Master:
                     slot.read()
             if not slot.inst.remote:
                 slot.stepped = True
+                self._post_ahead(t_ns, h_ns, pending)
             t0 = perf_counter_ns()
             slot.busy_ns += t0 - t1
-        for slot in pending:
+        while pending:
+            slot = pending.pop(0)
             slot.read()
             slot.stepped = True
+            self._post_ahead(t_ns, h_ns, pending)
         self.wait_ns += wait + perf_counter_ns() - t0
 
     def finish(self) -> None:

@@ -52,7 +52,7 @@ def test_campus_units_in_workers_step_in_parallel_to_the_same_log(tmp_path, algo
     (net -> coll, plat): net, fed only across the cycle, starts each step in worker 1 while the
     last one is logged; plat (worker 2) steps while coll steps here. The timing reports the
     workers' units and the wait."""
-    ov = {"simulation.stop": 1.5, "simulation.algorithm": algorithm}
+    ov = {"simulation.stop": 1.5, "simulation.algorithm": algorithm, "net:process": 0}
     here, there = tmp_path / "here.mcap", tmp_path / "there.mcap"
     run_scenario(SCEN / "campus_drive.toml", here, overrides=ov)
     res = run_scenario(SCEN / "campus_drive.toml", there,
@@ -67,11 +67,50 @@ def test_gauss_seidel_contact_loop_in_workers_is_the_same(tmp_path):
     at 3.76 s): Gauss-Seidel with net in a worker gives the one-process log."""
     ov = {"simulation.stop": 4.5}
     here, there = tmp_path / "here.mcap", tmp_path / "there.mcap"
-    run_scenario(SCEN / "campus_drive.toml", here, overrides=ov)
-    run_scenario(SCEN / "campus_drive.toml", there, overrides={**ov, "net:process": 1})
+    run_scenario(SCEN / "campus_drive.toml", here, overrides={**ov, "net:process": 0})
+    res = run_scenario(SCEN / "campus_drive.toml", there, overrides=ov)   # as shipped: net in worker 1
+    assert res.remote_units == ["net"]
     _same_logs(here, there)
     jolt = read_series(there, ["net.avatar[[]1].jolt"])["net.avatar[1].jolt"][1]
     assert jolt.max() > 5.0   # the bounce happened
+
+
+def test_posting_ahead_gives_the_same_log(tmp_path, monkeypatch):
+    """campus_drive as shipped to 4.5 s (net in a worker, its next step posted as soon as its
+    inputs are known, i.e. once coll and net's last step are done): the log of posting only when
+    a step is over (``Master.POST_AHEAD = False``), bit for bit."""
+    from immersim.orchestrator.master import Master
+
+    ov = {"simulation.stop": 4.5}
+    run_scenario(SCEN / "campus_drive.toml", tmp_path / "ahead.mcap", overrides=ov)
+    monkeypatch.setattr(Master, "POST_AHEAD", False)
+    run_scenario(SCEN / "campus_drive.toml", tmp_path / "after.mcap", overrides=ov)
+    assert _same_logs(tmp_path / "ahead.mcap", tmp_path / "after.mcap") > 300
+
+
+def test_campus_delayed_loop_keeps_the_avatars_and_the_platform(tmp_path):
+    """The shipped campus_drive (net <-> coll declared delayed) against the same scene with
+    net -> coll read fresh, to 4.5 s through avatar 1's bounce at 3.76 s: the avatars and the
+    platform agree to rounding (the figures the scenario's comment quotes are for 20 s), the
+    bounce's jolt is the same."""
+    import re
+
+    text = (SCEN / "campus_drive.toml").read_text()
+    fresh_text, n = re.subn(r"\ndelayed = true\n", "\n", text)
+    assert n == 30
+    fresh = tmp_path / "campus_fresh.toml"
+    fresh.write_text(fresh_text)
+    ov = {"simulation.stop": 4.5, "net:process": 0}
+    res = run_scenario(fresh, tmp_path / "fresh.mcap", overrides=ov)
+    assert res.delayed_connections and all(c.startswith("coll.pair") for c in res.delayed_connections)
+    run_scenario(SCEN / "campus_drive.toml", tmp_path / "shipped.mcap", overrides={"simulation.stop": 4.5})
+    a, b = read_series(tmp_path / "fresh.mcap", ["*"]), read_series(tmp_path / "shipped.mcap", ["*"])
+    for k in a:
+        if k.startswith("net.avatar") or k.startswith("net.entity"):
+            np.testing.assert_allclose(b[k][1], a[k][1], rtol=0, atol=1e-9, err_msg=k)
+        if k.startswith("plat.stroke") or k.startswith("plat.pose"):
+            np.testing.assert_allclose(b[k][1], a[k][1], rtol=0, atol=1e-12, err_msg=k)
+    assert a["net.avatar[1].jolt"][1].max() > 5.0
 
 
 @pytest.mark.parametrize("algorithm, where", [("jacobi", {"coll": 1, "plat": 2}),
