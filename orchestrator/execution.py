@@ -138,7 +138,7 @@ class Execution:
         self.system: System = check_system(self.scenario)
         self._tmp = tempfile.TemporaryDirectory(prefix="immersim_run_")
         self.observer: Optional[LogWriter | LogProcess] = None   # the MCAP log
-        self._log_slots: List[Slot] = []
+        self._log_step: Optional[Callable[[int, int], None]] = None   # logs step k at t_ns
         self.observers: List[Callable[[int, int], None]] = []
         self._observe_ns = 0
 
@@ -224,15 +224,19 @@ class Execution:
             for ref in {r for b in sc.foxglove for r in b.refs()}:
                 unit, var = ref.split(".", 1)
                 plan.refs[ref] = (rank[unit], master.slots[unit].index(var))
-        self._log_slots = slots
         self.observer = LogProcess(plan) if sc.log.process else LogWriter(plan)
+        if isinstance(self.observer, LogWriter):
+            self._log_step = self.observer.stepper(slots)
+        else:
+            proc = self.observer
+            self._log_step = lambda k, t_ns: proc.step(k, t_ns, [slot.cur for slot in slots])
 
     def _observe(self, master: Master, k: int, t_ns: int) -> None:
         """Log step ``k`` (ending at ``t_ns``): one message per logged unit and the 3D view
         (:class:`~immersim.orchestrator.logwriter.LogWriter`), then the observers."""
         t_start = time.perf_counter_ns()
         if self.observer is not None:
-            self.observer.step(k, t_ns, [slot.cur for slot in self._log_slots])
+            self._log_step(k, t_ns)
         for fn in self.observers:
             fn(k, t_ns)
         self._observe_ns += time.perf_counter_ns() - t_start

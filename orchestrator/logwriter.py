@@ -125,6 +125,18 @@ class LogWriter:
     def closed(self) -> bool:
         return self.mcap._closed
 
+    def stepper(self, sources: Sequence[Any]) -> Callable[[int, int], None]:
+        """``step(k, t_ns)`` reading the values from ``sources[i].cur`` (the master's slots) when
+        called: :meth:`step` without building the list of values first (the in-process log's
+        per-step path)."""
+        write, plan = self.mcap.write_step, [(cid, encode, sources[s], pick) for cid, encode, s, pick in self._plan]
+        if self._views:
+            return lambda k, t_ns: self.step(k, t_ns, [src.cur for src in sources])
+
+        def step(k: int, t_ns: int) -> None:
+            write(t_ns, k, [(cid, encode(src.cur if pick is None else pick(src.cur))) for cid, encode, src, pick in plan])
+        return step
+
     def step(self, k: int, t_ns: int, values: Sequence[Sequence[Any]]) -> None:
         """Log step ``k`` ending at ``t_ns``; ``values[i]``: the current values of slot ``i``."""
         self.mcap.write_step(t_ns, k, [(cid, encode(values[s] if pick is None else pick(values[s])))

@@ -272,7 +272,7 @@ class Master:
             return
         for name in self.order:
             slots[name].stepped = False
-        ready = {id(slot): self._gather(slot, t_ns) for slot in self._start_gathered}
+        ready = {id(slot): self._gather(slot, t_ns) for slot in self._start_gathered} if self._start_gathered else None
         t0 = perf_counter_ns()
         for name in self.order:
             slot = slots[name]
