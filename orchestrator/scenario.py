@@ -21,7 +21,8 @@ Example::
     to = "plat.cue.f_x"
     gain = 1.0                   # optional, Real only: to = gain * from + offset
     offset = 0.0
-    extrapolation = "zoh"        # optional: this connection only (e.g. event-like signals)
+    extrapolation = "zoh"        # optional: this connection only (e.g. event-like signals; "angle"
+                                 # for an angle wrapped to (-pi, pi]: linear, the short way round)
     delayed = true               # optional (Gauss-Seidel): read the previous step's value, as Jacobi
 
     [[inputs]]                   # scenario inputs (manipulators)
@@ -55,6 +56,9 @@ else:  # pragma: no cover
 DEFAULT_STEP_NS = 33_000_000
 ALGORITHMS = ("gauss-seidel", "jacobi")
 EXTRAPOLATIONS = ("zoh", "linear")
+#: a connection may also say "angle": linear, the difference of two samples taken the short way
+#: round the circle (an angle output wrapped to (-pi, pi] does not turn by 2 pi when it wraps)
+CONNECTION_EXTRAPOLATIONS = EXTRAPOLATIONS + ("angle",)
 INPUT_KINDS = ("constant", "step", "ramp", "sine", "table")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
 
@@ -324,8 +328,9 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
             if not isinstance(delayed, bool):
                 raise ScenarioError(f"{where}: delayed must be true or false, got {delayed!r}")
             extrap = c.get("extrapolation")
-            if extrap is not None and extrap not in EXTRAPOLATIONS:
-                raise ScenarioError(f"{where}: extrapolation {extrap!r} is not one of {', '.join(EXTRAPOLATIONS)}")
+            if extrap is not None and extrap not in CONNECTION_EXTRAPOLATIONS:
+                raise ScenarioError(f"{where}: extrapolation {extrap!r} is not one of "
+                                    f"{', '.join(CONNECTION_EXTRAPOLATIONS)}")
             src, dst = c.get("from"), c.get("to")
             for key in ("gain", "offset"):
                 v = c.get(key, 1.0 if key == "gain" else 0.0)

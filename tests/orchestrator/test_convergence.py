@@ -49,3 +49,29 @@ def test_gauss_seidel_beats_jacobi_at_equal_step(tmp_path, test_fmus):
     ej = max_error(tmp_path, fmu, 0.01, "jacobi", "zoh")
     eg = max_error(tmp_path, fmu, 0.01, "gauss-seidel", "zoh")
     assert eg < ej
+
+
+def test_angle_extrapolation_takes_the_short_way_round():
+    """``extrapolation = "angle"``: an angle wrapped to (-pi, pi] that passes pi between two
+    samples (3.1 -> -3.1 rad, a turn of +0.083 rad) is interpolated (a source stepped before)
+    and extrapolated (one not yet stepped) along that turn; plain linear gives a half turn off.
+    Away from a wrap it equals linear to rounding."""
+    import math
+
+    from immersim.orchestrator.master import Master, Slot
+
+    def gather(mode, cur, prev, stepped):
+        src = Slot("src", None, ["yaw"])
+        src.cur, src.prev, src.stepped = [cur], [prev], stepped
+        dst = Slot("dst", None, [])
+        dst.in_vals = [0.0]
+        dst.float_feeds = [(0, src, 0, not stepped, 1.0, 0.0, mode)]
+        return Master._gather(None, dst, 0)[0][0]
+
+    turn = 2 * math.pi - 6.2
+    assert gather(2, -3.1, 3.1, True) == pytest.approx(3.1 + turn / 2, abs=1e-15)     # mid-step: ~pi
+    assert gather(2, -3.1, 3.1, False) == pytest.approx(-3.1 + turn / 2, abs=1e-15)   # extrapolated
+    assert gather(1, -3.1, 3.1, True) == 0.0 and gather(1, -3.1, 3.1, False) == pytest.approx(-6.2)
+    for cur, prev in ((0.3, 0.1), (-1.0, -1.2), (3.0, 2.9)):
+        for stepped in (True, False):
+            assert gather(2, cur, prev, stepped) == pytest.approx(gather(1, cur, prev, stepped), abs=1e-15)
