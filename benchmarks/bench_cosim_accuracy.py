@@ -152,7 +152,6 @@ def run_one(study: Study, overrides: Dict, tmp: Path, tag: str):
 
 def event_k(study: Study, ref: Dict[str, Dict[int, float]]) -> Optional[int]:
     """First grid index k whose interval ((k-1) 33 ms, k 33 ms] holds the study's event in the reference."""
-    import fnmatch
 
     if not study.event:
         return None
@@ -173,7 +172,6 @@ def max_errors(study: Study, ref: Dict[str, Dict[int, float]], run: Dict[str, Di
 
 
 def _max_errors(study, ref, run, k_end):
-    import fnmatch
 
     out = {}
     for group, patterns in study.groups.items():

@@ -279,15 +279,14 @@ class FoxgloveObserver:
         """A function writing one moving body's translation and quaternion into ``poses[o:o+7]``
         (the ROS 1 path), with the arithmetic of the JSON path in :meth:`__call__`."""
         sin, cos = math.sin, math.cos
-
-        def moved(poses: List[float]) -> None:
-            pass
-
-        if moves is not None:
+        if moves is None:
+            def moved(poses: List[float]) -> None:   # the position is fixed (computed once)
+                pass
+        else:
             (px, py, pz), (ox, oy, oz) = moves
             gx, gy, gz = (g if callable(g) else (lambda v=g: v) for g in (px, py, pz))
 
-            def moved(poses: List[float]) -> None:  # noqa: F811 - the moving variant
+            def moved(poses: List[float]) -> None:
                 poses[o], poses[o + 1], poses[o + 2] = gx() + ox, gy() + oy, gz() + oz
         if spin is None:
             return moved

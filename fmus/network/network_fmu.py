@@ -47,7 +47,7 @@ def _player_vars():
             Var(f"{a}.w_y", "output", "Real", 0.0, "rad/s", f"body-frame angular rate y of avatar {p}"),
             Var(f"{a}.w_z", "output", "Real", 0.0, "rad/s", f"body-frame angular rate z (yaw rate) of avatar {p}"),
             Var(f"{a}.jolt", "output", "Real", 0.0, "m/s", f"velocity change |dv| of avatar {p} (m/s, not an acceleration) from the collision responses applied at the start of the step, summed"),
-            Var(f"{a}.jolt_acc", "output", "Real", 0.0, "m/s2", f"jolt / step size: the acceleration that, held for the step, gives the same velocity change (a platform's jolt input)"),
+            Var(f"{a}.jolt_acc", "output", "Real", 0.0, "m/s2", "jolt / step size: the acceleration that, held for the step, gives the same velocity change (a platform's jolt input)"),
             Var(f"perceived[{p}].x", "output", "Real", 0.0, "m", f"x of avatar {p} as shown by a slave render node of player 1 (cached frame)"),
             Var(f"perceived[{p}].y", "output", "Real", 0.0, "m", f"y of avatar {p} as shown by a slave render node of player 1 (cached frame)"),
         ]
