@@ -248,17 +248,22 @@ class FoxgloveObserver:
         self._period_ns = int(round(scene_period_s * 1e9))
         self._next_scene = None
         w = mcap.writer
+        # every frame's translation and quaternion, 7 numbers each, in /tf's order; the moving
+        # bodies' updaters rewrite theirs every step (the same arithmetic for both encodings)
+        tfs = self._msg["transforms"]
+        self._poses = [v for t in tfs for v in (*t["translation"].values(), *t["rotation"].values())]
+        index = {id(t["translation"]): i for i, t in enumerate(tfs)}
+        self._updaters = [self._updater(7 * index[id(translation)], moves, spin, order)
+                          for translation, moves, _, spin, order in self._moving]
+        #: the JSON message's dicts of the moving bodies, with their offset in the poses
+        self._moved = [(translation, rotation, 7 * index[id(translation)])
+                       for translation, _, rotation, _, _ in self._moving]
         self._ros1: Ros1Transforms | None = None
         if getattr(mcap, "encoding", "json") == "ros1":
             sid = w.register_schema(name="tf2_msgs/TFMessage", encoding="ros1msg",
                                     data=TF_MESSAGE_DEFINITION.encode())
             self._tf = w.register_channel(topic="/tf", message_encoding="ros1", schema_id=sid)
-            tfs = self._msg["transforms"]
             self._ros1 = Ros1Transforms([(t["parent_frame_id"], t["child_frame_id"]) for t in tfs])
-            self._poses = [v for t in tfs for v in (*t["translation"].values(), *t["rotation"].values())]
-            index = {id(t["translation"]): i for i, t in enumerate(tfs)}
-            self._updaters = [self._updater(7 * index[id(translation)], moves, spin, order)
-                              for translation, moves, _, spin, order in self._moving]
         else:
             sid = w.register_schema(name="foxglove.FrameTransforms", encoding="jsonschema",
                                     data=json.dumps(FRAME_TRANSFORMS_SCHEMA).encode())
@@ -276,8 +281,9 @@ class FoxgloveObserver:
 
     @staticmethod
     def _updater(o: int, moves, spin, order: str) -> Callable[[List[float]], None]:
-        """A function writing one moving body's translation and quaternion into ``poses[o:o+7]``
-        (the ROS 1 path), with the arithmetic of the JSON path in :meth:`__call__`."""
+        """A function writing one moving body's translation (position + offset) and quaternion
+        into ``poses[o:o+7]``: about one axis, the sine and cosine of half the angle; else
+        :func:`euler_quaternion`."""
         sin, cos = math.sin, math.cos
         if moves is None:
             def moved(poses: List[float]) -> None:   # the position is fixed (computed once)
@@ -307,35 +313,20 @@ class FoxgloveObserver:
         return update_euler
 
     def __call__(self, k: int, t_ns: int) -> None:
-        if self._ros1 is not None:
-            poses = self._poses
-            for update in self._updaters:
-                update(poses)
-            w = self.mcap.writer
-            w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k,
-                          data=self._ros1.pack(k, t_ns, poses))
-            self._scene_due(k, t_ns)
-            return
-        stamp = self._stamp
-        stamp["sec"], stamp["nsec"] = divmod(t_ns, 1_000_000_000)
-        sin, cos = math.sin, math.cos
-        for translation, moves, rotation, spin, order in self._moving:
-            if moves is not None:
-                (px, py, pz), (ox, oy, oz) = moves
-                translation["x"] = (px() if callable(px) else px) + ox
-                translation["y"] = (py() if callable(py) else py) + oy
-                translation["z"] = (pz() if callable(pz) else pz) + oz
-            if spin is None:
-                continue
-            if len(spin) == 2:
-                axis, get = spin
-                half = 0.5 * get()
-                rotation["xyz"[axis]], rotation["w"] = sin(half), cos(half)
-            else:
-                q = euler_quaternion(spin[0](), spin[1](), spin[2](), order)
-                rotation["x"], rotation["y"], rotation["z"], rotation["w"] = q
+        poses = self._poses
+        for update in self._updaters:
+            update(poses)
         w = self.mcap.writer
-        w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k, data=orjson.dumps(self._msg))
+        if self._ros1 is not None:
+            data = self._ros1.pack(k, t_ns, poses)
+        else:
+            stamp = self._stamp   # shared by every transform of the message
+            stamp["sec"], stamp["nsec"] = divmod(t_ns, 1_000_000_000)
+            for translation, rotation, o in self._moved:
+                translation["x"], translation["y"], translation["z"] = poses[o:o + 3]
+                rotation["x"], rotation["y"], rotation["z"], rotation["w"] = poses[o + 3:o + 7]
+            data = orjson.dumps(self._msg)
+        w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k, data=data)
         self._scene_due(k, t_ns)
 
     def _scene_due(self, k: int, t_ns: int) -> None:
