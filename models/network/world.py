@@ -313,35 +313,6 @@ class World:
         for i, (v0, th, k, yw, (xi, yi)) in enumerate(zip(sp, thr, ks, yaw, xy)):
             a0 = yr = 0.0
             push = acc * th     # max_accel * throttle (the same every sub-step)
-            if not still:       # (the same sub-steps without the fixed-point test; the
-                vp, jw = v0, -1  # acceleration of the last one only, the one kept)
-                for j in range(n):
-                    v1 = v0 + (push - drag * v0) * h
-                    if v1 < nms:
-                        v1 = nms
-                    elif v1 > ms:
-                        v1 = ms
-                    vm = 0.5 * (v0 + v1)
-                    yr = vm * k
-                    yaw_m = yw + 0.5 * yr * h
-                    step = vm * h
-                    xn = step * cos(yaw_m) + xi
-                    yn = step * sin(yaw_m) + yi
-                    yw2 = (yw + yr * h + pi) % two_pi - pi
-                    if xn < 0.0 or yn < 0.0 or xn > S or yn > S:    # a wall: the array code
-                        jw, vw = j, v1     # (the acceleration is the one before the reflection)
-                        p, w, v = _reflect_avatars(np.array([[xn, yn]]), np.array([yw2]), np.array([v1]), S)
-                        (xn, yn), = p.tolist()
-                        yw2, v1 = float(w[0]), float(v[0])
-                    vp, xi, yi, yw, v0 = v0, xn, yn, yw2, v1
-                first = False
-                out[2 * i] = xi
-                out[2 * i + 1] = yi
-                out[2 * G + i] = yw
-                out[3 * G + i] = v0
-                out[4 * G + i] = ((vw if jw == n - 1 else v0) - vp) / h
-                out[5 * G + i] = yr
-                continue
             for j in range(n):
                 a = push - drag * v0
                 v1 = v0 + a * h     # clipped to [-ms, ms] (np.minimum(np.maximum(., -ms), ms))
