@@ -36,3 +36,15 @@ to = "m1.x_other"
     path = tmp / name
     path.write_text(text)
     return path
+
+
+#: a 3D-view body following the oscillators (m1.x its position, m2.x its yaw), for the
+#: ``extra`` of :func:`oscillator_scenario`
+MASS_BODY = '''
+[[foxglove.bodies]]
+name = "mass1"
+position = ["m1.x", 0.0, 0.5]
+euler = [0.0, 0.0, "m2.x"]
+order = "zyx"
+size = [0.2, 0.2, 0.2]
+'''

@@ -13,7 +13,7 @@ from immersim.orchestrator.execution import run_scenario
 from immersim.orchestrator.foxglove import euler_quaternion
 from immersim.orchestrator.mcapio import read_series
 
-from .helpers import oscillator_scenario
+from .helpers import MASS_BODY, oscillator_scenario
 
 angles = st.floats(-3.0, 3.0)
 
@@ -30,14 +30,7 @@ def test_quaternions_match_scipy(e1, e2, e3):
 
 
 def test_tf_follows_the_signals(tmp_path, test_fmus):
-    extra = '''
-[[foxglove.bodies]]
-name = "mass1"
-position = ["m1.x", 0.0, 0.5]
-euler = [0.0, 0.0, "m2.x"]
-order = "zyx"
-size = [0.2, 0.2, 0.2]
-'''
+    extra = MASS_BODY
     scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=0.66, extra=extra)
     out = tmp_path / "fg.mcap"
     run_scenario(scn, out)
@@ -101,14 +94,7 @@ def test_ros1_tf_equals_the_json_tf_and_decodes_with_the_reference_decoder(tmp_p
 
     from immersim.orchestrator.foxglove import read_transforms
 
-    body = '''
-[[foxglove.bodies]]
-name = "mass1"
-position = ["m1.x", 0.0, 0.5]
-euler = [0.0, 0.0, "m2.x"]
-order = "zyx"
-size = [0.2, 0.2, 0.2]
-
+    body = MASS_BODY + '''
 [[foxglove.bodies]]
 name = "plate"
 position = ["m2.x", "m1.x", 1.0]

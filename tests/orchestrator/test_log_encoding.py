@@ -70,14 +70,19 @@ def test_ros1_definition_names_are_valid_and_unique():
     assert ros1_struct(json_schema("u", [VarInfo("s", 0, "String", "output", "", "", None, "")])) is None
 
 
-def test_ros1_log_of_a_failed_run_keeps_every_completed_step(tmp_path, test_fmus):
+@pytest.mark.parametrize("process", [False, True])
+def test_ros1_log_of_a_failed_run_keeps_every_completed_step(tmp_path, test_fmus, process):
+    """A NaN input at 0.33 s fails step 11: 11 messages (steps 0..10) per unit, written here or
+    by a log-writer process (``[log] process``: the steps still waiting in the master's batch
+    are sent before the log is closed)."""
     scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=1.0, algorithm="gauss-seidel",
                               extra='[[faults]]\ntarget = "m2.x_other"\nat = 0.33\nvalue = nan\n'
-                                    '[log]\nencoding = "ros1"\n')
+                                    f'[log]\nencoding = "ros1"\nprocess = {str(process).lower()}\n')
     out = tmp_path / "fail.mcap"
     with pytest.raises(RunFailed, match=r"after 10 of 31 steps"):
         run_scenario(scn, out)
-    assert read_info(out).channels["m2"].count == 11
+    info = read_info(out)
+    assert info.channels["m2"].count == 11 and info.metadata["run"]["status"] == "failed"
     assert len(read_series(out, ["m2.x"])["m2.x"][0]) == 11
 
 

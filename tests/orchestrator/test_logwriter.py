@@ -15,16 +15,9 @@ from immersim.orchestrator.logwriter import LogPlan, LogProcess
 from immersim.orchestrator.mcapio import read_info, read_series
 from immersim.orchestrator.scenario import load_scenario
 
-from .helpers import oscillator_scenario
+from .helpers import MASS_BODY, oscillator_scenario
 
-VIEW = '''
-[[foxglove.bodies]]
-name = "mass1"
-position = ["m1.x", 0.0, 0.5]
-euler = [0.0, 0.0, "m2.x"]
-order = "zyx"
-size = [0.2, 0.2, 0.2]
-'''
+VIEW = MASS_BODY
 
 
 @pytest.mark.parametrize("encoding", ["json", "ros1"])
@@ -43,20 +36,6 @@ def test_the_writer_process_writes_the_same_file(tmp_path, test_fmus, encoding):
     info = read_info(b)
     assert info.channels["m1"].count == info.channels["/tf"].count == 62
     assert info.metadata["run"]["status"] == "completed"
-
-
-def test_a_failed_run_keeps_every_completed_step(tmp_path, test_fmus):
-    """A NaN input at 0.33 s fails step 11; the steps still waiting in the master's batch are
-    sent before the log is closed: 11 messages (steps 0..10) per unit, like the in-process log."""
-    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=1.0, algorithm="gauss-seidel",
-                              extra='[[faults]]\ntarget = "m2.x_other"\nat = 0.33\nvalue = nan\n'
-                                    '[log]\nencoding = "ros1"\nprocess = true\n')
-    out = tmp_path / "fail.mcap"
-    with pytest.raises(RunFailed, match=r"after 10 of 31 steps"):
-        run_scenario(scn, out)
-    info = read_info(out)
-    assert info.channels["m2"].count == 11 and info.metadata["run"]["status"] == "failed"
-    assert len(read_series(out, ["m2.x"])["m2.x"][0]) == 11
 
 
 def test_a_log_that_cannot_be_opened_fails_with_the_in_process_message(tmp_path, test_fmus):
