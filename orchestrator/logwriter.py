@@ -27,13 +27,13 @@ Failures keep the rules of the in-process log:
 from __future__ import annotations
 
 import logging
-import os
 import sys
 import time
 from dataclasses import dataclass, field
 from pickle import dumps, loads
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
+from .child import start_child
 from .errors import LogWriteError
 from .observers import McapObserver, write_parameters
 
@@ -231,25 +231,16 @@ class LogProcess:
 
     def __init__(self, plan: LogPlan, flush_seconds: float = 1.0) -> None:
         import select
-        import socket
-        import subprocess
-        from multiprocessing.connection import Connection
 
         self.path = plan.path
         self.closed = False
         #: CPU seconds the writer spent on the steps and the close (set by a successful :meth:`close`)
         self.cpu_s: Optional[float] = None
-        ours, theirs = socket.socketpair()
-        fd = theirs.detach()
         try:
-            self.proc = subprocess.Popen([sys.executable, "-m", __name__, str(fd)], pass_fds=(fd,),
-                                         stdin=subprocess.DEVNULL)
+            self.proc, self.conn = start_child(__name__)
         except OSError as exc:
             raise LogWriteError(f"cannot write the log {self.path}: the log-writer process did not start: "
                                 f"{exc}") from None
-        finally:
-            os.close(fd)
-        self.conn = Connection(ours.detach())
         self._poller = select.poll()
         self._poller.register(self.conn.fileno(), select.POLLIN)
         self._send, self._poll = self.conn.send_bytes, self._poller.poll

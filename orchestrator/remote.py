@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Sequence
 
 from . import errors as _errors
+from .child import start_child
 from .errors import FmuCallError, FmuLoadError
 from .fmu import FmuInstance, VarInfo, read_model, step_error
 
@@ -267,20 +268,8 @@ class WorkerProcess:
     """
 
     def __init__(self, number: int, config: RemoteConfig = RemoteConfig()) -> None:
-        import socket
-        import subprocess
-        import sys
-        from multiprocessing.connection import Connection
-
         self.number = number
-        ours, theirs = socket.socketpair()
-        self.conn = Connection(ours.detach())
-        fd = theirs.fileno()
-        # a fresh interpreter running this module (not multiprocessing's spawn, which imports
-        # the caller's __main__ again: a script without a main guard would run twice)
-        self.proc = subprocess.Popen([sys.executable, "-m", __name__, str(fd), repr(config.spin_s)],
-                                     pass_fds=(fd,), close_fds=True)
-        theirs.close()
+        self.proc, self.conn = start_child(__name__, repr(config.spin_s))
         self.closed = False
         self._ready = _readable(self.conn, config.spin_s)   # the master waits for a reply the same way
         #: messages held for one batch (:meth:`send` with ``hold``, then :meth:`flush`)
