@@ -224,12 +224,12 @@ class Execution:
             for ref in {r for b in sc.foxglove for r in b.refs()}:
                 unit, var = ref.split(".", 1)
                 plan.refs[ref] = (rank[unit], master.slots[unit].index(var))
-        self.observer = LogProcess(plan) if sc.log.process else LogWriter(plan)
-        if isinstance(self.observer, LogWriter):
-            self._log_step = self.observer.stepper(slots)
-        else:
-            proc = self.observer
+        if sc.log.process:
+            proc = self.observer = LogProcess(plan)
             self._log_step = lambda k, t_ns: proc.step(k, t_ns, [slot.cur for slot in slots])
+        else:   # reads the slots' values itself
+            self.observer = LogWriter(plan, sources=slots)
+            self._log_step = self.observer.write
 
     def _observe(self, master: Master, k: int, t_ns: int) -> None:
         """Log step ``k`` (ending at ``t_ns``): one message per logged unit and the 3D view

@@ -85,6 +85,16 @@ def _picker(idx: Optional[List[int]]) -> Optional[Callable[[Sequence[Any]], tupl
     return itemgetter(*idx)
 
 
+class _Values:
+    """Where a :class:`LogWriter` in its own process keeps a slot's values of the step (the
+    master's slots have the same ``cur``)."""
+
+    __slots__ = ("cur",)
+
+    def __init__(self) -> None:
+        self.cur: Sequence[Any] = ()
+
+
 class LogWriter:
     """Opens the log of a :class:`LogPlan` and writes steps into it.
 
@@ -93,31 +103,35 @@ class LogWriter:
     plan : LogPlan
     flush_seconds : float
         See :class:`~immersim.orchestrator.observers.McapObserver`.
+    sources : sequence, optional
+        Objects whose ``cur`` holds each slot's current values when a step is written (the
+        master's slots: :meth:`write`); None: the values come with each :meth:`step`.
     """
 
-    def __init__(self, plan: LogPlan, flush_seconds: float = 1.0) -> None:
+    def __init__(self, plan: LogPlan, flush_seconds: float = 1.0, sources: Optional[Sequence[Any]] = None) -> None:
         self.path = plan.path
         obs = self.mcap = McapObserver(plan.path, flush_seconds=flush_seconds, encoding=plan.encoding)
         for name, data in plan.metadata:
             obs.add_metadata(name, data)
-        #: (channel id, encoder, slot, picker or None)
+        if sources is None:
+            sources = [_Values() for _ in range(1 + max([c[2] for c in plan.channels]
+                                                        + [s for s, _ in plan.refs.values()], default=-1))]
+        self._sources = sources
+        #: (channel id, encoder, source, picker or None)
         self._plan: List[tuple] = []
         for topic, infos, slot, idx in plan.channels:
             cid, encode = obs.add_channel(topic, infos)
-            self._plan.append((cid, encode, slot, _picker(idx)))
+            self._plan.append((cid, encode, sources[slot], _picker(idx)))
         for unit, infos, values, t_ns in plan.parameters:
             write_parameters(obs, unit, infos, values, t_ns)
-        #: the values of the step being written (the 3D view reads them through ``lookup``)
-        self._values: List[Sequence[Any]] = []
         self._views: List[Callable[[int, int], None]] = []
         if plan.bodies:
             from .foxglove import FoxgloveObserver
 
-            cur = self._values
-
             def lookup(ref: str) -> Callable[[], Any]:
                 s, i = plan.refs[ref]
-                return lambda: cur[s][i]
+                src = sources[s]
+                return lambda: src.cur[i]
 
             self._views.append(FoxgloveObserver(obs, plan.bodies, lookup))
 
@@ -125,26 +139,18 @@ class LogWriter:
     def closed(self) -> bool:
         return self.mcap._closed
 
-    def stepper(self, sources: Sequence[Any]) -> Callable[[int, int], None]:
-        """``step(k, t_ns)`` reading the values from ``sources[i].cur`` (the master's slots) when
-        called: :meth:`step` without building the list of values first (the in-process log's
-        per-step path)."""
-        write, plan = self.mcap.write_step, [(cid, encode, sources[s], pick) for cid, encode, s, pick in self._plan]
-        if self._views:
-            return lambda k, t_ns: self.step(k, t_ns, [src.cur for src in sources])
-
-        def step(k: int, t_ns: int) -> None:
-            write(t_ns, k, [(cid, encode(src.cur if pick is None else pick(src.cur))) for cid, encode, src, pick in plan])
-        return step
+    def write(self, k: int, t_ns: int) -> None:
+        """Log step ``k`` ending at ``t_ns`` from the sources' current values."""
+        self.mcap.write_step(t_ns, k, [(cid, encode(src.cur if pick is None else pick(src.cur)))
+                                       for cid, encode, src, pick in self._plan])
+        for view in self._views:
+            view(k, t_ns)
 
     def step(self, k: int, t_ns: int, values: Sequence[Sequence[Any]]) -> None:
-        """Log step ``k`` ending at ``t_ns``; ``values[i]``: the current values of slot ``i``."""
-        self.mcap.write_step(t_ns, k, [(cid, encode(values[s] if pick is None else pick(values[s])))
-                                       for cid, encode, s, pick in self._plan])
-        if self._views:
-            self._values[:] = values
-            for view in self._views:
-                view(k, t_ns)
+        """:meth:`write` with ``values[i]``, the current values of slot ``i``."""
+        for src, v in zip(self._sources, values):
+            src.cur = v
+        self.write(k, t_ns)
 
     def close(self, run: Dict[str, Any]) -> None:
         """Write the run's metadata (``run``) and finish the file; raises LogWriteError."""
