@@ -12,7 +12,11 @@
    Also the built network.fmu under FMPy (doStep and reading the outputs back), and with
    ``--baseline DIR`` the in-process runs alternated with another commit's tree.
 
-Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus] [--baseline DIR]
+5. campus replay (``--campus-log LOG``): the network inputs of a real campus_drive run, read from
+   its log, replayed through the FMU class's ``do_step``; with ``--baseline DIR`` another
+   tree's runs alternate with this tree's and every output of every step is compared bit for bit.
+
+Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus] [--baseline DIR] [--campus-log LOG]
 """
 from __future__ import annotations
 
@@ -255,6 +259,108 @@ def bench_campus(quick: bool, baseline: str = ""):
     return current, campus_fmpy(steps), rows
 
 
+#: the inputs of the network unit that campus_drive's log holds (``net.`` stripped when set)
+LOG_INPUTS = ["net.avatar*.throttle", "net.avatar*.steer", "net.contact*"]
+
+
+def campus_log_inputs(log: str):
+    """The network inputs of a campus_drive log (``immersim run scenarios/campus_drive.toml -o LOG
+    --set log.encoding='"json"' --set net:process=0``): the communication points (integer ns,
+    shape (n + 1,)) and, per step ``k`` = 1..n, the inputs the unit had in that step (the
+    values logged at its end, ``contact[p].active`` as bool)."""
+    from immersim.orchestrator.mcapio import read_series
+
+    ser = read_series(log, LOG_INPUTS)
+    names = sorted(ser)
+    t_ns = [round(float(x) * 1e9) for x in ser[names[0]][0]]
+    cols = [[bool(x) for x in ser[n][1].tolist()] if n.endswith(".active") else ser[n][1].tolist() for n in names]
+    steps = [{n[4:]: c[k] for n, c in zip(names, cols)} for k in range(1, len(t_ns))]
+    return t_ns, steps
+
+
+def campus_replay(inputs_path: str, fmu_dir: str = str(ROOT / "fmus" / "network"), passes: int = 3,
+                  outputs_path: str = ""):
+    """Replay campus_drive's logged inputs through the FMU class's ``do_step`` in process
+    (model + wrapper + the base class's checks), ``passes`` times with a fresh instance each;
+    the first pass warms up. Step ``k`` sets the logged inputs and steps from the log's
+    ``t[k-1]`` by ``t[k] - t[k-1]`` (the master's ns times as seconds), timed with
+    ``perf_counter_ns`` and ``thread_time_ns``. ``outputs_path``: every output of every step of
+    the last pass (float64, (n, outputs), bools and integers as floats) saved there (.npy).
+    Returns the per-step CPU and wall times (us) of the passes after the first."""
+    import json
+
+    sys.path.insert(0, fmu_dir)
+    from network_fmu import network
+
+    with open(inputs_path) as f:
+        t_ns, steps = json.load(f)
+    outs = [v.name for v in network.VARIABLES if v.causality == "output"]
+    cpu, wall, table_ = [], [], []
+    for rep in range(passes):
+        s = network(instance_name="replay", resources=str(ROOT), visible=False, logging_callback=None)
+        s.values.update(players=3, render_nodes=3, entities=8, seed=0, prediction_order=1)
+        s.setup_experiment(0.0, None, None)
+        s.exit_initialization_mode()
+        v, do_step, last = s.values, s.do_step, rep == passes - 1
+        keep = last and outputs_path
+        for k, ins in enumerate(steps, start=1):
+            v.update(ins)
+            t0, h = t_ns[k - 1] / 1e9, (t_ns[k] - t_ns[k - 1]) / 1e9
+            w0, c0 = time.perf_counter_ns(), time.thread_time_ns()
+            ok = do_step(t0, h)
+            c1, w1 = time.thread_time_ns(), time.perf_counter_ns()
+            if not ok:
+                raise RuntimeError(f"campus replay: step {k} failed: {s.failed}")
+            if rep:
+                cpu.append((c1 - c0) * 1e-3)
+                wall.append((w1 - w0) * 1e-3)
+            if keep:
+                table_.append([float(v[n]) for n in outs])
+    if outputs_path:
+        np.save(outputs_path, np.array(table_))
+    return dict(steps=len(steps), passes=passes - 1, cpu_mean_us=float(np.mean(cpu)), cpu_median_us=float(np.median(cpu)),
+                wall_mean_us=float(np.mean(wall)), wall_median_us=float(np.median(wall)))
+
+
+def bench_campus_log(log: str, baseline: str = "", rounds: int = 3):
+    """campus_drive's logged inputs replayed (:func:`campus_replay`) in fresh processes, this
+    tree and (``baseline``) another tree alternated, round by round (which one goes first
+    alternates too); every output of every step of each run is compared with this tree's
+    first run, bit for bit. Returns the rows and the number of runs whose outputs differ."""
+    import json
+    import tempfile
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_net_replay_"))
+    with open(tmp / "inputs.json", "w") as f:
+        json.dump(campus_log_inputs(log), f)
+
+    def sub(tree, out):
+        fmu_dir = str(ROOT / "fmus" / "network") if tree is None else str(Path(tree) / "immersim" / "fmus" / "network")
+        code = (f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); "
+                f"from bench_network import campus_replay; "
+                f"print(json.dumps(campus_replay({str(tmp / 'inputs.json')!r}, {fmu_dir!r}, outputs_path={out!r})))")
+        env = dict(os.environ)
+        if tree is not None:
+            env["PYTHONPATH"] = tree
+        return json.loads(subprocess.check_output([sys.executable, "-c", code], env=env, cwd="/", text=True))
+
+    trees = [("current", None)] + ([("baseline", baseline)] if baseline else [])
+    rows, ref, differ = [], None, 0
+    for rnd in range(rounds):
+        for code, tree in (trees if rnd % 2 == 0 else trees[::-1]):
+            out = str(tmp / f"{code}_{rnd}.npy")
+            load0 = os.getloadavg()[0]
+            r = sub(tree, out)
+            got = np.load(out)
+            if ref is None:
+                ref = got
+            same = got.shape == ref.shape and np.array_equal(got.view(np.uint64), ref.view(np.uint64))
+            differ += not same
+            rows.append(dict(r, code=code, round=rnd + 1, load=0.5 * (load0 + os.getloadavg()[0]),
+                             outputs="identical" if same else "DIFFER"))
+    return rows, differ
+
+
 SCALE_COLS = (["dis_threshold", "measure", "nodes", "entities", "init_s", "median_ms", "p90_ms", "max_ms", "mean_ms",
                "cpu_median_ms", "cpu_max_ms", "load", "rt_factor", "messages", "mbytes", "rms"],
               {"init_s": "{:.2f}", "median_ms": "{:.1f}", "p90_ms": "{:.1f}", "max_ms": "{:.1f}", "mean_ms": "{:.1f}",
@@ -265,6 +371,10 @@ CAMPUS_COLS = (["scene", "steps", "median_ms", "p90_ms", "cpu_median_ms", "cpu_m
                 "load": "{:.1f}"})
 FMPY_COLS = (["scene", "steps", "dostep_median_ms", "dostep_cpu_median_ms", "get_median_ms"],
              {"dostep_median_ms": "{:.3f}", "dostep_cpu_median_ms": "{:.3f}", "get_median_ms": "{:.3f}"})
+REPLAY_COLS = (["code", "round", "steps", "passes", "cpu_mean_us", "cpu_median_us", "wall_mean_us", "wall_median_us",
+                "load", "outputs"],
+               {"cpu_mean_us": "{:.1f}", "cpu_median_us": "{:.1f}", "wall_mean_us": "{:.1f}",
+                "wall_median_us": "{:.1f}", "load": "{:.1f}"})
 AB_COLS = (["scene", "code", "round", "median_ms", "cpu_median_ms", "load", "unchanged"],
            {"median_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "load": "{:.1f}"})
 
@@ -287,6 +397,31 @@ def only(parts, quick: bool, baseline: str = "") -> None:
         print((OUT / "scale.md").read_text())
 
 
+def campus_log_report(log: str, baseline: str, rounds: int) -> None:
+    """Run :func:`bench_campus_log` and write ``campus_replay.md`` (the runs, and per tree the
+    mean over rounds of the per-step mean and median CPU time)."""
+    rows, differ = bench_campus_log(log, baseline, rounds)
+    text = (f"<!-- {' '.join(sys.argv)} at {commit()} on {machine()} -->\n"
+            f"campus_drive's logged network inputs (`{log}`) replayed through the FMU class's `do_step` "
+            f"(model + wrapper + base-class checks), per-step CPU (`thread_time_ns`) and wall time, "
+            f"{rows[0]['passes']} timed passes of {rows[0]['steps']} steps per run after one warm-up pass, "
+            f"a fresh process per run, the trees alternated:\n\n" + table(rows, *REPLAY_COLS))
+    summary = {}
+    for code in ("current", "baseline"):
+        r = [x for x in rows if x["code"] == code]
+        if r:
+            summary[code] = (float(np.mean([x["cpu_mean_us"] for x in r])), float(np.mean([x["cpu_median_us"] for x in r])))
+            text += f"\n{code}: CPU per step mean {summary[code][0]:.1f} us, median {summary[code][1]:.1f} us (mean over rounds)"
+    if "baseline" in summary:
+        c, b = summary["current"], summary["baseline"]
+        text += (f"\ncurrent / baseline: mean {c[0] / b[0]:.3f} ({100 * (1 - c[0] / b[0]):.1f} % less), "
+                 f"median {c[1] / b[1]:.3f} ({100 * (1 - c[1] / b[1]):.1f} % less)")
+    text += (f"\noutputs of every step: {'identical in every run' if not differ else f'DIFFER in {differ} run(s)'} "
+             f"(bit for bit against the first run)\n")
+    (OUT / "campus_replay.md").write_text(text)
+    print(text)
+
+
 def table(rows, cols, fmt=None):
     fmt = fmt or {}
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
@@ -302,8 +437,16 @@ def main() -> None:
     ap.add_argument("--baseline", default="", help="campus: directory with another commit's immersim/models and "
                     "immersim/fmus (git archive COMMIT models fmus | tar -x -C DIR/immersim; touch DIR/immersim/__init__.py), "
                     "alternated with this tree")
+    ap.add_argument("--campus-log", default="", help="replay the network inputs of this campus_drive log (immersim "
+                    "run scenarios/campus_drive.toml -o LOG --set log.encoding='\"json\"' --set net:process=0) "
+                    "through the FMU class, this tree and --baseline alternated, outputs compared bit for bit; "
+                    "writes campus_replay.md")
+    ap.add_argument("--rounds", type=int, default=3, help="--campus-log: rounds of alternated runs")
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
+    if args.campus_log:
+        campus_log_report(args.campus_log, args.baseline, args.rounds)
+        return
     if args.only:
         only(set(args.only.split(",")), args.quick, args.baseline)
         return
