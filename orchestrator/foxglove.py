@@ -19,7 +19,7 @@ simulated second one ``/scene`` message (one entity per body, frame-locked to it
 expiring), JSON-encoded under Foxglove's schema names, so opening the log in Foxglove's 3D panel shows the platform, the avatars and
 the scene moving. It only reads values. In a log with ``[log] encoding = "ros1"`` the ``/tf``
 messages are ROS 1 ``tf2_msgs/TFMessage`` (what ROS 1 tools and Foxglove read as ``/tf``), packed
-with one ``struct`` call per step (:class:`Ros1Transforms`); ``/scene`` stays JSON.
+by two ``struct`` calls per step (:class:`Ros1Transforms`); ``/scene`` stays JSON.
 """
 from __future__ import annotations
 
@@ -140,7 +140,8 @@ TF_MESSAGE_DEFINITION = "\n".join([
 
 
 class Ros1Transforms:
-    """A ``tf2_msgs/TFMessage`` of a fixed list of frames, packed by one ``struct``.
+    """A ``tf2_msgs/TFMessage`` of a fixed list of frames: its frame ids packed once, the
+    header and the poses packed by one ``struct`` each per message.
 
     Per transform: header (seq, stamp sec and nsec, parent frame id), child frame id,
     translation (x, y, z) and rotation quaternion (x, y, z, w), little-endian as ROS 1
@@ -152,22 +153,24 @@ class Ros1Transforms:
     """
 
     def __init__(self, frames: Sequence[Tuple[str, str]]) -> None:
-        fmt, args, self._base = ["<I"], [len(frames)], []
+        self._count = struct.pack("<I", len(frames))
+        #: per frame, the bytes between its stamp and its pose: parent and child frame ids
+        self._ids = []
         for parent, child in frames:
             p, c = parent.encode(), child.encode()
-            self._base.append(len(args))
-            fmt.append(f"IIII{len(p)}sI{len(c)}s7d")
-            args += [0, 0, 0, len(p), p, len(c), c] + [0.0] * 7
-        self._struct, self._args = struct.Struct("".join(fmt)), args
+            self._ids.append(struct.pack("<I", len(p)) + p + struct.pack("<I", len(c)) + c)
+        self._stamp = struct.Struct("<III")
+        self._poses = struct.Struct(f"<{7 * len(frames)}d")
 
     def pack(self, seq: int, t_ns: int, poses: Sequence[float]) -> bytes:
-        """The message at ``t_ns``; ``poses``: 7 numbers per frame (translation, quaternion)."""
-        a = self._args
+        """The message at ``t_ns``; ``poses``: 7 numbers per frame (translation, quaternion).
+        Every frame has the same header (sequence, stamp): packed once, as the poses are."""
         sec, nsec = divmod(t_ns, 1_000_000_000)
-        for i, b in enumerate(self._base):
-            a[b], a[b + 1], a[b + 2] = seq, sec, nsec
-            a[b + 7:b + 14] = poses[7 * i:7 * i + 7]
-        return self._struct.pack(*a)
+        stamp, pb = self._stamp.pack(seq, sec, nsec), self._poses.pack(*poses)
+        parts = [self._count]
+        for i, ids in enumerate(self._ids):
+            parts += (stamp, ids, pb[56 * i:56 * i + 56])
+        return b"".join(parts)
 
     @staticmethod
     def decode(data: bytes) -> List[Dict[str, Any]]:
@@ -243,18 +246,18 @@ class FoxgloveObserver:
             elif len(turning) == 1:
                 spin = (turning[0], ang[turning[0]])          # about one axis: q = (sin, cos) of half the angle
             else:
-                spin = tuple(r if callable(r) else (lambda v=r: v) for r in ang)
+                spin = tuple(ang)
             self._moving.append((translation, (pos, b.offset) if moves else None, rotation, spin, b.order))
         self._period_ns = int(round(scene_period_s * 1e9))
         self._next_scene = None
         w = mcap.writer
         # every frame's translation and quaternion, 7 numbers each, in /tf's order; the moving
-        # bodies' updaters rewrite theirs every step (the same arithmetic for both encodings)
+        # bodies' update (:meth:`_compile`) rewrites theirs every step (both encodings)
         tfs = self._msg["transforms"]
         self._poses = [v for t in tfs for v in (*t["translation"].values(), *t["rotation"].values())]
         index = {id(t["translation"]): i for i, t in enumerate(tfs)}
-        self._updaters = [self._updater(7 * index[id(translation)], moves, spin, order)
-                          for translation, moves, _, spin, order in self._moving]
+        self._update = self._compile([(7 * index[id(translation)], moves, spin, order)
+                                      for translation, moves, _, spin, order in self._moving])
         #: the JSON message's dicts of the moving bodies, with their offset in the poses
         self._moved = [(translation, rotation, 7 * index[id(translation)])
                        for translation, _, rotation, _, _ in self._moving]
@@ -280,42 +283,54 @@ class FoxgloveObserver:
                 {"x": qx, "y": qy, "z": qz, "w": qw})
 
     @staticmethod
-    def _updater(o: int, moves, spin, order: str) -> Callable[[List[float]], None]:
-        """A function writing one moving body's translation (position + offset) and quaternion
-        into ``poses[o:o+7]``: about one axis, the sine and cosine of half the angle; else
-        :func:`euler_quaternion`."""
-        sin, cos = math.sin, math.cos
-        if moves is None:
-            def moved(poses: List[float]) -> None:   # the position is fixed (computed once)
-                pass
-        else:
-            (px, py, pz), (ox, oy, oz) = moves
-            gx, gy, gz = (g if callable(g) else (lambda v=g: v) for g in (px, py, pz))
+    def _compile(moving: Sequence[tuple]) -> Callable[[List[float]], None]:
+        """One function writing every moving body's translation (position + offset) and
+        quaternion into ``poses`` (``moving``: (offset in poses, (getters, offsets) or None,
+        spin, order) per body): Python source generated once, so a step runs straight-line
+        code. A signal whose getter has ``source`` and ``index`` (the log's slots) is read as
+        ``source.cur[index]`` without a call; a constant position plus its offset is not
+        written (``poses`` holds it from the start); about one axis the quaternion is the sine and cosine
+        of half the angle, else :func:`euler_quaternion`."""
+        ns: Dict[str, Any] = {"sin": math.sin, "cos": math.cos, "euler_quaternion": euler_quaternion}
+        sources: Dict[int, str] = {}
+        body: List[str] = []
 
-            def moved(poses: List[float]) -> None:
-                poses[o], poses[o + 1], poses[o + 2] = gx() + ox, gy() + oy, gz() + oz
-        if spin is None:
-            return moved
-        if len(spin) == 2:
-            (axis, get), iw = spin, o + 6
-            ia = o + 3 + axis
+        def name(value: Any) -> str:
+            key = f"k{len(ns)}"
+            ns[key] = value
+            return key
 
-            def update(poses: List[float]) -> None:
-                moved(poses)
-                half = 0.5 * get()
-                poses[ia], poses[iw] = sin(half), cos(half)
-            return update
-        e1, e2, e3 = spin
+        def read(g: Any) -> str:
+            src = getattr(g, "source", None)
+            if src is not None:
+                if id(src) not in sources:
+                    sources[id(src)] = f"s{len(sources)}"
+                    ns[f"S{sources[id(src)]}"] = src
+                return f"{sources[id(src)]}[{int(g.index)}]"
+            return f"{name(g)}()" if callable(g) else name(g)
 
-        def update_euler(poses: List[float]) -> None:
-            moved(poses)
-            poses[o + 3:o + 7] = euler_quaternion(e1(), e2(), e3(), order)
-        return update_euler
+        for o, moves, spin, order in moving:
+            if moves is not None:
+                (px, py, pz), offsets = moves
+                for j, (g, off) in enumerate(zip((px, py, pz), offsets)):
+                    if callable(g):   # a constant's sum with its offset is in poses from the start
+                        body.append(f"poses[{o + j}] = {read(g)} + {name(off)}")
+            if spin is None:
+                continue
+            if len(spin) == 2:
+                axis, get = spin
+                body += [f"half = 0.5 * {read(get)}", f"poses[{o + 3 + axis}] = sin(half)", f"poses[{o + 6}] = cos(half)"]
+            else:
+                args = ", ".join(read(e) for e in spin)
+                body.append(f"poses[{o + 3}:{o + 7}] = euler_quaternion({args}, {order!r})")
+        head = [f"    {v} = S{v}.cur" for v in sources.values()]
+        src = "\n".join(["def update(poses):"] + head + [f"    {line}" for line in body] + ["    return None"])
+        exec(compile(src, "<foxglove poses>", "exec"), ns)
+        return ns["update"]
 
     def __call__(self, k: int, t_ns: int) -> None:
         poses = self._poses
-        for update in self._updaters:
-            update(poses)
+        self._update(poses)
         w = self.mcap.writer
         if self._ros1 is not None:
             data = self._ros1.pack(k, t_ns, poses)

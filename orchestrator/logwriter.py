@@ -95,6 +95,19 @@ class _Values:
         self.cur: Sequence[Any] = ()
 
 
+class _Signal:
+    """``signal()``: the current value of variable ``index`` of ``source`` (a slot, whose
+    ``cur`` is replaced at each read); the 3D view reads ``source.cur[index]`` directly."""
+
+    __slots__ = ("source", "index")
+
+    def __init__(self, source: Any, index: int) -> None:
+        self.source, self.index = source, index
+
+    def __call__(self) -> Any:
+        return self.source.cur[self.index]
+
+
 class LogWriter:
     """Opens the log of a :class:`LogPlan` and writes steps into it.
 
@@ -129,9 +142,7 @@ class LogWriter:
             from .foxglove import FoxgloveObserver
 
             def lookup(ref: str) -> Callable[[], Any]:
-                s, i = plan.refs[ref]
-                src = sources[s]
-                return lambda: src.cur[i]
+                return _Signal(sources[plan.refs[ref][0]], plan.refs[ref][1])
 
             self._views.append(FoxgloveObserver(obs, plan.bodies, lookup))
 
