@@ -69,6 +69,7 @@ class Slot:
     busy_ns: int = 0  # wall time spent in this unit's FMI calls (gather, step, read)
     waits_for: List["Slot"] = field(default_factory=list)  # Gauss-Seidel: units before it that feed it
     sources: List["Slot"] = field(default_factory=list)    # a worker unit posted early: the units feeding it
+    chained: bool = False     # a worker unit stepped by its worker right after its sources there
 
     def index(self, name: str) -> int:
         return self.read_names.index(name)
@@ -163,12 +164,93 @@ def _same_floats(a: tuple, b: tuple) -> bool:
     return all(x != 0.0 or copysign(1.0, x) == copysign(1.0, y) for x, y in zip(a, b))
 
 
-class Master:
+class Stepper:
+    """How one slot is stepped: its inputs gathered from its feeds, applied, and the step taken
+    or skipped lazily. Stateless (everything lives in the slots): the :class:`Master` steps its
+    own slots with it, and a worker process (:mod:`.remote`) the units posted to it ahead of
+    the step, so both give the same inputs and the same skips bit for bit."""
+
+    def _gather(self, slot: Slot, t_ns: int) -> tuple:
+        """The inputs of ``slot`` for the step starting at ``t_ns`` (not yet applied); only
+        for a slot that ``has_inputs`` (:meth:`step` passes None for the others). Runs the
+        slot's gatherer (:func:`compile_gather`), made at its first call from its feeds."""
+        gather = slot.gatherer
+        if gather is None:
+            gather = slot.gatherer = compile_gather(slot)
+        return gather(t_ns)
+
+    def _apply(self, slot: Slot, inputs: tuple) -> None:
+        """Set a step's inputs. Values equal to those the last step set are not set again (an
+        FMU keeps an input until it is set: FMI 2.0 §3.2.3), unless a fault forced some input
+        then (it may have overwritten one of them)."""
+        vals, others, forced = inputs
+        prev = slot.applied
+        fresh = prev is None or bool(prev[2])
+        if slot.setter is not None and (fresh or not _same_floats(vals, prev[0])):
+            slot.setter.set(vals)
+        if others and (fresh or others != prev[1]):
+            slot.other_setter.set(others)
+        if forced:
+            slot.inst.set_values(dict(forced))
+        slot.applied = inputs
+
+    @staticmethod
+    def _skips(slot: Slot, inputs: Optional[tuple]) -> bool:
+        """The slot is at rest and its inputs are those of its last step: it is skipped lazily."""
+        return (slot.rest_idx is not None and slot.cur[slot.rest_idx] and inputs == slot.applied
+                and not (inputs is not None and inputs[2]))
+
+    def _advance(self, slot: Slot, t_ns: int, h_ns: int, inputs: Optional[tuple]) -> bool:
+        """Step one slot (or skip it lazily). Returns whether the FMU was called."""
+        if self._skips(slot, inputs):
+            if slot.pending_ns == 0:
+                slot.pending_start = t_ns
+            slot.pending_ns += h_ns
+            slot.skipped_steps += 1
+            slot.prev = slot.cur
+            return False
+        if slot.pending_ns:
+            self.catch_up(slot)
+        if inputs is not None:
+            self._apply(slot, inputs)
+        slot.inst.do_step(t_ns, h_ns)
+        return True
+
+    def step_slot(self, slot: Slot, t_ns: int, h_ns: int, inputs: Optional[tuple]) -> None:
+        """Step a slot (or skip it lazily) and read it: a worker's step of a unit it steps
+        itself (``inputs`` None: gathered here from the slot's feeds, a chained unit)."""
+        if inputs is None and slot.has_inputs:
+            inputs = self._gather(slot, t_ns)
+        if self._advance(slot, t_ns, h_ns, inputs):
+            slot.read()
+
+    def catch_up(self, slot: Slot) -> None:
+        """One step over the lazily skipped interval, with the inputs it was skipped with."""
+        if slot.pending_ns:
+            start, span = slot.pending_start, slot.pending_ns
+            slot.pending_ns = 0
+            slot.inst.do_step(start, span)
+
+
+class Master(Stepper):
     """Steps a set of slots with Jacobi or Gauss-Seidel.
 
     ``POST_AHEAD`` (default True): a worker unit's next step is posted as soon as its inputs
-    are known (:meth:`_post_ahead`); False posts it only when the step is over (the log is the
-    same either way, tests/orchestrator/test_remote.py).
+    are known (:meth:`_post_ahead`), even before its last step's reply has been taken; False
+    posts it only when the step is over (the log is the same either way,
+    tests/orchestrator/test_remote.py).
+
+    ``CHAIN`` (default True): under Gauss-Seidel, a worker unit that reads only units posted
+    with the step in its own worker, fresh, and has no scenario signal or fault is *chained*
+    to them (:meth:`_chainable`): its step is posted with theirs, and the worker gathers its
+    inputs and steps it right after them, with no round trip through this process. False:
+    its inputs are gathered here once its sources' replies are in.
+
+    The units posted ahead of a step (:attr:`_ahead`: worker units that can start a step at
+    once, and the units chained to them) are stepped by their worker: this process sends the
+    inputs it gathered (none for a chained unit), the worker applies them, decides a lazy
+    skip and catches up with the same :class:`Stepper` code, so a post does not wait for the
+    unit's last reply.
 
     Parameters
     ----------
@@ -180,6 +262,7 @@ class Master:
     """
 
     POST_AHEAD = True
+    CHAIN = True
 
     def __init__(self, scenario: Scenario, slots: Dict[str, Slot], connections: List[Connection]) -> None:
         self.algorithm = scenario.algorithm
@@ -260,59 +343,46 @@ class Master:
             slot.has_inputs = bool(slot.float_feeds or slot.other_feeds or slot.signals or slot.faults)
             if "at_rest" in slot.read_names and scenario.lazy:
                 slot.rest_idx = slot.index("at_rest")
-
-    def _gather(self, slot: Slot, t_ns: int) -> tuple:
-        """The inputs of ``slot`` for the step starting at ``t_ns`` (not yet applied); only
-        for a slot that ``has_inputs`` (:meth:`step` passes None for the others). Runs the
-        slot's gatherer (:func:`compile_gather`), made at its first call from its feeds."""
-        gather = slot.gatherer
-        if gather is None:
-            gather = slot.gatherer = compile_gather(slot)
-        return gather(t_ns)
-
-    def _apply(self, slot: Slot, inputs: tuple) -> None:
-        """Set a step's inputs. Values equal to those the last step set are not set again (an
-        FMU keeps an input until it is set: FMI 2.0 §3.2.3), unless a fault forced some input
-        then (it may have overwritten one of them)."""
-        vals, others, forced = inputs
-        prev = slot.applied
-        fresh = prev is None or bool(prev[2])
-        if slot.setter is not None and (fresh or not _same_floats(vals, prev[0])):
-            slot.setter.set(vals)
-        if others and (fresh or others != prev[1]):
-            slot.other_setter.set(others)
-        if forced:
-            slot.inst.set_values(dict(forced))
-        slot.applied = inputs
+        #: Gauss-Seidel: worker units chained to units of their own worker (posted with them)
+        self._chained: List[Slot] = []
+        if self.algorithm == "gauss-seidel" and self.CHAIN:
+            posted = set(map(id, self._early))
+            for slot in map(slots.__getitem__, self.order):
+                if self._chainable(slot, posted):
+                    posted.add(id(slot))
+                    self._chained.append(slot)
+                    slot.chained = True
+            chained = set(map(id, self._chained))
+            self._gs_work = [s for s in self._gs_work if id(s) not in chained]
+        #: the worker units posted at a step's start or ahead of it (heads before their chains),
+        #: stepped by their workers
+        self._ahead = self._early + self._chained
+        for slot in self._ahead:
+            slot.inst.setup_stepping({
+                "rest_idx": slot.rest_idx, "in_vals": list(slot.in_vals), "chained": slot.chained,
+                "float_feeds": [(i, src.name, j, gain, offset, linear)
+                                for i, src, j, _, gain, offset, linear in slot.float_feeds] if slot.chained else [],
+                "other_feeds": [(var, src.name, j) for var, src, j in slot.other_feeds] if slot.chained else []})
 
     @staticmethod
-    def _skips(slot: Slot, inputs: Optional[tuple]) -> bool:
-        """The slot is at rest and its inputs are those of its last step: it is skipped lazily."""
-        return (slot.rest_idx is not None and slot.cur[slot.rest_idx] and inputs == slot.applied
-                and not (inputs is not None and inputs[2]))
+    def _chainable(slot: Slot, posted: set) -> bool:
+        """A worker unit whose every input comes fresh (not delayed) from units posted with the
+        step (``posted``: ids) in its own worker, and that has no scenario signal or fault
+        (values only this process knows): its worker can gather its inputs and step it."""
+        inst, feeds = slot.inst, slot.waits_for
+        return bool(inst.remote and feeds and not slot.signals and not slot.faults
+                    and all(id(w) in posted and w.inst.worker is inst.worker for w in feeds)
+                    and all(not delayed and any(src is w for w in feeds)
+                            for _, src, _, delayed, _, _, _ in slot.float_feeds)
+                    and all(any(src is w for w in feeds) for _, src, _ in slot.other_feeds))
 
-    def _advance(self, slot: Slot, t_ns: int, h_ns: int, inputs: Optional[tuple]) -> bool:
-        """Step one slot (or skip it lazily). Returns whether the FMU was called."""
-        if self._skips(slot, inputs):
-            if slot.pending_ns == 0:
-                slot.pending_start = t_ns
-            slot.pending_ns += h_ns
-            slot.skipped_steps += 1
-            slot.prev = slot.cur
-            return False
-        if slot.pending_ns:
-            self.catch_up(slot)
-        if inputs is not None:
-            self._apply(slot, inputs)
-        slot.inst.do_step(t_ns, h_ns)
-        return True
-
-    def catch_up(self, slot: Slot) -> None:
-        """One step over the lazily skipped interval, with the inputs it was skipped with."""
-        if slot.pending_ns:
-            start, span = slot.pending_start, slot.pending_ns
-            slot.pending_ns = 0
-            slot.inst.do_step(start, span)
+    def _post(self, slot: Slot, t_ns: int, h_ns: int, hold: bool = False) -> None:
+        """Post the step from ``t_ns`` of a unit its worker steps: with the inputs gathered
+        here, or, chained, to be gathered there."""
+        if slot.chained:
+            slot.inst.post_chain(t_ns, h_ns, hold)
+        else:
+            slot.inst.post_step(t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None, hold)
 
     def step(self, t_ns: int, h_ns: int) -> None:
         """Advance every slot from ``t_ns`` by ``h_ns``."""
@@ -366,22 +436,22 @@ class Master:
             self._posted = None
         posted, handled = self._posted[1:] if self._posted is not None else ([], set())
         held = []
-        for slot in self._early:
+        for slot in self._ahead:
             if id(slot) in handled:
                 continue
             handled.add(id(slot))
-            if self._advance(slot, t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None):
-                slot.inst.post(hold=True)     # one message per worker (its units' steps batched)
-                held.append(slot)
+            self._post(slot, t_ns, h_ns, hold=True)   # one message per worker (its units' steps batched)
+            held.append(slot)
         for slot in held:
             slot.inst.worker.flush()
         self._posted = (t_ns, posted + held, handled)
 
     def _post_ahead(self, t_ns: int, h_ns: int, pending: List[Slot]) -> None:
-        """During the step from ``t_ns``: post the next step of each worker unit whose inputs are
-        known already (its last step collected, every unit feeding it stepped), so the worker goes
-        on while this process finishes the step (and logs it). A unit that would be skipped
-        lazily is left to :meth:`post_remote` (the skip changes the values it is read with)."""
+        """During the step from ``t_ns``: post the next step of each unit of :attr:`_ahead` whose
+        inputs are known already (every unit feeding it stepped; a chained unit: its sources'
+        next steps posted), so the worker goes on while this process finishes the step (and logs
+        it). A unit whose last step is still pending is posted too when its worker can hold two
+        replies (outputs through shared memory), else once that reply is taken."""
         if self.schedule is None or not self.POST_AHEAD:
             return
         start, stop, h = self.schedule
@@ -392,17 +462,15 @@ class Master:
         if self._posted is None or self._posted[0] != t_next:
             self._posted = (t_next, [], set())
         _, posted, handled = self._posted
-        for slot in self._early:
-            if (id(slot) in handled or any(p is slot for p in pending)
-                    or not all(src.stepped for src in slot.sources)):
+        for slot in self._ahead:
+            if id(slot) in handled or (not slot.inst.queues and any(p is slot for p in pending)):
                 continue
-            inputs = self._gather(slot, t_next) if slot.has_inputs else None
-            if self._skips(slot, inputs):
+            if not (all(id(src) in handled for src in slot.waits_for) if slot.chained
+                    else all(src.stepped for src in slot.sources)):
                 continue
             handled.add(id(slot))
             try:
-                self._advance(slot, t_next, h_next, inputs)
-                slot.inst.post()
+                self._post(slot, t_next, h_next)
             except Exception as exc:   # (a dead worker): raised where the next step starts, as it
                 self._ahead_error = exc   # would be without posting ahead; this step completes
                 return
@@ -416,15 +484,15 @@ class Master:
         stepped, and a reply is taken when a later unit needs it. Every reply is taken before
         the step ends. The inputs every unit gets are those of the one-process algorithm."""
         slots = self.slots
-        if (self._posted is None or self._posted[0] != t_ns or len(self._posted[2]) < len(self._early)
+        if (self._posted is None or self._posted[0] != t_ns or len(self._posted[2]) < len(self._ahead)
                 or self._ahead_error is not None):
             self.post_remote(t_ns, h_ns)
         pending = list(self._posted[1])
         self._posted = None
         for name in self.order:
             slots[name].stepped = False
-        for slot in self._early:   # skipped lazily (not posted): stepped, as _advance leaves it
-            slot.stepped = not any(p is slot for p in pending)
+        for slot in self._ahead:   # stepped once its reply is taken
+            slot.stepped = False
         if self.algorithm == "jacobi":
             work = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
                     for slot in map(slots.__getitem__, self.order) if not slot.inst.remote]
@@ -469,6 +537,8 @@ class Master:
             self.catch_up(slot)
             if slot.inst.remote:
                 slot.inst.sync()
+            if any(a is slot for a in self._ahead):   # its worker catches up a lazy skip
+                slot.skipped_steps = slot.inst.finish_stepping()
             slot.busy_ns += perf_counter_ns() - t0
 
     def initial(self, t_ns: int) -> None:

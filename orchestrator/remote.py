@@ -11,11 +11,20 @@ the same N share a worker; 0 is the master's process.
 The master talks to a worker unit through a :class:`RemoteInstance`, which has the interface
 of :class:`~immersim.orchestrator.fmu.FmuInstance` the master and the execution use. Calls
 that return nothing (set inputs, ``doStep``) are queued and sent with the next read of the
-outputs as **one message** (:meth:`RemoteInstance.post`); the reply carries the outputs. Under
-Jacobi the master posts the steps of every worker unit first (the next step's already before it
-logs the last one, ``Master.post_remote``), steps its own units, and only then waits for the
-replies: the processes step in parallel. Under Gauss-Seidel each unit's step waits for its
-reply (one round trip per unit, no parallelism).
+outputs as **one message** (:meth:`RemoteInstance.post`); the reply carries the outputs
+(through shared memory, :class:`_SharedValues`, unless a String is read).
+
+The worker units that can start a step before the master's own units (Jacobi: all of them;
+Gauss-Seidel: those fed by no unit stepped before them, and the units *chained* to them:
+fed only, fresh, by such units of the same worker; ``Master._ahead``) are **stepped by their
+worker**: the master posts each step with the inputs it gathered (a chained unit's inputs are
+gathered by the worker from its sources' last two reads, :meth:`RemoteInstance.post_step`),
+and the worker applies them, decides a lazy skip and catches up with the master's own
+:class:`~immersim.orchestrator.master.Stepper` code, so the inputs and skips are those of the
+one-process run bit for bit. The master posts a step as soon as its inputs are known, before
+it takes the unit's last reply if need be (two posts in flight at most, answered through two
+shared buffers in turn): the worker goes straight from one step to the next while the master
+steps its own units and logs.
 
 Inside the worker every call goes through a real ``FmuInstance``, so status checks, time
 checks and error messages are the same; an exception raised there is rebuilt here with its type
@@ -113,16 +122,18 @@ def _readable(conn, spin_s: float) -> Callable[[], None]:
 class _SharedValues:
     """A worker unit's outputs in a shared file mapping (``/dev/shm``), instead of a reply.
 
-    Layout, float64: a header ``[sequence, status, busy ns, 0]`` then the values (Reals,
-    Integers, Booleans, in the reader's order). The worker writes the values, then the status,
-    busy time and, last, the sequence number of the post; the master waits for its sequence
-    number (x86 keeps the order of stores, so the values are complete when it appears). A
-    status 1 means the step failed: its error comes as a normal reply.
+    Two buffers, used in turn by the posts (post ``seq`` writes buffer ``seq % 2``), so the
+    worker can answer a unit's next post while the master has not read the last one yet.
+    Layout of a buffer, float64: a header ``[sequence, status, busy ns, 0]`` then the values
+    (Reals, Integers, Booleans, in the reader's order). The worker writes the values, then the
+    status, busy time and, last, the sequence number of the post; the master waits for its
+    sequence number (x86 keeps the order of stores, so the values are complete when it
+    appears). A status 1 means the step failed: its error comes as a normal reply.
 
     Parameters
     ----------
     path : str
-        The file (created by the master, sized for ``layout``).
+        The file (created by the master, :meth:`nbytes` long).
     layout : tuple of int
         Counts of Reals, Integers and Booleans.
     """
@@ -135,24 +146,35 @@ class _SharedValues:
         import numpy as np
 
         self.path, self.layout = path, tuple(layout)
-        n = self.HEADER + sum(self.layout)
         with open(path, "r+b") as fh:
-            self._map = mmap.mmap(fh.fileno(), 8 * n)
-        self.a = np.frombuffer(self._map, dtype=np.float64, count=n)
-        self.head, self.data = self.a[:self.HEADER], self.a[self.HEADER:]
+            self._map = mmap.mmap(fh.fileno(), self.nbytes(layout))
+        n = self.HEADER + sum(self.layout)
+        self.a = np.frombuffer(self._map, dtype=np.float64, count=2 * n)
+        #: (header, values) of each buffer
+        self.bufs = [(self.a[k * n:k * n + self.HEADER], self.a[k * n + self.HEADER:(k + 1) * n]) for k in (0, 1)]
+
+    @classmethod
+    def nbytes(cls, layout: tuple) -> int:
+        return 2 * 8 * (cls.HEADER + sum(layout))
+
+    def head(self, seq: int):
+        """The header of post ``seq``'s buffer."""
+        return self.bufs[seq & 1][0]
 
     def put(self, seq: int, values: Sequence[Any], busy_ns: int) -> None:
-        self.data[:] = values
-        self.head[1], self.head[2] = 0.0, float(busy_ns)
-        self.head[0] = float(seq)
+        head, data = self.bufs[seq & 1]
+        data[:] = values
+        head[1], head[2] = 0.0, float(busy_ns)
+        head[0] = float(seq)
 
     def fail(self, seq: int) -> None:
-        self.head[1] = 1.0
-        self.head[0] = float(seq)
+        head = self.bufs[seq & 1][0]
+        head[1] = 1.0
+        head[0] = float(seq)
 
-    def values(self) -> List[Any]:
+    def values(self, seq: int) -> List[Any]:
         n_real, n_int, n_bool = self.layout
-        d = self.data
+        d = self.bufs[seq & 1][1]
         out = d[:n_real].tolist()
         if n_int:
             out += [int(x) for x in d[n_real:n_real + n_int].tolist()]
@@ -161,7 +183,7 @@ class _SharedValues:
         return out
 
     def close(self) -> None:
-        self.head = self.data = self.a = None
+        self.bufs = self.a = None
         try:
             self._map.close()
         except BufferError:   # a view still alive: the mapping goes with the process
@@ -179,12 +201,38 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     readers: Dict[str, Any] = {}
     setters: Dict[tuple, Any] = {}
     shared: Dict[str, "_SharedValues"] = {}   # units whose outputs go back through shared memory
+    #: slots (master.Slot) of the units this worker steps (Master._ahead) and of the sources of
+    #: its chained units: each holds the unit's last two reads (updated at every read)
+    slots: Dict[str, Any] = {}
+    stepper: List[Any] = []   # the master.Stepper, made with the first slot
     clock = time.perf_counter_ns
     ready = _readable(conn, config.spin_s)
 
-    def handle(msg: tuple) -> tuple:
+    def slot_of(name: str):
+        """The slot of ``name`` (made with the reader's values now)."""
+        if name not in slots:
+            from .master import Slot
+
+            slot = slots[name] = Slot(name, units[name], readers[name].names, reader=readers[name])
+            slot.cur = readers[name].read()
+            slot.stepped = True   # a chained unit reads its sources fresh, after their step
+        return slots[name]
+
+    def answer(name: str, msg: tuple, values, t0: int) -> Optional[tuple]:
+        sv = shared.get(name) if msg[-2] else None
+        if sv is not None:   # the outputs through shared memory: no message
+            sv.put(msg[-1], values, clock() - t0)
+            return None
+        return name, "ok", (values, clock() - t0)
+
+    def handle(msg: tuple) -> Optional[tuple]:
         op, name = msg[0], msg[1]
         try:
+            if op == "step":         # ("step", unit, t_ns, h_ns, inputs or None, read?, sequence number)
+                t0 = clock()
+                slot = slots[name]
+                stepper[0].step_slot(slot, msg[2], msg[3], msg[4])
+                return answer(name, msg, slot.cur, t0)
             if op == "run":          # ("run", unit, queued calls, read?, sequence number)
                 t0 = clock()
                 inst = units[name]
@@ -197,11 +245,28 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                     else:            # ("set", {name: value})
                         inst.set_values(call[1])
                 values = readers[name].read() if msg[3] else None
-                sv = shared.get(name) if msg[3] else None
-                if sv is not None:   # the outputs through shared memory: no message
-                    sv.put(msg[4], values, clock() - t0)
-                    return None
-                return name, "ok", (values, clock() - t0)
+                if values is not None and name in slots:
+                    slot = slots[name]
+                    slot.prev, slot.cur = slot.cur, values
+                return answer(name, msg, values, t0)
+            if op == "stepping":     # ("stepping", unit, spec): this worker steps the unit (Master._ahead)
+                from .master import Stepper
+
+                if not stepper:
+                    stepper.append(Stepper())
+                spec, slot = msg[2], slot_of(name)
+                slot.setter, slot.other_setter = setters.get((name, "reals")), setters.get((name, "discrete"))
+                slot.in_vals, slot.rest_idx = list(spec["in_vals"]), spec["rest_idx"]
+                if spec["chained"]:   # inputs gathered here, from its sources' slots
+                    slot.float_feeds = [(i, slot_of(src), j, False, gain, offset, linear)
+                                        for i, src, j, gain, offset, linear in spec["float_feeds"]]
+                    slot.other_feeds = [(var, slot_of(src), j) for var, src, j in spec["other_feeds"]]
+                    slot.has_inputs = True
+                return name, "ok", None
+            if op == "finish":       # ("finish", unit): catch up a lazy skip; the skipped steps
+                slot = slots[name]
+                stepper[0].catch_up(slot)
+                return name, "ok", slot.skipped_steps
             if op == "load":         # ("load", unit, path, unzip dir)
                 units[name] = FmuInstance(name, msg[2], msg[3])
                 return name, "ok", os.getpid()
@@ -227,8 +292,8 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                 return name, "ok", None
             raise ValueError(f"worker: unknown command {op!r}")
         except BaseException as exc:   # every failure goes back to the master, typed
-            if op == "run" and msg[3] and name in shared:
-                shared[name].fail(msg[4])   # the master stops waiting there and reads this reply
+            if op in ("run", "step") and msg[-2] and name in shared:
+                shared[name].fail(msg[-1])   # the master stops waiting there and reads this reply
             return name, "err", _portable(exc)
 
     while True:
@@ -370,7 +435,7 @@ class RemoteReader:
             layout = (fams.count("float"), fams.count("int"), fams.count("bool"))
             fd, path = tempfile.mkstemp(prefix=f"immersim_{os.getpid()}_{inst.name}_", dir="/dev/shm")
             with os.fdopen(fd, "wb") as fh:
-                fh.truncate(8 * (_SharedValues.HEADER + sum(layout)))
+                fh.truncate(_SharedValues.nbytes(layout))
             try:
                 inst.worker.call(inst.name, "shared", path, layout, function="reader")
                 inst.shared = _SharedValues(path, layout)
@@ -414,10 +479,11 @@ class RemoteInstance:
         self.fatal = False
         self.busy_ns = 0
         self.queue: List[tuple] = []
-        self._posted = False
+        #: posts whose reply is not taken yet, oldest first: (sequence number, through shared
+        #: memory?, start of its step); at most two, the second only through shared memory
+        self._out: List[tuple] = []
         self._step_start = 0   # start of the last step queued (errors of a posted step name it)
         self._seq = 0          # posts so far: the worker writes the shared outputs under this number
-        self._via_shared = False
         #: the outputs come back through shared memory (set by the reader, unless a String is read)
         self.shared: Optional[_SharedValues] = None
         if not self.path.exists():
@@ -439,42 +505,80 @@ class RemoteInstance:
             self.worker.receive(self.name, "load", None)
 
     # -- queued calls and their one message ------------------------------------------------------
+    @property
+    def queues(self) -> bool:
+        """A next step can be posted before the last one's reply is taken (the outputs come
+        back through shared memory, in two buffers used in turn)."""
+        return self.shared is not None
+
+    def _send(self, msg_of: Callable[[int], tuple], read: bool, hold: bool, step_start: int, keep: int = 1) -> None:
+        """Send the message ``msg_of(sequence number)``; at most ``keep`` earlier posts may
+        stay outstanding (older ones' replies are taken and dropped: a run that failed)."""
+        while len(self._out) >= keep:
+            self._drop()
+        self._seq += 1
+        self._out.append((self._seq, read and self.shared is not None, step_start))
+        self.worker.send(msg_of(self._seq), _RUN, step_start, hold)
+
     def post(self, read: bool = True, hold: bool = False) -> None:
         """Send the queued calls (and a read of the outputs) without waiting for the reply;
         ``hold``: in the worker's next batch (``WorkerProcess.flush``)."""
+        queue, self.queue = self.queue, []
+        self._send(lambda seq: ("run", self.name, queue, read, seq), read, hold, self._step_start)
+
+    def post_step(self, t_ns: int, h_ns: int, inputs: Optional[tuple], hold: bool = False) -> None:
+        """Post the step from ``t_ns`` of a unit its worker steps (``Master._ahead``): the
+        worker applies ``inputs`` (as gathered by ``Master._gather``; None: gathered there, a
+        chained unit), steps or skips lazily, and sends the outputs (:meth:`collect`). May be
+        posted before the last post's reply is taken (:attr:`queues`)."""
+        if h_ns <= 0 or t_ns != self.t_ns:
+            raise step_error(self.name, t_ns, h_ns, self.t_ns)
+        self._step_start, self.t_ns = t_ns, t_ns + h_ns
+        self._send(lambda seq: ("step", self.name, t_ns, h_ns, inputs, True, seq), True, hold, t_ns,
+                   2 if self.queues else 1)
+
+    def post_chain(self, t_ns: int, h_ns: int, hold: bool = False) -> None:
+        """:meth:`post_step` of a chained unit (its inputs are gathered by its worker)."""
+        self.post_step(t_ns, h_ns, None, hold)
+
+    def setup_stepping(self, spec: Dict[str, Any]) -> None:
+        """Let the worker step this unit (``Master._ahead``): ``spec`` holds the index of
+        ``at_rest`` when stepped lazily, the inputs' start values, and, for a chained unit,
+        its feeds by source unit name (``Master._chainable``)."""
+        self.worker.call(self.name, "stepping", spec, function="stepping")
+
+    def finish_stepping(self) -> int:
+        """The worker catches up a lazily skipped interval; returns the steps it skipped."""
         self._drain()
-        self._seq += 1
-        self._via_shared = read and self.shared is not None
-        self.worker.send(("run", self.name, self.queue, read, self._seq), _RUN, self._step_start, hold)
-        self.queue = []
-        self._posted = True
+        return self.worker.call(self.name, "finish", function="finish", t_ns=self.t_ns)
 
     def collect(self) -> Optional[List[Any]]:
-        """The reply of the last post (posting first if nothing is posted): the outputs."""
-        if not self._posted:
+        """The reply of the oldest post (posting the queued calls first if nothing is posted):
+        the outputs."""
+        if not self._out:
             self.post()
-        self._posted = False
-        if self._via_shared and self._wait_shared():
+        seq, via_shared, start = self._out.pop(0)
+        if via_shared and self._wait_shared(seq, start):
             sv = self.shared
-            self.busy_ns += int(sv.head[2])
-            return sv.values()
-        values, busy = self.worker.receive(self.name, _RUN, self._step_start)
+            self.busy_ns += int(sv.head(seq)[2])
+            return sv.values(seq)
+        values, busy = self.worker.receive(self.name, _RUN, start)
         self.busy_ns += busy
         return values
 
-    def _wait_shared(self) -> bool:
-        """Wait for the worker to write the outputs of the last post (polling the shared
+    def _wait_shared(self, seq: int, start: int) -> bool:
+        """Wait for the worker to write the outputs of post ``seq`` (polling the shared
         header, yielding the core between polls, checking now and then that the worker is
         alive). True when they are there, False when the step failed (its error is a reply)."""
         w = self.worker
         w.flush()
-        head, seq = self.shared.head, float(self._seq)
+        head, target = self.shared.head(seq), float(seq)
         alive, yield_cpu = w.proc.poll, os.sched_yield
         k = 0
-        while head[0] != seq:
+        while head[0] != target:
             k += 1
             if not k & 1023 and alive() is not None:
-                raise w._died(self.name, _RUN, self._step_start)
+                raise w._died(self.name, _RUN, start)
             yield_cpu()
         return head[1] == 0.0
 
@@ -484,15 +588,19 @@ class RemoteInstance:
             self.post(read=False)
             self.collect()
 
+    def _drop(self) -> None:
+        """Take the reply of the oldest post and drop it (a run that failed elsewhere)."""
+        seq, via_shared, start = self._out.pop(0)
+        try:
+            if not (via_shared and self._wait_shared(seq, start)):
+                self.worker.receive(self.name, _RUN, start)
+        except Exception as exc:
+            log.debug("unit %s: a dropped reply failed: %s", self.name, exc)
+
     def _drain(self) -> None:
-        """Take the reply of a post nobody collected (a run that failed elsewhere)."""
-        if self._posted:
-            self._posted = False
-            try:
-                if not (self._via_shared and self._wait_shared()):
-                    self.worker.receive(self.name, _RUN, self._step_start)
-            except Exception as exc:
-                log.debug("unit %s: a dropped reply failed: %s", self.name, exc)
+        """Take the replies of the posts nobody collected (a run that failed elsewhere)."""
+        while self._out:
+            self._drop()
 
     def _call(self, method: str, *args: Any) -> Any:
         self.finish_loading()

@@ -113,10 +113,53 @@ def test_campus_delayed_loop_keeps_the_avatars_and_the_platform(tmp_path):
     assert a["net.avatar[1].jolt"][1].max() > 5.0
 
 
+def test_chained_unit_steps_in_its_worker_to_the_same_log(tmp_path, monkeypatch):
+    """campus_drive to 4.5 s (through avatar 1's bounce, its jolt on the platform) with plat in
+    net's worker: plat reads only net, fresh, so it is chained to it (its worker gathers its
+    inputs and steps it right after net, posted with it); the log equals the one-process log
+    bit for bit, and the same with chaining off (plat's inputs gathered here)."""
+    from immersim.orchestrator.master import Master
+
+    ov = {"simulation.stop": 4.5}
+    here, chained, unchained = (tmp_path / f"{n}.mcap" for n in ("here", "chained", "unchained"))
+    run_scenario(SCEN / "campus_drive.toml", here, overrides={**ov, "net:process": 0})
+    ex = Execution(SCEN / "campus_drive.toml", chained, overrides={**ov, "plat:process": 1})
+    ex.run()
+    assert [s.name for s in ex.master._chained] == ["plat"] and ex.master.slots["plat"].chained
+    assert _same_logs(here, chained) > 300
+    monkeypatch.setattr(Master, "CHAIN", False)
+    ex = Execution(SCEN / "campus_drive.toml", unchained, overrides={**ov, "plat:process": 1})
+    ex.run()
+    assert ex.master._chained == []
+    _same_logs(here, unchained)
+    assert read_series(chained, ["plat.jolt"])["plat.jolt"][1].max() > 5.0   # the bounce reached the platform
+
+
+def test_a_worker_unit_is_posted_before_its_last_reply_is_taken(tmp_path, monkeypatch):
+    """campus_drive as shipped (net in worker 1, its outputs through shared memory): net's
+    next step is posted as soon as the collision unit has stepped, while net's own reply of
+    the step may still be outstanding (two posts in flight, two shared buffers in turn); never
+    more than two."""
+    from immersim.orchestrator.remote import RemoteInstance
+
+    in_flight = []
+    post_step = RemoteInstance.post_step
+
+    def counting(self, *args, **kwargs):
+        post_step(self, *args, **kwargs)
+        in_flight.append(len(self._out))
+
+    monkeypatch.setattr(RemoteInstance, "post_step", counting)
+    run_scenario(SCEN / "campus_drive.toml", tmp_path / "q.mcap", overrides={"simulation.stop": 2.0})
+    assert max(in_flight) == 2 and min(in_flight) >= 1 and len(in_flight) == 61
+
+
 @pytest.mark.parametrize("algorithm, where", [("jacobi", {"coll": 1, "plat": 2}),
-                                               ("gauss-seidel", {"net": 1, "plat": 2})])
+                                               ("gauss-seidel", {"net": 1, "plat": 2}),
+                                               ("gauss-seidel", {"net": 1, "plat": 1})])
 def test_lazy_worker_units_match_eager(tmp_path, algorithm, where):
-    """A unit in a worker may be stepped lazily: the same log as eager stepping."""
+    """A unit in a worker may be stepped lazily (its worker decides the skip and catches up,
+    a chained unit too: plat in net's worker): the same log as eager stepping."""
     ov = {"simulation.stop": 3.0, "simulation.algorithm": algorithm, **{f"{u}:process": n for u, n in where.items()}}
     lazy_log, eager_log = tmp_path / "lazy.mcap", tmp_path / "eager.mcap"
     ex = Execution(SCEN / "campus_idle.toml", lazy_log, overrides={**ov, "simulation.lazy": True})
