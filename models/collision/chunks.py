@@ -88,15 +88,20 @@ class ChunkedMesh:
     faces : ndarray, shape (m, 3)
     max_faces : int
         Triangles per chunk at most.
+    split_by : ndarray, shape (m, 3), optional
+        Faces (row for row another triangulation of the same mesh) whose centroids decide the
+        split: a distance triangulation (:mod:`.fans`) is chunked as the mesh itself is, so
+        the chunks of the triangles the two share are the same. Default: ``faces``.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> None:
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, max_faces: int,
+                 split_by: Optional[np.ndarray] = None) -> None:
         from .fcl_backend import bvh_model
 
         V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
         self.geoms = []
         lo, hi = [], []
-        for idx in split_faces(V, F, max_faces):
+        for idx in split_faces(V, F if split_by is None else np.asarray(split_by, np.int64), max_faces):
             used, local = np.unique(F[idx], return_inverse=True)
             self.geoms.append(bvh_model(V[used], local.reshape(-1, 3)))
             lo.append(V[used].min(0))

@@ -2,6 +2,12 @@
 
 * One ``fcl.BVHModel`` (OBBRSS) per distinct mesh, shared by every body that uses the mesh
   (a field of 5040 tanks holds one tank BVH and 5040 ``CollisionObject`` transforms).
+* Exact distances (narrow phase, chunks, conservative advancement) run on each mesh's
+  distance triangulation (:func:`.fans.distance_faces`): large plane fans of slivers (a
+  tank turret's caps, ~580 triangles meeting at the centre) re-triangulated, the same
+  surface, so the same distances to round-off; a body whose mesh has one gets a second
+  ``CollisionObject`` for it, made when first needed. Contact tests (``fcl.collide``: flag,
+  depth, point, normal) and the broad phase use the mesh's own triangles.
 * Static bodies live in one ``fcl.DynamicAABBTreeCollisionManager`` built once and never
   updated; dynamic bodies (at most a handful) are checked directly with an AABB cull. Only
   bodies that moved get a new transform.
@@ -33,8 +39,7 @@
   chunks (:func:`.chunks.chunk_min_distance`, ``CA_CHUNKS``), each chunk bounded by its box
   gap and by its distance at the last iteration less the motion since: the same numbers as
   the whole-mesh query, and after the first iteration only the chunk or two next to the
-  contact are queried (campus_drive's missile nose over a turret cap of ~580 fan triangles:
-  a whole-mesh query tests thousands of near-tied triangle pairs, 1 ms per iteration).
+  contact are queried.
 * Far pairs (every member's AABB at least ``max_distance`` away, no time of impact needed)
   are skipped by the base class's far-pair skip (``FAR_SKIP``); the fcl transform of a moved
   body is set only when a pair that involves it is evaluated.
@@ -51,6 +56,7 @@ import numpy as np
 from .backend import CollisionBackend, PairResult, PairSpec, aggregate
 from .chunks import (CHUNK_MIN_FACES, CHUNK_OTHER_MAX_FACES, ChunkedMesh, chunk_lower_bounds, chunk_min_distance,
                      chunked_distance)
+from .fans import distance_faces
 from .geometry import Slerp, rotation_angle
 
 log = logging.getLogger(__name__)
@@ -96,6 +102,15 @@ class FclBackend(CollisionBackend):
 
     def _setup(self) -> None:
         self.geoms = {key: bvh_model(m.vertices, m.faces) for key, m in self.scene.meshes.items()}
+        # exact distances run on each mesh's distance triangulation (.fans: large plane fans
+        # re-triangulated; the same surface), contact tests on its own triangles
+        dfaces = {key: distance_faces(m.vertices, m.faces) for key, m in self.scene.meshes.items()}
+        self.dgeoms = {key: (self.geoms[key] if F is None else bvh_model(self.scene.meshes[key].vertices, F))
+                       for key, F in dfaces.items()}
+        #: per body its distance object when its mesh has a distance triangulation of its own
+        #: (made when first needed), else None (its CollisionObject serves both)
+        self._dist_own: List = [None] * self.n
+        self._dist_distinct = [dfaces[b.mesh_key] is not None for b in self.scene.bodies]
         self.objs: List[fcl.CollisionObject] = [
             fcl.CollisionObject(self.geoms[b.mesh_key], fcl_transform(self.T[i]))
             for i, b in enumerate(self.scene.bodies)]
@@ -147,7 +162,8 @@ class FclBackend(CollisionBackend):
         if self.config.chunk_faces > 0:
             for key, m in self.scene.meshes.items():
                 if len(m.faces) >= CHUNK_MIN_FACES:
-                    self._chunked[key] = ChunkedMesh(m.vertices, m.faces, self.config.chunk_faces)
+                    F = m.faces if dfaces[key] is None else dfaces[key]
+                    self._chunked[key] = ChunkedMesh(m.vertices, F, self.config.chunk_faces, split_by=m.faces)
         self._body_chunks = [self._chunked.get(b.mesh_key) for b in self.scene.bodies]
         self._faces_list = self._faces.tolist()
         #: the body may be the other side of a chunked query (few triangles, module docstring)
@@ -210,11 +226,26 @@ class FclBackend(CollisionBackend):
 
     def _sync(self, bodies: List[int]) -> None:
         """Set the fcl transforms of ``bodies`` that moved since theirs was last set."""
-        stale = self._fcl_stale
+        stale, own = self._fcl_stale, self._dist_own
         for i in bodies:
             if stale[i]:
-                self.objs[i].setTransform(fcl_transform(self._T[i]))
+                tf = fcl_transform(self._T[i])
+                self.objs[i].setTransform(tf)
+                if own[i] is not None:
+                    own[i].setTransform(tf)
                 stale[i] = False
+
+    def _dobj(self, i: int) -> "fcl.CollisionObject":
+        """Body ``i``'s object for exact distances: on its mesh's distance triangulation
+        (:func:`.fans.distance_faces`), or its collision object when that is the mesh itself.
+        Its transform is the collision object's (call after :meth:`_sync`)."""
+        if not self._dist_distinct[i]:
+            return self.objs[i]
+        obj = self._dist_own[i]
+        if obj is None:
+            obj = self._dist_own[i] = fcl.CollisionObject(self.dgeoms[self.scene.bodies[i].mesh_key],
+                                                          fcl_transform(self._T[i]))
+        return obj
 
     def _travel(self, a: int) -> float:
         """Bound (m) on the travel of any surface point of ``a`` over the step (translation +
@@ -357,12 +388,12 @@ class FclBackend(CollisionBackend):
             a_first, big, small = False, b, a
         chunks = self._body_chunks[big]
         if chunks is None or not self._chunk_partner[small]:
-            d = fcl.distance(self.objs[big], self.objs[small], self._dreq, res)
+            d = fcl.distance(self._dobj(big), self._dobj(small), self._dreq, res)
         else:  # the same triangle pairs, chunk by chunk (module docstring of .chunks)
             lb = chunk_lower_bounds(chunks, self._T[big], self._T[small], self._hull[small], self._box_c[small],
                                     self._box_h[small])
             tag, tf = self._chunk_tf(big)
-            d = chunked_distance(chunks, tag, tf, lb, self.objs[small], True, self._dreq, res)
+            d = chunked_distance(chunks, tag, tf, lb, self._dobj(small), True, self._dreq, res)
         self._exact[(a, b)] = (d, self._rows(a), self._rows(b))  # (rows are replaced, never modified)
         if res.min_distance < before:
             self._a_first = a_first
@@ -607,8 +638,8 @@ class FclBackend(CollisionBackend):
                 return 0.0
             if mu <= 0 or 0.0 + d0 / mu > s_max:
                 return None
-        oa = fcl.CollisionObject(self.geoms[self.scene.bodies[a].mesh_key], fcl_transform(A0))
-        ob = fcl.CollisionObject(self.geoms[self.scene.bodies[b].mesh_key], fcl_transform(B0))
+        oa = fcl.CollisionObject(self.dgeoms[self.scene.bodies[a].mesh_key], fcl_transform(A0))
+        ob = fcl.CollisionObject(self.dgeoms[self.scene.bodies[b].mesh_key], fcl_transform(B0))
         req = fcl.DistanceRequest()
         # a static chunked partner: its chunks at its (fixed) pose, a's pose interpolated; a
         # body that keeps the whole-mesh query (more than CHUNK_OTHER_MAX_FACES triangles) gets

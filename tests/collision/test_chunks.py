@@ -165,8 +165,8 @@ def test_chunk_transform_cache_and_state_roll_back_change_no_output():
 def test_chunk_min_distance_is_the_whole_mesh_distance():
     """The missile (192 triangles, the whole-mesh query) against a tank: the minimum over the
     chunks is the number the whole-mesh query returns, bit for bit, with and without bounds
-    carried over from an earlier pose (less the motion since), near the turret's top cap
-    (hundreds of fan triangles at nearly the same distance) and on random poses."""
+    carried over from an earlier pose (less the motion since), near the centre of the turret's
+    top cap and on random poses."""
     from immersim.models.collision.chunks import chunk_min_distance
 
     be = make_backend("fcl", parse_scene("tank:name=t,tris=5.4k;missile:name=m,x=0,z=10"), "m vs t",
@@ -174,8 +174,9 @@ def test_chunk_min_distance_is_the_whole_mesh_distance():
     t, m = 0, 1
     chunks = be._body_chunks[t]
     tf_t = fcl_transform(be.T[t])
-    whole_t = fcl.CollisionObject(be.geoms[be.scene.bodies[t].mesh_key], tf_t)
-    obj_m = fcl.CollisionObject(be.geoms[be.scene.bodies[m].mesh_key], fcl.Transform())
+    # the chunks split the tank's distance triangulation (.fans): the whole-mesh query on it
+    whole_t = fcl.CollisionObject(be.dgeoms[be.scene.bodies[t].mesh_key], tf_t)
+    obj_m = fcl.CollisionObject(be.dgeoms[be.scene.bodies[m].mesh_key], fcl.Transform())
     req = fcl.DistanceRequest()
     rng = np.random.default_rng(11)
     # a dive onto the cap (the campus_drive impact: nose 5 cm off the cap's centre), then random poses
@@ -211,7 +212,7 @@ def test_chunk_min_distance_bounds_are_lower_bounds():
                       BackendConfig(max_distance=2.0))
     chunks = be._body_chunks[0]
     tf_t = fcl_transform(be.T[0])
-    obj_m = fcl.CollisionObject(be.geoms[be.scene.bodies[1].mesh_key], fcl.Transform())
+    obj_m = fcl.CollisionObject(be.dgeoms[be.scene.bodies[1].mesh_key], fcl.Transform())
     req = fcl.DistanceRequest()
     T = pose_matrix([1.0, 0.5, 3.2, 0.1, 0.4, 0.3])
     obj_m.setTransform(fcl_transform(T))
