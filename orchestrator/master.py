@@ -454,14 +454,16 @@ class Master(Stepper):
         replies (outputs through shared memory), else once that reply is taken."""
         if self.schedule is None or not self.POST_AHEAD:
             return
-        start, stop, h = self.schedule
         t_next = t_ns + h_ns
-        if t_next >= stop:
-            return
-        h_next = min(t_next + h, stop) - t_next
         if self._posted is None or self._posted[0] != t_next:
+            start, stop, h = self.schedule
+            if t_next >= stop:
+                return
             self._posted = (t_next, [], set())
         _, posted, handled = self._posted
+        if len(handled) == len(self._ahead):   # every one posted already
+            return
+        h_next = min(t_next + self.schedule[2], self.schedule[1]) - t_next
         for slot in self._ahead:
             if id(slot) in handled or (not slot.inst.queues and any(p is slot for p in pending)):
                 continue
@@ -499,17 +501,19 @@ class Master(Stepper):
         else:
             ready = {id(slot): self._gather(slot, t_ns) for slot in self._start_gathered}
             work = [(slot, ready.get(id(slot))) for slot in self._gs_work]
+        # clock: a unit's own calls are its time, taking replies is waiting, posting ahead and
+        # the bookkeeping are the master's
         wait = 0
-        t0 = perf_counter_ns()
         for slot, inputs in work:
             for src in slot.waits_for:             # Gauss-Seidel: its sources' replies first
                 if any(p is src for p in pending):
                     pending = [p for p in pending if p is not src]
+                    t0 = perf_counter_ns()
                     src.read()
+                    wait += perf_counter_ns() - t0
                     src.stepped = True
                     self._post_ahead(t_ns, h_ns, pending)
-            t1 = perf_counter_ns()
-            wait += t1 - t0
+            t0 = perf_counter_ns()
             if self.algorithm != "jacobi" and slot.has_inputs and inputs is None:
                 inputs = self._gather(slot, t_ns)
             if self._advance(slot, t_ns, h_ns, inputs):
@@ -518,17 +522,18 @@ class Master(Stepper):
                     pending.append(slot)
                 else:
                     slot.read()
+            slot.busy_ns += perf_counter_ns() - t0
             if not slot.inst.remote:
                 slot.stepped = True
                 self._post_ahead(t_ns, h_ns, pending)
-            t0 = perf_counter_ns()
-            slot.busy_ns += t0 - t1
         while pending:
             slot = pending.pop(0)
+            t0 = perf_counter_ns()
             slot.read()
+            wait += perf_counter_ns() - t0
             slot.stepped = True
             self._post_ahead(t_ns, h_ns, pending)
-        self.wait_ns += wait + perf_counter_ns() - t0
+        self.wait_ns += wait
 
     def finish(self) -> None:
         """Bring lazily stepped units to the final time (counted as the unit's time)."""
