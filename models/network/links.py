@@ -248,7 +248,7 @@ class TransmitPlan:
             return arrival
         busy = busy_until.tolist()
         # the uplink is free at max(send, busy until) (np.maximum(a, b))
-        start0 = [a if a >= b else b for a, b in ((send[i], busy[s]) for i, s in heads)]
+        start0 = [send[i] if send[i] >= busy[s] else busy[s] for i, s in heads]
         ends = [0.0] * len(heads)
         for i, j, mean, base, g, c, b0 in rows:
             a, tq = start0[g], send[i]
