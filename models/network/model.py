@@ -406,11 +406,12 @@ class NetworkModel:
         self.metrics = StepMetrics()
         while True:
             t_tick = (self.k + 1) * T
-            t_ev = self._heap[0][0] if self._heap else np.inf
-            t_next = min(t_tick, t_ev)
+            t_ev = self._heap[0][0] if self._heap else math.inf
+            t_next = t_ev if t_ev < t_tick else t_tick      # min(t_tick, t_ev)
             if t_next > t_end + eps:
                 break
-            self.t = max(self.t, t_next)
+            if t_next > self.t:                              # self.t = max(self.t, t_next)
+                self.t = t_next
             if t_ev <= t_tick:
                 _, _, kind, data = heapq.heappop(self._heap)
                 self._pending -= kind in PENDING
@@ -914,12 +915,13 @@ class NetworkModel:
             G = self.cfg.groups
             if vl is None:
                 vl = self.world.avatar_velocities()
-            ev = self.world.evel
+            if max(objs) >= G:   # some entity: every velocity as one list
+                vl = vl + self.world.evel.tolist()
         rows = []
         for o in objs:
             row = [t] + pos[o]
             if ncol >= 5:
-                row += V[o].tolist() if V is not None else vl[o] if o < G else ev[o - G].tolist()
+                row += V[o].tolist() if V is not None else vl[o]
                 if ncol >= 7:
                     row += A[o].tolist()
             row.append(o * RID_OBJECT + uid)    # (= _obj_rid[o] + uid, exact)
@@ -1210,7 +1212,7 @@ class NetworkModel:
             remote = np.flatnonzero(og != vg)
             memo = self._scalar_view_memo = (og, vo, fi, remote.tolist(), vo[remote].tolist(), fi[remote])
         order, enter = self.cfg.prediction_order, self.enter_col
-        rows = np.take(self.cache, memo[5], axis=0).tolist() if memo[3] else []
+        rows = self.cache.take(memo[5], axis=0).tolist() if memo[3] else []   # (the method: no wrapper)
         pos = self._positions_list(P) if memo[3] else None
         n_obj = self.n_obj
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
