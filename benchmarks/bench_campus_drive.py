@@ -282,7 +282,7 @@ def main() -> None:
                "as shipped, one process": (ONE_PROCESS, CAMPUS),
                "net -> coll read fresh (no declared delays), one process": ({}, fresh),
                "as shipped, log in a writer process (`[log] process`)": ({"log.process": True}, CAMPUS),
-               "as shipped, plat in worker 1 too": ({"plat:process": 1}, CAMPUS),
+               "as shipped, plat chained to net in worker 1 (`plat:process=1`)": ({"plat:process": 1}, CAMPUS),
                "Jacobi, net in worker 1": ({"simulation.algorithm": "jacobi"}, CAMPUS)}
         par_res: Dict[str, List[dict]] = {k: [] for k in par}
 
