@@ -464,6 +464,7 @@ class Master(Stepper):
         if len(handled) == len(self._ahead):   # every one posted already
             return
         h_next = min(t_next + self.schedule[2], self.schedule[1]) - t_next
+        new = []
         for slot in self._ahead:
             if id(slot) in handled or (not slot.inst.queues and any(p is slot for p in pending)):
                 continue
@@ -471,12 +472,19 @@ class Master(Stepper):
                     else all(src.stepped for src in slot.sources)):
                 continue
             handled.add(id(slot))
-            try:
-                self._post(slot, t_next, h_next)
+            try:   # held: the posts of one worker (a unit and the units chained to it) in one message
+                self._post(slot, t_next, h_next, hold=True)
             except Exception as exc:   # (a dead worker): raised where the next step starts, as it
                 self._ahead_error = exc   # would be without posting ahead; this step completes
                 return
-            posted.append(slot)
+            new.append(slot)
+        try:
+            for slot in new:
+                slot.inst.worker.flush()
+        except Exception as exc:
+            self._ahead_error = exc
+            return
+        posted += new
 
     def _parallel_step(self, t_ns: int, h_ns: int) -> None:
         """A step with units in worker processes. Those that can start at once are posted (now,
