@@ -11,7 +11,9 @@ array code it replaces, bit for bit.
   jitter of several classes drawn in one call;
   all vs the array code, messages built every frame, one draw per link class, every sub-step;
 * the FMU wrapper's "outputs unchanged" shortcut (``OUTPUTS_UNCHANGED`` at rest) vs writing
-  every output every step, through driving, bounces, idling and a state restore.
+  every output every step, through driving, bounces, idling and a state restore;
+* the FMU wrapper's output check on the outputs the step wrote (the first check after set-up
+  or a restore reads every output; a non-finite output is still named).
 """
 import importlib.util
 from dataclasses import replace
@@ -166,3 +168,44 @@ def test_fmu_unchanged_outputs_shortcut_equals_writing_every_step(monkeypatch):
     plain, n_plain = _fmu_run(cls, params, 120)
     assert n_plain == 0 and n_unchanged > 40        # the idle steps keep their outputs ...
     assert fast == plain                            # ... and every output is the same
+
+
+def test_fmu_output_check_reads_the_written_outputs_and_names_a_bad_one(monkeypatch):
+    """The wrapper's output check sums the Real outputs the step wrote instead of all of them:
+    the first check after set-up (and after a state restore) reads every output, a step whose
+    written outputs are finite passes (the base class's check agrees), and a non-finite one is
+    refused with the variable named, as the base class names it."""
+    from immersim.fmus.common import TableSlave
+
+    cls = _load_wrapper()
+
+    def fresh():
+        s = cls(instance_name="chk", resources=str(UNIT.parent), visible=False, logging_callback=None)
+        s.values.update(players=3, render_nodes=3, entities=8, seed=0, prediction_order=1)
+        s.setup_experiment(0.0, None, None)
+        s.exit_initialization_mode()
+        s.values["avatar[1].throttle"] = 0.8
+        return s
+
+    s = fresh()
+    s.values["avatar[4].x"] = float("nan")       # an output no step writes: the first check reads it
+    assert not s.do_step(0.0, T) and "output avatar[4].x = nan" in s.failed
+    s = fresh()
+    for k in range(30):
+        assert s.do_step(k * T, T), s.failed
+        TableSlave._check_outputs(s, (k + 1) * T)   # every output finite: the base check agrees
+        assert len(s._out) == 3 * 10 + 3 * 2 + 8 * 2 + 2 and not s._check_all
+    state = s._get_fmu_state()
+    s._set_fmu_state(state)
+    assert s._check_all                           # a restore: the next check reads every output
+    assert s.do_step(30 * T, T) and not s._check_all
+    world = s.model.world
+    outputs = world.avatar_outputs
+
+    def bad(h=None, constants=True):              # avatar 2's vx (field 3 of its 10) NaN
+        out = outputs(h, constants)
+        out[10 + 3] = float("nan")
+        return out
+
+    monkeypatch.setattr(world, "avatar_outputs", bad)
+    assert not s.do_step(31 * T, T) and "output avatar[2].vx = nan" in s.failed   # found by the sum
