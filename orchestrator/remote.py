@@ -50,7 +50,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Sequence
 
 from . import errors as _errors
-from .child import start_child
+from .child import message_sender, start_child
 from .errors import FmuCallError, FmuLoadError
 from .fmu import FmuInstance, VarInfo, read_model, step_error
 
@@ -335,6 +335,7 @@ class WorkerProcess:
     def __init__(self, number: int, config: RemoteConfig = RemoteConfig()) -> None:
         self.number = number
         self.proc, self.conn = start_child(__name__, repr(config.spin_s))
+        self._send = message_sender(self.conn)
         self.closed = False
         self._ready = _readable(self.conn, config.spin_s)   # the master waits for a reply the same way
         #: messages held for one batch (:meth:`send` with ``hold``, then :meth:`flush`)
@@ -361,7 +362,7 @@ class WorkerProcess:
         unit, function, t_ns = self._outbox_err
         self._outbox, self._outbox_err = [], None
         try:
-            self.conn.send_bytes(dumps(msg, 5))
+            self._send(dumps(msg, 5))
         except (OSError, EOFError, ValueError):
             raise self._died(unit, function, t_ns) from None
 
