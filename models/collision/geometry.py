@@ -75,6 +75,9 @@ class Slerp:
         R_rel = T1[:3, :3] @ T0[:3, :3].T
         self.ang = rotation_angle(R_rel)
         self.K = None
+        #: unit axis of the relative rotation (world frame; the rotation turns about it through
+        #: the body origin), None when the rotation is below 1e-12 rad (kept at R0 then)
+        self.axis = None
         if self.ang < 1e-12:
             return
         w = np.array([R_rel[2, 1] - R_rel[1, 2], R_rel[0, 2] - R_rel[2, 0], R_rel[1, 0] - R_rel[0, 1]])
@@ -84,6 +87,7 @@ class Slerp:
             axis = vecs[:, np.argmax(vals)]
         else:
             axis = w / nw
+        self.axis = axis
         self.K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
 
     def at(self, s: float) -> np.ndarray:

@@ -125,7 +125,7 @@ def test_the_travel_of_a_far_skipped_body_is_that_of_its_poses(scene):
 
 def _dive(n=40, turn=0.0):
     """campus_drive's missile: pitch 0.564 rad, 0.1738 m forward and 0.11 m down per 33 ms step,
-    onto the centre of tank_0's turret cap (a fan of ~580 triangles) and into it; ``turn``:
+    onto the centre of tank_0's turret cap and into it; ``turn``:
     rad of pitch added per step (a rotating dive)."""
     out = []
     for k in range(n):
@@ -143,7 +143,7 @@ def test_chunked_conservative_advancement_changes_no_output(turn):
     scene = parse_scene(spec)
     fast = make_backend("fcl", scene, "missile vs any tank*", BackendConfig(max_distance=2.0))
     full = make_backend("fcl", scene, "missile vs any tank*", BackendConfig(max_distance=2.0))
-    full.CA_CHUNKS = False
+    fast.CA_CHUNKS, full.CA_CHUNKS = True, False  # (the default is False)
     used = []
     import immersim.models.collision.fcl_backend as fb
 
@@ -175,7 +175,7 @@ def test_chunked_conservative_advancement_on_random_fast_moves():
     scene = parse_scene(spec)
     fast = make_backend("fcl", scene, "missile vs t", BackendConfig(max_distance=2.0))
     full = make_backend("fcl", scene, "missile vs t", BackendConfig(max_distance=2.0))
-    full.CA_CHUNKS = False
+    fast.CA_CHUNKS, full.CA_CHUNKS = True, False  # (the default is False)
     out = _run(fast, traj)
     assert out == _run(full, traj)
     tois = [struct.unpack("d", r[0][0][5])[0] for r in out]
