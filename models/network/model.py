@@ -739,7 +739,7 @@ class NetworkModel:
         memo = self._og_memo
         if memo is not None and memo[0] == self._epoch and memo[1] is view:
             return memo[2]
-        og = np.take(self.owner, view[0])
+        og = self.owner.take(view[0])    # (the method: no Python wrapper, as in _measure_scalar)
         self._og_memo = (self._epoch, view, og)
         return og
 
@@ -754,7 +754,7 @@ class NetworkModel:
             self._view_hit = True
             return memo[2]
         self._view_hit = False
-        viewers = np.flatnonzero(online_g)
+        viewers = online_g.nonzero()[0]
         vo, vg_local = self.grid.view_pairs(cells, cells[viewers])
         vg = viewers[vg_local]
         out = (vo, vg, self.index(vg, vo), np.bincount(vg, minlength=self.cfg.groups))
@@ -1209,7 +1209,7 @@ class NetworkModel:
         memo = self._scalar_view_memo
         if memo is None or memo[0] is not og or memo[1] is not vo or memo[2] is not fi:
             # the copies shown by non-owners (only they can count): position, object, flat index
-            remote = np.flatnonzero(og != vg)
+            remote = (og != vg).nonzero()[0]
             memo = self._scalar_view_memo = (og, vo, fi, remote.tolist(), vo[remote].tolist(), fi[remote])
         order, enter = self.cfg.prediction_order, self.enter_col
         rows = self.cache.take(memo[5], axis=0).tolist() if memo[3] else []   # (the method: no wrapper)

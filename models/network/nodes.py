@@ -114,7 +114,7 @@ class TrafficPlan:
         self.n = len(tr.send_t)
         self.nbytes = int(tr.nbytes.sum())
         per_type = np.bincount(tr.ptype, weights=tr.nbytes, minlength=64)
-        self.by_type = [(PDU_NAMES[p], int(per_type[p])) for p in np.flatnonzero(per_type).tolist()]
+        self.by_type = [(PDU_NAMES[p], int(per_type[p])) for p in per_type.nonzero()[0].tolist()]
         first = tr.hop_of == -1
         self.first = first
         self.hop1 = lk.TransmitPlan(links, tr.sender[first], tr.link[first], tr.nbytes[first])
