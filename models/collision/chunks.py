@@ -33,11 +33,14 @@ necessarily the one fcl's whole-mesh traversal happens to keep.
 """
 from __future__ import annotations
 
+import logging
 import math
 from typing import List, Optional, Tuple
 
 import fcl
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 __all__ = ["CHUNK_MIN_FACES", "CHUNK_OTHER_MAX_FACES", "CHUNK_TIE", "ChunkedMesh", "split_faces", "chunk_lower_bounds",
            "chunked_distance", "chunk_min_distance"]
@@ -118,7 +121,7 @@ class ChunkedMesh:
 
 
 def chunk_lower_bounds(chunks: ChunkedMesh, T_big: np.ndarray, T_other: np.ndarray, other_hull: np.ndarray,
-                       other_centre: np.ndarray, other_half: np.ndarray) -> tuple:
+                       other_centre: np.ndarray, other_half: np.ndarray, within: float = math.inf) -> tuple:
     """Lower bounds (m) of the distance of each chunk to the other body (module docstring).
 
     Parameters
@@ -131,15 +134,21 @@ def chunk_lower_bounds(chunks: ChunkedMesh, T_big: np.ndarray, T_other: np.ndarr
         in the chunked body's frame is the other body's tight box there.
     other_centre, other_half : ndarray, shape (3,)
         The other body's local AABB.
+    within : float, optional
+        m; only the chunks whose first gap ``g_1`` is below this get their bounds (both
+        gaps); the others' bounds are at least ``within`` (default: every chunk). Each
+        chunk's numbers are the same either way (row by row the same arithmetic).
 
     Returns
     -------
-    lb : ndarray, shape (n_chunks,)
-        The bounds.
-    order : ndarray, shape (n_chunks,)
+    lb : ndarray, shape (k,)
+        The bounds of the chunks ``idx``.
+    order : ndarray, shape (k,)
         Sum of the squared gaps in both frames: orders chunks of equal bound (a flat face
         under a rotated body's box: many chunks share the box's gap, the other frame's gap
         tells them apart).
+    idx : ndarray of int, shape (k,), or None
+        The chunks bounded, None for all of them (``k = n_chunks``, in order).
     """
     Rb = T_big[:3, :3]
     M = Rb.T @ T_other[:3, :3]
@@ -148,40 +157,65 @@ def chunk_lower_bounds(chunks: ChunkedMesh, T_big: np.ndarray, T_other: np.ndarr
     lo, hi = pts.min(0), pts.max(0)
     c, h = chunks.centre, chunks.half
     g1 = np.abs(c - (lo + hi) / 2) - h - (hi - lo) / 2
-    g2 = np.abs((c - p) @ M - other_centre) - h @ np.abs(M) - other_half
     np.maximum(g1, 0.0, out=g1)
+    b1 = np.einsum("ij,ij->i", g1, g1)
+    idx = None
+    if within < math.inf:
+        idx = np.flatnonzero(np.sqrt(b1) < within)
+        c, h, b1 = c[idx], h[idx], b1[idx]
+    g2 = np.abs((c - p) @ M - other_centre) - h @ np.abs(M) - other_half
     np.maximum(g2, 0.0, out=g2)
-    b1, b2 = np.einsum("ij,ij->i", g1, g1), np.einsum("ij,ij->i", g2, g2)
-    return np.sqrt(np.maximum(b1, b2)), b1 + b2
+    b2 = np.einsum("ij,ij->i", g2, g2)
+    return np.sqrt(np.maximum(b1, b2)), b1 + b2, idx
 
 
-def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", lb,
-                     other: "fcl.CollisionObject", big_first: bool, req: "fcl.DistanceRequest",
-                     res: "fcl.DistanceResult") -> float:
+def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", T_big: np.ndarray, T_other: np.ndarray,
+                     other_box: tuple, other: "fcl.CollisionObject", big_first: bool, req: "fcl.DistanceRequest",
+                     res: "fcl.DistanceResult", within: float = math.inf) -> float:
     """Exact distance of the chunked body to ``other`` into ``res`` (keeps the smallest).
 
-    Visits chunks by increasing lower bound ``lb = (bounds, tie-break)`` (what
-    :func:`chunk_lower_bounds` returns) and stops at
-    the first whose bound is within ``CHUNK_TIE`` of ``res.min_distance``. ``tag`` names the
-    body and transform version ``tf_big`` belongs to (a chunk object's transform is set only
+    Visits chunks by increasing lower bound (:func:`chunk_lower_bounds`; ties ordered by the
+    sum of the squared gaps, then by index) and stops at the first whose bound is within
+    ``CHUNK_TIE`` of ``res.min_distance``. ``tag`` names the body and transform version
+    ``tf_big`` (the fcl form of ``T_big``) belongs to (a chunk object's transform is set only
     when it holds another's). ``big_first``: the chunk is fcl's first object (the whole-mesh
     query's order, so that each triangle pair's arithmetic is the same).
+
+    ``within`` (m): a bound above this pair's distance, e.g. its last distance plus the
+    motion since (default: ``res.min_distance``, above which no chunk is visited anyway). Only
+    the chunks whose first box gap is below it are bounded and sorted (the bounds are most of
+    the cost): the nearest chunk is among them, the others' bounds are at least ``within``,
+    so the visit, the stop and ``res`` are those of the full order. Should the visit end
+    above ``within`` (it was not a bound), the full order is visited (the chunks visited
+    twice leave ``res`` as it is).
+
+    Parameters
+    ----------
+    other_box : tuple
+        ``(hull, centre, half)`` of the other body: :func:`chunk_lower_bounds`'s
+        ``other_hull, other_centre, other_half``.
 
     Returns
     -------
     float
-        A lower bound of this pair's distance (the smallest distance found, or the first
-        unvisited chunk's bound when smaller): what the pair's distance cache may keep.
+        A lower bound of this pair's distance (the smallest distance found, or the bound of
+        the chunk where the visit stopped when smaller): what the pair's distance cache may
+        keep.
     """
-    bounds, tie = lb
-    order = np.lexsort((tie, bounds)).tolist()
-    bounds = bounds.tolist()
+    within = min(within, res.min_distance)
+    bounds, tie, idx = chunk_lower_bounds(chunks, T_big, T_other, *other_box, within=within)
+    order = np.lexsort((tie, bounds)).tolist()  # (idx is sorted: ties by chunk index, as in the full order)
+    listed = bounds.tolist()
+    ids = idx.tolist() if idx is not None else None
     own = math.inf
     objs, tags = chunks.objs, chunks.tag
-    for i in order:
-        bound = bounds[i]
+    for j in order:
+        bound = listed[j]
+        if ids is not None and bound >= within:
+            break  # unbounded chunks may come first in the full order
         if bound >= res.min_distance - CHUNK_TIE:
             return min(own, bound)
+        i = j if ids is None else ids[j]
         obj = objs[i]
         if tags[i] != tag:
             obj.setTransform(tf_big)
@@ -192,7 +226,12 @@ def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", lb,
             d = fcl.distance(other, obj, req, res)
         if d < own:
             own = d
-    return own
+    if ids is None:
+        return own
+    if res.min_distance - CHUNK_TIE <= within:  # the full order stops at a chunk bounded >= within
+        return min(own, within)
+    log.debug("chunked distance: %.6g m was not a bound (best %.6g m): the full order", within, res.min_distance)
+    return min(own, chunked_distance(chunks, tag, tf_big, T_big, T_other, other_box, other, big_first, req, res))
 
 
 def chunk_min_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", lb: np.ndarray,

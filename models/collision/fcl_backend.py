@@ -153,7 +153,8 @@ class FclBackend(CollisionBackend):
         self._dreq = fcl.DistanceRequest(enable_nearest_points=True)
         self._faces = np.array([len(self.scene.meshes[b.mesh_key].faces) for b in self.scene.bodies])
         self._a_first = False
-        self._exact: Dict[Tuple[int, int], tuple] = {}  # (a, b) -> last distance, T_a, T_b
+        # (a, b) -> at the last exact distance: a lower bound of it, T_a, T_b (rows), an upper bound
+        self._exact: Dict[Tuple[int, int], tuple] = {}
         self._ca_tag = 0  # conservative advancement on whole_chunks: one chunk transform tag per iteration
         # each body's local AABB (its mesh's, in the body frame) for _frame_gap
         self._frame_box = [(np.asarray(self.scene.meshes[b.mesh_key].vertices, float).min(0),
@@ -378,8 +379,10 @@ class FclBackend(CollisionBackend):
         does not prune with the result's current minimum: it always returns the exact
         distance, checked with python-fcl 0.7.)"""
         before = res.min_distance
-        if (self._gap(a, b) >= before or self._bound(a, b) >= before
-                or self._frame_gap(a, b) >= before + self.FRAME_GAP_MARGIN):
+        if self._gap(a, b) >= before:
+            return False
+        since = self._since(a, b)
+        if (since is not None and since[0] >= before) or self._frame_gap(a, b) >= before + self.FRAME_GAP_MARGIN:
             return False
         # the larger BVH first: fcl's traversal is cheaper (member first otherwise, see _collide)
         self._sync(self._pair_now)
@@ -390,30 +393,49 @@ class FclBackend(CollisionBackend):
             a_first, big, small = False, b, a
         chunks = self._body_chunks[big]
         if chunks is None or not self._chunk_partner[small]:
-            d = fcl.distance(self._dobj(big), self._dobj(small), self._dreq, res)
+            d = up = fcl.distance(self._dobj(big), self._dobj(small), self._dreq, res)
         else:  # the same triangle pairs, chunk by chunk (module docstring of .chunks)
-            lb = chunk_lower_bounds(chunks, self._T[big], self._T[small], self._hull[small], self._box_c[small],
-                                    self._box_h[small])
             tag, tf = self._chunk_tf(big)
-            d = chunked_distance(chunks, tag, tf, lb, self._dobj(small), True, self._dreq, res)
-        self._exact[(a, b)] = (d, self._rows(a), self._rows(b))  # (rows are replaced, never modified)
+            d = chunked_distance(chunks, tag, tf, self._T[big], self._T[small],
+                                 (self._hull[small], self._box_c[small], self._box_h[small]), self._dobj(small), True,
+                                 self._dreq, res, math.inf if since is None else since[1])
+            up = res.min_distance if res.min_distance < before else math.inf  # its distance when it is the nearest
+        self._exact[(a, b)] = (d, self._rows(a), self._rows(b), up)  # (rows are replaced, never modified)
         if res.min_distance < before:
             self._a_first = a_first
             return True
         return False
 
-    def _bound(self, a: int, b: int) -> float:
-        """Lower bound (m) of the distance of ``a`` and ``b`` from their last exact distance:
-        ``d_last - mu``, ``mu`` bounding any surface point's travel since (``|t1 - t0| +
-        ||R1 - R0||_F r`` per body, ``r`` its radius about the body origin). A pure speed-up cache:
-        a member is skipped only when it cannot beat the best distance so far, so the
-        reported result is the same with or without it (not part of the FMU state). Valid
-        because the distance of two rigid bodies changes by at most the sum of the largest
-        displacements of their surface points."""
+    #: m; added to an upper bound of a pair's distance from an earlier one plus the motion since
+    #: (the rounding of fcl's distances and of the motion bound, coordinates up to 1e4 m)
+    UPPER_MARGIN = 1e-9
+
+    def _since(self, a: int, b: int):
+        """Bounds (m) of the distance of ``a`` and ``b`` from their last exact distance and the
+        motion since (``mu``, :meth:`_bound`): ``(lower - mu, upper + mu + UPPER_MARGIN)``, or
+        None before the first. The upper bound is inf unless that distance was found (a pair
+        whose member was the nearest)."""
         last = self._exact.get((a, b))
         if last is None:
-            return -math.inf
-        d, A0, B0 = last
+            return None
+        d, A0, B0, up = last
+        mu = self._motion(a, b, A0, B0)
+        return d - mu, up + mu + self.UPPER_MARGIN
+
+    def _bound(self, a: int, b: int) -> float:
+        """Lower bound (m) of the distance of ``a`` and ``b`` from their last exact distance:
+        ``d_last - mu``, ``mu`` bounding any surface point's travel since (:meth:`_motion`). A
+        pure speed-up cache: a member is skipped only when it cannot beat the best distance so
+        far, so the reported result is the same with or without it (not part of the FMU
+        state). Valid because the distance of two rigid bodies changes by at most the sum of
+        the largest displacements of their surface points."""
+        since = self._since(a, b)
+        return -math.inf if since is None else since[0]
+
+    def _motion(self, a: int, b: int, A0: list, B0: list) -> float:
+        """Bound (m) on the travel of any surface point of ``a`` and ``b`` from the transforms
+        ``A0``, ``B0`` (rows) to their current ones: ``|t1 - t0| + ||R1 - R0||_F r`` per body,
+        ``r`` its radius about the body origin."""
         mu = 0.0
         radius = self._radius_list
         for X0, i in ((A0, a), (B0, b)):
@@ -426,7 +448,7 @@ class FclBackend(CollisionBackend):
             r2 = sum(m[k] * m[k] for k in (0, 1, 2, 4, 5, 6, 8, 9, 10))
             if t2 or r2:
                 mu += math.sqrt(t2) + math.sqrt(r2) * radius[i]
-        return d - mu
+        return mu
 
     #: m; the body-frame gap must beat the best distance by this much to skip a query (it can
     #: equal the exact distance, e.g. a box face parallel to a face that bounds the other mesh)
@@ -674,6 +696,7 @@ class FclBackend(CollisionBackend):
         if chunks is not None:
             path_b = None  # b at its static pose B1 (its chunks' transform)
         TA, TB = A0, B0
+        within = math.inf  # chunks: a bound above the distance at this iteration's pose
         tf_b = None  # whole_chunks: b's transform at the current fraction, as the whole-mesh query has it
         lower = None  # whole_chunks: the chunks' distance bounds at the last pose, less the motion since
         s = 0.0
@@ -686,15 +709,16 @@ class FclBackend(CollisionBackend):
                     # the chunks where the whole-mesh query has b (its interpolated pose: the
                     # rounding of the interpolation moves it by ulps), a tag of its own
                     self._ca_tag += 1
-                    lb, _ = chunk_lower_bounds(whole_chunks, TB, TA, hull, box_c, box_h)
+                    lb, _, _ = chunk_lower_bounds(whole_chunks, TB, TA, hull, box_c, box_h)
                     tf_now = fcl_transform(TB) if tf_b is None else tf_b
                     d, lower = chunk_min_distance(whole_chunks, ("ca", self._ca_tag), tf_now, lb, lower, oa, req)
                 elif chunks is None:
                     d = fcl.distance(oa, ob, req, fcl.DistanceResult())
                 else:
-                    lb = chunk_lower_bounds(chunks, B1, TA, hull, box_c, box_h)
+                    # the distance is at most the last one plus the motion since (chunked_distance's
+                    # within: only the chunks nearer than that are bounded)
                     res = fcl.DistanceResult()
-                    chunked_distance(chunks, tag, tf, lb, oa, False, req, res)
+                    chunked_distance(chunks, tag, tf, B1, TA, (hull, box_c, box_h), oa, False, req, res, within)
                     d = res.min_distance
             if d <= self.toi_tol:
                 return s
@@ -704,6 +728,7 @@ class FclBackend(CollisionBackend):
             s += d / mu
             if s > s_max:
                 return None
+            within = d + mu * (s - s_last) * (1.0 + self.CA_MOTION_REL) + self.CA_MOTION_ABS
             if lower is not None:
                 # no surface point of a or b moves farther than mu (s - s_last) between the two
                 # poses (mu bounds both; b is static up to the rounding of its interpolation):

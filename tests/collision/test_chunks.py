@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from immersim.models.collision import BackendConfig, make_backend, parse_scene
+import immersim.models.collision.chunks as chunks_mod
 from immersim.models.collision.chunks import ChunkedMesh, chunk_lower_bounds, split_faces
 from immersim.models.collision.fcl_backend import fcl_transform
 from immersim.models.collision.geometry import pose_matrix
@@ -41,7 +42,7 @@ def test_chunk_bounds_are_lower_bounds_of_each_chunk_distance():
     for _ in range(20):
         T = pose_matrix([*rng.uniform(-8, 8, 2), rng.uniform(0, 4), *rng.uniform(-0.5, 0.5, 2), rng.uniform(-3, 3)])
         obj.setTransform(fcl_transform(T))
-        lb, _ = chunk_lower_bounds(chunks, T_big, T, hull, centre, half)
+        lb, _, _ = chunk_lower_bounds(chunks, T_big, T, hull, centre, half)
         for i in np.argsort(lb)[:15]:
             chunks.objs[i].setTransform(fcl_transform(T_big))
             d = fcl.distance(chunks.objs[i], obj, req, fcl.DistanceResult())
@@ -100,6 +101,51 @@ def test_chunked_distances_equal_the_whole_mesh_path_on_random_poses(body):
         else:
             seen["far"] += 1
     assert seen["contact"] and seen["near"], seen
+
+
+def test_chunked_distance_within_a_bound_equals_the_full_order():
+    """``chunked_distance`` bounding only the chunks nearer than ``within`` (a bound above the
+    distance) gives the same distance and nearest points as the full order bit for bit, and so
+    does a ``within`` below the distance (not a bound: the full order is visited then); the
+    backend's upper bounds from the last exact distance plus the motion since are bounds."""
+    from immersim.models.collision.chunks import chunked_distance
+
+    be = make_backend("fcl", parse_scene(SPEC), "box vs t", BackendConfig(max_distance=2.0))
+    t, box = 0, 1
+    chunks = be._body_chunks[t]
+    tf_t = fcl_transform(be.T[t])
+    obj = fcl.CollisionObject(be.dgeoms[be.scene.bodies[box].mesh_key], fcl.Transform())
+    other_box = (be._hull[box], be._box_c[box], be._box_h[box])
+    req = fcl.DistanceRequest(enable_nearest_points=True)
+    rng = np.random.default_rng(8)
+    subsets = 0
+    for k in range(40):
+        T = pose_matrix([*rng.uniform(-6.5, 6.5, 2), rng.uniform(0, 5), 0, 0, rng.uniform(-math.pi, math.pi)])
+        obj.setTransform(fcl_transform(T))
+        out = []
+        for within in (math.inf, None, 0.5, 0.0):
+            res = fcl.DistanceResult()
+            if within is None:  # just above the distance, as the backend's upper bound would be
+                within = out[0][0] + 1e-9
+            n_bounded = []
+            real = chunks_mod.chunk_lower_bounds
+            chunks_mod.chunk_lower_bounds = lambda *a, **kw: (lambda r: n_bounded.append(len(r[0])) or r)(real(*a, **kw))
+            try:
+                chunked_distance(chunks, ("w", k, within), tf_t, be.T[t], T, other_box, obj, True, req, res, within)
+            finally:
+                chunks_mod.chunk_lower_bounds = real
+            out.append((res.min_distance, [np.asarray(q).tolist() for q in res.nearest_points]))
+            subsets += within < 1 and n_bounded[0] < len(chunks)
+        assert all(o == out[0] for o in out), k
+    assert subsets > 20
+    # the backend's upper bound (last distance plus the motion since) along a walk towards the tank
+    T0 = [9.0, 0.3, 2.5, 0, 0, 0.6]
+    for k in range(25):
+        pose = [[T0[0] - 0.12 * k, 0.3 + 0.01 * k, 2.5, 0, 0, 0.6 + 0.03 * k]] + [[30.0, 0, 0, 0, 0, 0], [0, 30.0, 0, 0, 0, 0]]
+        before = be._since(box, t)
+        r = be.query(pose).pairs[0]
+        if before is not None and 0 < r.distance < 2.0:
+            assert r.distance <= before[1]
 
 
 def test_chunked_time_of_impact_equals_the_whole_mesh_path():
@@ -189,7 +235,7 @@ def test_chunk_min_distance_is_the_whole_mesh_distance():
         T = pose_matrix(pose)
         obj_m.setTransform(fcl_transform(T))
         expected = fcl.distance(obj_m, whole_t, req, fcl.DistanceResult())
-        lb, _ = chunk_lower_bounds(chunks, be.T[t], T, be._hull[m], be._box_c[m], be._box_h[m])
+        lb, _, _ = chunk_lower_bounds(chunks, be.T[t], T, be._hull[m], be._box_c[m], be._box_h[m])
         tag += 1
         d, bounds = chunk_min_distance(chunks, ("test", tag), tf_t, lb, None, obj_m, req)
         assert d == expected, (k, d, expected)
@@ -216,7 +262,7 @@ def test_chunk_min_distance_bounds_are_lower_bounds():
     req = fcl.DistanceRequest()
     T = pose_matrix([1.0, 0.5, 3.2, 0.1, 0.4, 0.3])
     obj_m.setTransform(fcl_transform(T))
-    lb, _ = chunk_lower_bounds(chunks, be.T[0], T, be._hull[1], be._box_c[1], be._box_h[1])
+    lb, _, _ = chunk_lower_bounds(chunks, be.T[0], T, be._hull[1], be._box_c[1], be._box_h[1])
     d, bounds = chunk_min_distance(chunks, ("bounds", 1), tf_t, lb, None, obj_m, req)
     for i in range(len(chunks)):
         chunks.objs[i].setTransform(tf_t)

@@ -288,14 +288,15 @@ def test_distance_lower_bound_cache_changes_no_output(chunk_faces):
     is a pure speed-up: the same trajectory without it gives identical results, and on the
     whole-mesh path (chunk_faces = 0) it does skip exact queries (a ball near the corner of
     the tank's AABB: gap 0.87 m, distance 3.4 m; with chunks the chunk bounds already prune
-    these queries, and the cache keeps their lower bound)."""
+    these queries, and the cache keeps their lower bound; its upper bound limits the chunks
+    bounded to those nearer than it, with the same results)."""
     from immersim.models.collision import fcl_backend
 
     scene = parse_scene("tank:name=t,tris=5.4k;sphere:name=ball,r=0.3,dynamic=1,x=20")
     cfg = BackendConfig(max_distance=2.0, chunk_faces=chunk_faces)
     cached = make_backend("fcl", scene, "ball vs t", cfg)
     plain = make_backend("fcl", scene, "ball vs t", cfg)
-    plain._bound = lambda a, b: -np.inf
+    plain._since = lambda a, b: None  # no bounds from the last exact distance (nor chunk subsets)
     calls = {"cached": 0, "plain": 0}
     real = fcl_backend.fcl.distance
     rng = np.random.default_rng(3)
