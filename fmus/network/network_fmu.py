@@ -123,6 +123,7 @@ class network(TableSlave):
         self._key = None         # see _output_key
         self._out = None         # the Real outputs the last step wrote (see _check_outputs)
         self._check_all = True   # the next output check reads every output
+        self._ints = None        # the Integer outputs last written (see _write_outputs)
         self._slave = 1 if cfg.render_nodes > 1 else 0
         self._names()
         self._write_outputs(full=True)
@@ -211,9 +212,11 @@ class network(TableSlave):
         out.append(float(s.inconsistency_rms))
         v.update(zip(self._real_out_names, out))
         self._out = out
-        v.update(zip(self._int_out_names, (int(s.desync_frames), int(s.frame_messages), int(s.frame_bytes),
-                                           int(s.handovers), int(s.dropped_frames), int(s.rejected_updates),
-                                           int(s.online_nodes))))
+        ints = (int(s.desync_frames), int(s.frame_messages), int(s.frame_bytes), int(s.handovers),
+                int(s.dropped_frames), int(s.rejected_updates), int(s.online_nodes))
+        if ints != self._ints:    # (steady traffic: the same counts step after step)
+            v.update(zip(self._int_out_names, ints))
+            self._ints = ints
         v["at_rest"] = bool(m.at_rest() if rest is None else rest)
 
     def _check_outputs(self, t):
@@ -233,3 +236,4 @@ class network(TableSlave):
         self._last_in, self._jolt = None, True   # the restored model's inputs and jolt
         self._key = None            # the restored outputs are in self.values; rewrite after the next step
         self._check_all = True
+        self._ints = None
