@@ -643,8 +643,10 @@ class FclBackend(CollisionBackend):
         for b in cands:
             counts[0] += 1
             # the distance at the start of the step is known for the previous nearest member
-            d0 = prev.distance if (prev is not None and prev.partner == b and not prev.in_contact
-                                   and prev.distance >= 0) else None
+            # (0 for the previous contact's partner: it was in contact there)
+            d0 = None
+            if prev is not None and prev.partner == b:
+                d0 = 0.0 if prev.in_contact else (prev.distance if prev.distance >= 0 else None)
             s = self._advance(a, b, counts, min(toi, 1.0), d0)
             if s is not None:
                 toi = min(toi, s)
