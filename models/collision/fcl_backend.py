@@ -642,11 +642,16 @@ class FclBackend(CollisionBackend):
         prev = self._previous
         for b in cands:
             counts[0] += 1
-            # the distance at the start of the step is known for the previous nearest member
-            # (0 for the previous contact's partner: it was in contact there)
+            # the distance at the start of the step is known for the previous nearest member,
+            # and is 0 for the previous contact's partner (it was in contact there: counted as
+            # the narrow-phase test whose answer is known, as _separated's candidates are)
             d0 = None
             if prev is not None and prev.partner == b:
-                d0 = 0.0 if prev.in_contact else (prev.distance if prev.distance >= 0 else None)
+                if prev.in_contact:
+                    d0 = 0.0
+                    counts[1] += 1
+                elif prev.distance >= 0:
+                    d0 = prev.distance
             s = self._advance(a, b, counts, min(toi, 1.0), d0)
             if s is not None:
                 toi = min(toi, s)

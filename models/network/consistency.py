@@ -372,12 +372,11 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
     # avatar by avatar over the entities (the same winner: avatars in index order, a later one
     # wins only with a strictly smaller distance)
     ents = entity_pos
-    xs = [x for x, _ in ents]
     best = [None] * len(ents)
     who = [-1] * len(ents)
     for i, cxi, cyi, far, u0, u1, a2, b2, reach in av:
         # |r|^2 >= rx^2 > a^2 (with margin): outside the sphere of radius a (NaN: never claimed either way)
-        for j in [j for j, x in enumerate(xs) if (x - cxi) * (x - cxi) <= far]:
+        for j in [j for j, (x, _) in enumerate(ents) if (x - cxi) * (x - cxi) <= far]:
             x, y = ents[j]
             rx = x - cxi
             ry = y - cyi
@@ -400,8 +399,6 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
             b = best[j]
             if b is None or d < b:
                 best[j], who[j] = d, i
-    if max(who) < 0:     # nobody claimed
-        return current
     moved = [(j, w) for j, (w, cur) in enumerate(zip(who, current.tolist())) if w >= 0 and w != cur]
     if not moved:
         return current

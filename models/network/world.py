@@ -47,14 +47,14 @@ def _clip_unit(x) -> float:
 def _any_within(a: list, b: list, r2: float) -> bool:
     """Some point of ``a`` and some point of ``b`` (lists of ``[x, y]``) are at most
     ``sqrt(r2)`` apart: ``(bx - ax)^2 + (by - ay)^2 <= r2`` (the differences squared as products)."""
-    bxs = [bx for bx, _ in b]
     for ax, ay in a:
-        # candidates: dx^2 <= r2 (else dx^2 + dy^2 >= dx^2 > r2: a rounded sum does not drop below a term)
-        for j in [j for j, bx in enumerate(bxs) if (bx - ax) * (bx - ax) <= r2]:
-            dx = bxs[j] - ax
-            dy = b[j][1] - ay
-            if dx * dx + dy * dy <= r2:
-                return True
+        for bx, by in b:
+            dx = bx - ax
+            dx2 = dx * dx
+            if dx2 <= r2:     # else dx^2 + dy^2 >= dx^2 > r2 (a rounded sum does not drop below a term)
+                dy = by - ay
+                if dx2 + dy * dy <= r2:
+                    return True
     return False
 
 
