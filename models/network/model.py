@@ -915,13 +915,12 @@ class NetworkModel:
             G = self.cfg.groups
             if vl is None:
                 vl = self.world.avatar_velocities()
-            if max(objs) >= G:   # some entity: every velocity as one list
-                vl = vl + self.world.evel.tolist()
+            ev = self.world.evel
         rows = []
         for o in objs:
             row = [t] + pos[o]
             if ncol >= 5:
-                row += V[o].tolist() if V is not None else vl[o]
+                row += V[o].tolist() if V is not None else vl[o] if o < G else ev[o - G].tolist()
                 if ncol >= 7:
                     row += A[o].tolist()
             row.append(o * RID_OBJECT + uid)    # (= _obj_rid[o] + uid, exact)
