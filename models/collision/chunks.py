@@ -23,6 +23,18 @@ centre ``c_1``, half extents ``e_1``, of its hull vertices ``p + M v``, tighter 
 
 ``g_2 = || max(|M^T (c - p) - c_o| - |M|^T h - e, 0) ||``  (the chunk's box in the other's frame)
 
+Given a bound above the pair's distance (``within``: the backend's last exact distance of
+the pair plus the motion since, or in conservative advancement the last iteration's distance
+plus the step's motion), only the chunks whose first gap is below it get their second gap
+and are sorted and listed: the nearest chunk is among them and every other chunk's bound is
+at least ``within``, so the visit, its stop and the result are those of the full order.
+(About 30 of 256 chunks on the campus_drive replay; the bounds cost some thirty numpy calls
+either way, the sorting and listing of fewer chunks saves ~2 % of the replay.)
+
+A mesh's chunks may split another triangulation of it row for row (``split_by``): the
+distance triangulation of :mod:`.fans` is chunked by the mesh's own centroids, so the chunks
+of the triangles the two share are the mesh's.
+
 Every chunk keeps the mesh's own vertex coordinates and the body's transform, so each
 triangle pair's distance is computed by fcl with the same arithmetic as in the whole-mesh
 query: the minimum is the same number. Chunks whose bound is within ``CHUNK_TIE`` (1e-12 m)

@@ -21,6 +21,8 @@
   ``fcl.distance`` the member's AABB gap and the lower bound from its last exact distance
   (minus the motion since) are checked against the best so far: a member at least
   ``max_distance`` away costs no mesh-mesh distance and the pair reports ``max_distance``.
+  The same cache keeps an upper bound (the distance found, plus the motion since): a chunked
+  query bounds only the chunks nearer than it (:func:`.chunks.chunked_distance`).
 * Time of impact for bodies that moved. Slow movers (travel in the step below
   ``ccd_fast`` x their thinnest extent: they cannot tunnel) that enter contact get
   ``toi = h d0 / (d0 + depth)`` from the distance at the start and the depth at the end of
