@@ -442,6 +442,22 @@ class Deviation:
                 f"{w['toi']:.2g} s, closing speed {w['closing_speed']:.2g} m/s, point {w['point']:.2g} m")
 
 
+def _campus_inputs(log):
+    """The collision unit's parameters in campus_drive.toml and its logged inputs in ``log``:
+    per step one flat tuple of the dynamic bodies' 6 pose numbers, as the FMU passes them."""
+    import tomllib
+
+    from immersim.orchestrator.mcapio import read_series
+
+    params = next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
+    n_dyn = len(parse_scene(params["scene"]).dynamic)
+    axes = ("x", "y", "z", "roll", "pitch", "yaw")
+    series = read_series(log, ["coll.body*"])
+    poses = np.stack([np.stack([series[f"coll.body[{i + 1}].{ax}"][1] for ax in axes], 1)
+                      for i in range(n_dyn)], 1)  # (steps, bodies, 6)
+    return params, [tuple(p.ravel().tolist()) for p in poses]
+
+
 def bench_campus(log, baseline=None, reps=None, baseline_max_distance=FMU_MAX_DISTANCE):
     """Replay the collision unit's logged inputs of a campus_drive run through the model:
     this tree (FMU default: chunked exact distances, max_distance 2 m), its whole-mesh path
@@ -450,19 +466,10 @@ def bench_campus(log, baseline=None, reps=None, baseline_max_distance=FMU_MAX_DI
     header, rows, the number of steps and the output comparisons (name -> Deviation) of this
     tree's variants at the FMU default max_distance against the baseline (first repetition)."""
     import tempfile
-    import tomllib
-
-    from immersim.orchestrator.mcapio import read_series
 
     reps = CAMPUS_REPS if reps is None else reps
-    params = next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
+    params, poses = _campus_inputs(log)
     scene_spec, pairs = params["scene"], params["pairs"]
-    scene = parse_scene(scene_spec)
-    axes = ("x", "y", "z", "roll", "pitch", "yaw")
-    series = read_series(log, ["coll.body*"])
-    n_dyn = len(scene.dynamic)
-    poses = np.stack([np.stack([series[f"coll.body[{i + 1}].{ax}"][1] for ax in axes], 1)
-                      for i in range(n_dyn)], 1)  # (steps, bodies, 6)
     this = f"this tree, max_distance = {FMU_MAX_DISTANCE:g} m (FMU default, chunked distances)"
     mesh = f"this tree, max_distance = {FMU_MAX_DISTANCE:g} m, chunk_faces = 0 (whole-mesh distances)"
     variants = [(this, lambda: make_backend("fcl", parse_scene(scene_spec), pairs,
@@ -528,19 +535,12 @@ def fcl_share(log, reps=3):
     phase's manager calls not included) in the campus_drive replay of this tree (FMU default):
     (ms per step of the whole query, ms per step inside those calls, calls per run), the
     medians over ``reps`` runs with the calls timed (a wrapper around each call)."""
-    import tomllib
     import types
 
     import immersim.models.collision.chunks as chunks_mod
     import immersim.models.collision.fcl_backend as fcl_mod
-    from immersim.orchestrator.mcapio import read_series
 
-    params = next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
-    scene = parse_scene(params["scene"])
-    axes = ("x", "y", "z", "roll", "pitch", "yaw")
-    series = read_series(log, ["coll.body*"])
-    poses = np.stack([np.stack([series[f"coll.body[{i + 1}].{ax}"][1] for ax in axes], 1)
-                      for i in range(len(scene.dynamic))], 1)
+    params, poses = _campus_inputs(log)
     spent = [0.0, 0]
     clock = time.perf_counter
 
@@ -656,7 +656,8 @@ def campus_main(log, baseline, baseline_max_distance=FMU_MAX_DISTANCE, run_outpu
         f"{' --baseline-max-distance %g' % baseline_max_distance if baseline and baseline_max_distance != FMU_MAX_DISTANCE else ''}"
         f"{' --run-output ' + str(run_output) if run_output else ''}` "
         f"(log of `immersim run scenarios/campus_drive.toml`, {n_steps} steps of 33 ms, scene and pairs of the "
-        f"scenario; this tree and the baseline run {CAMPUS_REPS} times, interleaved step by step (taking turns at going "
+        f"scenario, each step's poses passed as the FMU passes them, one flat tuple of 6 numbers per dynamic body; "
+        f"this tree and the baseline run {CAMPUS_REPS} times, interleaved step by step (taking turns at going "
         f"first), then the other variants likewise; CPU: thread CPU time). Commit `{commit}`, "
         f"{ncpu} CPUs ({cpu}), Python {py}.",
         "",
@@ -687,29 +688,34 @@ def campus_main(log, baseline, baseline_max_distance=FMU_MAX_DISTANCE, run_outpu
                  "whose nearest points are not unique (an avatar box's vertical edge parallel to a tank's vertical "
                  "side face: a segment of nearest points; both are exact nearest points), and the normal and time "
                  "of impact by round-off; distances agree to round-off and contacts (flags, depths, points, partners) "
-                 "are identical (see `models/collision/chunks.py` and `fmus/collision/README.md`).", ""]
+                 "are identical (see `models/collision/chunks.py` and `fmus/collision/README.md`). Against a baseline "
+                 "before the distance triangulation (`models/collision/fans.py`, exact distances on the tank turret "
+                 "caps re-triangulated) and the axis-radius bound of conservative advancement, distances, nearest "
+                 "points and times of impact of the missile differ by round-off, and the times of impact of the "
+                 "avatars' bounces (conservative advancement with fewer, longer steps) by less than the 1e-4 m "
+                 "tolerance over their closing speed, with n_narrow counting the fewer iterations.", ""]
     text += [
         f"The model costs **{mean:.3f} ms** per step on average ({cpu_ms:.3f} ms CPU; median {crows[0][2]:.3f} ms) "
         + (f"against {crows[-1][1]:.3f} ms ({crows[-1][5]:.3f} ms CPU) for commit {baseline}. " if baseline else ". ")
         + "Issue 6 leaves 0.33 ms per step for the whole loop of campus_drive (three units, logging and master) at "
         f"100x real time: the collision model alone takes {100 * cpu_ms / 0.33:.0f} % of it (CPU). Far pairs (every member's AABB at least max_distance away) cost nothing while a face-motion "
         "bound says they are still far; the median step is the bookkeeping of 8 moving bodies. The mean is the "
-        "physics of the steps where an avatar is within 2 m of its tank (one chunk query each, about 0.1 ms of "
-        "Python and numpy around 10-20 us of fcl), contacts, conservative advancement when an avatar turns about "
-        "in a bounce (20-40 chunk queries) and the missile's impact: its nose comes down near the centre of "
-        "tank_0's turret cap, a fan of ~580 triangles that all meet there, against the 32 cone triangles that "
-        "meet at the nose, so fcl's whole-mesh queries (the missile, 192 triangles, keeps them) test thousands of "
-        "triangle pairs within 1 % of the minimum: 1-5 ms per exact distance in its approach steps, about 0.3 ms "
-        "per contact test while it moves into the tank. Its conservative advancement (ten iterations in the "
-        "impact step) computes the whole mesh's distance chunk by chunk with each chunk's distance at the last "
-        "iteration less the motion since as a bound (`chunks.chunk_min_distance`): the same numbers, after the "
-        "first iteration one or two chunks per iteration.",
+        "physics of the steps where an avatar is within 2 m of its tank (one chunk query each: about 45 us of "
+        "numpy for the chunks' box bounds and 10-20 us of fcl, plus the pair's bookkeeping), contacts, "
+        "conservative advancement when an avatar turns a quarter turn in one step next to a tank in a bounce "
+        "(16-20 iterations of about 0.12 ms, each a chunk query and an interpolated pose) and the missile: "
+        "its nose comes down near the centre of tank_0's turret cap, which the tank mesh builds as a fan of "
+        "~580 triangles all meeting there; the exact distances run on a distance triangulation of the same "
+        "surface (`models/collision/fans.py`), so its approach steps cost one whole-mesh query of 0.1-0.2 ms "
+        "(against 1-5 ms on the fan) and its impact step's conservative advancement about ten; its contact tests "
+        "keep the fan (fcl's penetration depth is per triangle pair): about 0.25 ms each while it moves into the "
+        "tank.",
         "",
         f"Of this tree's replay ({share_total:.3f} ms per step in a run with python-fcl's pairwise calls timed), "
         f"{share_fcl:.3f} ms per step are spent inside `fcl.distance` and `fcl.collide` ({share_calls} calls per "
         f"run; the broad phase's tree queries not counted). Outputs identical to an earlier commit bit for bit "
-        f"need the same fcl numbers: either the same calls, or calls that provably return the same bits (the "
-        f"chunked advancement above); Python and numpy take the rest.",
+        f"need the same fcl numbers: either the same calls, or calls that provably return the same bits; Python "
+        f"and numpy take the rest.",
         "",
         *(_loop_text(run_output) if run_output else []),
         "At rest (no input changed), one `fmi2DoStep` through FMPy:",
@@ -799,8 +805,9 @@ def main():
             "* The missile (192 triangles) keeps fcl's whole-mesh distance query in all these workloads: the chunked "
             "exact distances of the FMU default (`chunk_faces = 32`) serve bodies of at most 64 triangles (boxes such "
             "as campus_drive's avatars) against meshes of at least 1024; their effect is in the campus_drive section. "
-            "The missile's conservative advancement against a tank takes the whole mesh's distance as the minimum "
-            "over the tank's chunks (the same numbers, `chunks.chunk_min_distance`).",
+            "The backend's exact distances run on the tank's distance triangulation (its turret caps, fans of "
+            "slivers, re-triangulated: `models/collision/fans.py`); raw python-fcl here queries the tank mesh "
+            "itself, fans included, for both collide and distance.",
         ]
     if big is not None and len(big) > 8:
         lines.append(f"* 5040-tank field with the FMU's default `max_distance = {FMU_MAX_DISTANCE:g} m` (and time of "
