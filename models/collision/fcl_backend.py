@@ -377,15 +377,17 @@ class FclBackend(CollisionBackend):
 
         Skipped without a query when the AABB gap, or the lower bound from the pair's last
         exact distance (:meth:`_bound`), already reaches the best distance so far (at first
-        ``max_distance``): a far pair costs no mesh-mesh distance. (``fcl.distance`` itself
+        ``max_distance``): a far pair costs no mesh-mesh distance. These checks are left out
+        when the upper bound from the last exact distance is below the best (none could skip). (``fcl.distance`` itself
         does not prune with the result's current minimum: it always returns the exact
         distance, checked with python-fcl 0.7.)"""
         before = res.min_distance
-        if self._gap(a, b) >= before:
-            return False
         since = self._since(a, b)
-        if (since is not None and since[0] >= before) or self._frame_gap(a, b) >= before + self.FRAME_GAP_MARGIN:
-            return False
+        if since is None or since[1] >= before:  # (else it is nearer than the best: no bound can skip it)
+            if self._gap(a, b) >= before:
+                return False
+            if (since is not None and since[0] >= before) or self._frame_gap(a, b) >= before + self.FRAME_GAP_MARGIN:
+                return False
         # the larger BVH first: fcl's traversal is cheaper (member first otherwise, see _collide)
         self._sync(self._pair_now)
         faces = self._faces_list
