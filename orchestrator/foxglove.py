@@ -19,7 +19,7 @@ simulated second one ``/scene`` message (one entity per body, frame-locked to it
 expiring), JSON-encoded under Foxglove's schema names, so opening the log in Foxglove's 3D panel shows the platform, the avatars and
 the scene moving. It only reads values. In a log with ``[log] encoding = "ros1"`` the ``/tf``
 messages are ROS 1 ``tf2_msgs/TFMessage`` (what ROS 1 tools and Foxglove read as ``/tf``), packed
-by two ``struct`` calls per step (:class:`Ros1Transforms`); ``/scene`` stays JSON.
+with one ``struct`` call per step (:class:`Ros1Transforms`); ``/scene`` stays JSON.
 """
 from __future__ import annotations
 
@@ -140,8 +140,8 @@ TF_MESSAGE_DEFINITION = "\n".join([
 
 
 class Ros1Transforms:
-    """A ``tf2_msgs/TFMessage`` of a fixed list of frames: its frame ids packed once, the
-    header and the poses packed by one ``struct`` each per message.
+    """A ``tf2_msgs/TFMessage`` of a fixed list of frames, packed by one ``struct`` (the
+    frame ids are fixed, so the message has a fixed layout).
 
     Per transform: header (seq, stamp sec and nsec, parent frame id), child frame id,
     translation (x, y, z) and rotation quaternion (x, y, z, w), little-endian as ROS 1
@@ -153,24 +153,26 @@ class Ros1Transforms:
     """
 
     def __init__(self, frames: Sequence[Tuple[str, str]]) -> None:
-        self._count = struct.pack("<I", len(frames))
-        #: per frame, the bytes between its stamp and its pose: parent and child frame ids
-        self._ids = []
+        fmt, self._n = ["<I"], len(frames)
+        #: the arguments of the message's one struct: per frame 11 (sequence, sec, nsec, its frame
+        #: ids as bytes, 7 pose numbers); only the stamps and the poses change
+        self._args: List[Any] = [len(frames)]
         for parent, child in frames:
             p, c = parent.encode(), child.encode()
-            self._ids.append(struct.pack("<I", len(p)) + p + struct.pack("<I", len(c)) + c)
-        self._stamp = struct.Struct("<III")
-        self._poses = struct.Struct(f"<{7 * len(frames)}d")
+            ids = struct.pack("<I", len(p)) + p + struct.pack("<I", len(c)) + c
+            fmt.append(f"III{len(ids)}s7d")
+            self._args += [0, 0, 0, ids] + [0.0] * 7
+        self._struct = struct.Struct("".join(fmt))
 
     def pack(self, seq: int, t_ns: int, poses: Sequence[float]) -> bytes:
         """The message at ``t_ns``; ``poses``: 7 numbers per frame (translation, quaternion).
-        Every frame has the same header (sequence, stamp): packed once, as the poses are."""
+        The frames' stamps and poses go into the arguments by strided slices (no loop)."""
+        a, n = self._args, self._n
         sec, nsec = divmod(t_ns, 1_000_000_000)
-        stamp, pb = self._stamp.pack(seq, sec, nsec), self._poses.pack(*poses)
-        parts = [self._count]
-        for i, ids in enumerate(self._ids):
-            parts += (stamp, ids, pb[56 * i:56 * i + 56])
-        return b"".join(parts)
+        a[1::11], a[2::11], a[3::11] = [seq] * n, [sec] * n, [nsec] * n
+        for j in range(7):
+            a[5 + j::11] = poses[j::7]
+        return self._struct.pack(*a)
 
     @staticmethod
     def decode(data: bytes) -> List[Dict[str, Any]]:
@@ -329,22 +331,25 @@ class FoxgloveObserver:
         return ns["update"]
 
     def __call__(self, k: int, t_ns: int) -> None:
+        """Write step ``k``'s ``/tf`` (and ``/scene`` when due)."""
+        self.mcap.writer.add_message(*self.transforms(k, t_ns), log_time=t_ns, publish_time=t_ns, sequence=k)
+        self.scene_due(k, t_ns)
+
+    def transforms(self, k: int, t_ns: int) -> Tuple[int, bytes]:
+        """``(channel id, data)`` of step ``k``'s ``/tf`` message (the log writer puts it with the
+        step's other messages)."""
         poses = self._poses
         self._update(poses)
-        w = self.mcap.writer
         if self._ros1 is not None:
-            data = self._ros1.pack(k, t_ns, poses)
-        else:
-            stamp = self._stamp   # shared by every transform of the message
-            stamp["sec"], stamp["nsec"] = divmod(t_ns, 1_000_000_000)
-            for translation, rotation, o in self._moved:
-                translation["x"], translation["y"], translation["z"] = poses[o:o + 3]
-                rotation["x"], rotation["y"], rotation["z"], rotation["w"] = poses[o + 3:o + 7]
-            data = orjson.dumps(self._msg)
-        w.add_message(self._tf, log_time=t_ns, publish_time=t_ns, sequence=k, data=data)
-        self._scene_due(k, t_ns)
+            return self._tf, self._ros1.pack(k, t_ns, poses)
+        stamp = self._stamp   # shared by every transform of the message
+        stamp["sec"], stamp["nsec"] = divmod(t_ns, 1_000_000_000)
+        for translation, rotation, o in self._moved:
+            translation["x"], translation["y"], translation["z"] = poses[o:o + 3]
+            rotation["x"], rotation["y"], rotation["z"], rotation["w"] = poses[o + 3:o + 7]
+        return self._tf, orjson.dumps(self._msg)
 
-    def _scene_due(self, k: int, t_ns: int) -> None:
+    def scene_due(self, k: int, t_ns: int) -> None:
         """``/scene`` at the first step and then once per ``scene_period_s``."""
         if self._next_scene is None or t_ns >= self._next_scene:
             self._next_scene = t_ns + self._period_ns

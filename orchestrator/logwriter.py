@@ -137,25 +137,29 @@ class LogWriter:
             self._plan.append((cid, encode, sources[slot], _picker(idx)))
         for unit, infos, values, t_ns in plan.parameters:
             write_parameters(obs, unit, infos, values, t_ns)
-        self._views: List[Callable[[int, int], None]] = []
+        self._view = None   # the 3D view (FoxgloveObserver): /tf with each step, /scene when due
         if plan.bodies:
             from .foxglove import FoxgloveObserver
 
             def lookup(ref: str) -> Callable[[], Any]:
                 return _Signal(sources[plan.refs[ref][0]], plan.refs[ref][1])
 
-            self._views.append(FoxgloveObserver(obs, plan.bodies, lookup))
+            self._view = FoxgloveObserver(obs, plan.bodies, lookup)
 
     @property
     def closed(self) -> bool:
         return self.mcap._closed
 
     def write(self, k: int, t_ns: int) -> None:
-        """Log step ``k`` ending at ``t_ns`` from the sources' current values."""
-        self.mcap.write_step(t_ns, k, [(cid, encode(src.cur if pick is None else pick(src.cur)))
-                                       for cid, encode, src, pick in self._plan])
-        for view in self._views:
-            view(k, t_ns)
+        """Log step ``k`` ending at ``t_ns`` from the sources' current values: the units'
+        messages and the 3D view's ``/tf`` as one step, then ``/scene`` when due."""
+        items = [(cid, encode(src.cur if pick is None else pick(src.cur))) for cid, encode, src, pick in self._plan]
+        view = self._view
+        if view is not None:
+            items.append(view.transforms(k, t_ns))
+        self.mcap.write_step(t_ns, k, items)
+        if view is not None:
+            view.scene_due(k, t_ns)
 
     def step(self, k: int, t_ns: int, values: Sequence[Sequence[Any]]) -> None:
         """:meth:`write` with ``values[i]``, the current values of slot ``i``."""
