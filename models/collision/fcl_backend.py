@@ -378,9 +378,9 @@ class FclBackend(CollisionBackend):
         Skipped without a query when the AABB gap, or the lower bound from the pair's last
         exact distance (:meth:`_bound`), already reaches the best distance so far (at first
         ``max_distance``): a far pair costs no mesh-mesh distance. These checks are left out
-        when the upper bound from the last exact distance is below the best (none could skip). (``fcl.distance`` itself
-        does not prune with the result's current minimum: it always returns the exact
-        distance, checked with python-fcl 0.7.)"""
+        when the upper bound from the last exact distance is below the best (none could
+        skip). (``fcl.distance`` itself does not prune with the result's current minimum: it
+        always returns the exact distance, checked with python-fcl 0.7.)"""
         before = res.min_distance
         since = self._since(a, b)
         if since is None or since[1] >= before:  # (else it is nearer than the best: no bound can skip it)
@@ -398,12 +398,15 @@ class FclBackend(CollisionBackend):
         chunks = self._body_chunks[big]
         if chunks is None or not self._chunk_partner[small]:
             d = up = fcl.distance(self._dobj(big), self._dobj(small), self._dreq, res)
+            if not up >= 0:  # (fcl's -1: no distance, no bound)
+                up = math.inf
         else:  # the same triangle pairs, chunk by chunk (module docstring of .chunks)
             tag, tf = self._chunk_tf(big)
             d = chunked_distance(chunks, tag, tf, self._T[big], self._T[small],
                                  (self._hull[small], self._box_c[small], self._box_h[small]), self._dobj(small), True,
                                  self._dreq, res, math.inf if since is None else since[1])
-            up = res.min_distance if res.min_distance < before else math.inf  # its distance when it is the nearest
+            # its distance when it became the nearest, else no bound above it
+            up = res.min_distance if 0 <= res.min_distance < before else math.inf
         self._exact[(a, b)] = (d, self._rows(a), self._rows(b), up)  # (rows are replaced, never modified)
         if res.min_distance < before:
             self._a_first = a_first
@@ -739,12 +742,13 @@ class FclBackend(CollisionBackend):
             s += d / mu
             if s > s_max:
                 return None
-            within = d + mu * (s - s_last) * (1.0 + self.CA_MOTION_REL) + self.CA_MOTION_ABS
+            # no surface point of a or b moves farther than mu (s - s_last) between the two poses
+            # (mu bounds both; b is static up to the rounding of its interpolation): each chunk's
+            # distance changed by at most that, plus the rounding margins
+            motion = mu * (s - s_last) * (1.0 + self.CA_MOTION_REL) + self.CA_MOTION_ABS
+            within = d + motion
             if lower is not None:
-                # no surface point of a or b moves farther than mu (s - s_last) between the two
-                # poses (mu bounds both; b is static up to the rounding of its interpolation):
-                # each chunk's distance shrank by at most that, less the rounding margins
-                lower -= mu * (s - s_last) * (1.0 + self.CA_MOTION_REL) + self.CA_MOTION_ABS
+                lower -= motion
             TA = path_a.at(s)
             oa.setTransform(fcl_transform(TA))
             if path_b is not None:
