@@ -305,6 +305,8 @@ class CollisionBackend(ABC):
         self._pair_dyn = [np.flatnonzero(self.is_dynamic[np.append(p.members, p.a)]) for p in self.pairs]
         self._pair_dyn = [set(np.append(p.members, p.a)[idx].tolist()) for p, idx in zip(self.pairs, self._pair_dyn)]
         self._dyn_list = self.dyn.tolist()
+        self._n6 = 6 * len(self._dyn_list)
+        self._six = range(0, self._n6, 6)  # the start of each dynamic body's pose in a flat tuple
         self._dyn_poses = {i: tuple(self._poses[i].tolist()) for i in self._dyn_list}
         self._cache: List[Optional[PairResult]] = [None] * len(self.pairs)
         self._previous: Optional[PairResult] = None
@@ -319,6 +321,8 @@ class CollisionBackend(ABC):
         # query's move for the bodies that moved in it): scalar code for the per-step bounds
         self._T_rows: Dict[int, list] = {i: self._T[i].tolist() for i in self._dyn_list}
         self._prev_rows: Dict[int, list] = {}
+        #: per body that moved in this query: (|t1 - t0|, ||R1 - R0||_F) of its move (_move)
+        self._step_motion: Dict[int, Tuple[float, float]] = {}
         # per dynamic body: the bits of the (roll, pitch, yaw) its _T_rows rotation was made of
         self._rot_key = {i: _PACK3(*self._poses[i, 3:].tolist()) for i in self._dyn_list}
         self._toi_need: Dict[int, bool] = {}  # _needs_toi's answers in the current query
@@ -387,7 +391,9 @@ class CollisionBackend(ABC):
     def _move(self, i: int, row: tuple) -> list:
         """Body ``i`` moves to pose ``row``: its new transform as nested lists (the rotation of
         the last one when roll, pitch and yaw are the same bits: the same numbers
-        :func:`pose_rows` would compute), with the far-pair skip's face-shift bound."""
+        :func:`pose_rows` would compute), with the far-pair skip's face-shift bound. Records
+        the step's translation length and rotation change ``||R1 - R0||_F`` in
+        ``_step_motion`` (a cheap bound for the fast-mover test, :meth:`_needs_toi`)."""
         key = _PACK3(row[3], row[4], row[5])
         old = self._T_rows[i]
         if key == self._rot_key[i]:
@@ -395,13 +401,18 @@ class CollisionBackend(ABC):
             x, y, z = float(row[0]), float(row[1]), float(row[2])
             M = [[r0[0], r0[1], r0[2], x], [r1[0], r1[1], r1[2], y], [r2[0], r2[1], r2[2], z], [0.0, 0.0, 0.0, 1.0]]
             self._same_rotation_at[i] = self._qn
-            if self._far_skip:  # _face_shift without its rotation term (exactly 0)
-                self._shift[i] += math.sqrt((x - r0[3]) ** 2 + (y - r1[3]) ** 2 + (z - r2[3]) ** 2)
+            # _face_shift without its rotation term (exactly 0)
+            t = math.sqrt((x - r0[3]) ** 2 + (y - r1[3]) ** 2 + (z - r2[3]) ** 2)
+            self._step_motion[i] = (t, 0.0)
+            if self._far_skip:
+                self._shift[i] += t
             return M
         M = pose_rows(row)
         self._rot_key[i] = key
+        t, f = _face_shift(old, M)
+        self._step_motion[i] = (t, f)
         if self._far_skip:
-            self._shift[i] += _face_shift(old, M, self._rmax[i])
+            self._shift[i] += t + f * self._rmax[i]
         return M
 
     # -- bounds ---------------------------------------------------------------------------
@@ -460,19 +471,20 @@ class CollisionBackend(ABC):
         """The poses of the dynamic bodies as one 6-tuple per body (scene order), checked finite.
 
         A flat tuple of ``6 n_dynamic`` numbers (what the FMU passes) is sliced as it is when
-        its sum is finite (then every entry is) and no entry reaches 1e300 in magnitude (no
-        partial sum of the array path can overflow); anything else goes through numpy."""
-        n6 = 6 * len(self._dyn_list)
+        its sum is finite (then every entry is: an infinite or NaN entry makes the sum infinite
+        or NaN); anything else (other forms, or a sum that overflows) goes through numpy."""
+        n6 = self._n6
         if type(poses) is tuple and len(poses) == n6:
             try:
-                fast = math.isfinite(sum(poses)) and max(poses) < 1e300 and min(poses) > -1e300
+                fast = math.isfinite(sum(poses))
             except (TypeError, ValueError, OverflowError):
                 fast = False
             if fast:
-                return [poses[k:k + 6] for k in range(0, n6, 6)]
+                return [poses[k:k + 6] for k in self._six]
         arr = np.asarray(poses, dtype=float).reshape(len(self.dyn), 6)
-        if not math.isfinite(float(arr.sum())):
-            i, k = np.argwhere(~np.isfinite(arr))[0]
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            i, k = np.argwhere(bad)[0]
             raise ValueError(f"pose of dynamic body {self.scene.bodies[self.dyn[i]].name!r} "
                              f"({'x y z roll pitch yaw'.split()[k]}) = {arr[i, k]} is not finite")
         return [tuple(r) for r in arr.tolist()]
@@ -492,6 +504,7 @@ class CollisionBackend(ABC):
         changed = [(i, row) for i, row in zip(self._dyn_list, rows) if row != dyn_poses[i]]
         self._qn += 1
         self._prev_rows = prev_rows = {}
+        self._step_motion = {}
         if self._last is not None and not changed:
             # nothing moved: the last contacts hold, nothing was tested, nothing is closing
             # (prev_T = T: no body moved in this query)
@@ -660,6 +673,7 @@ class CollisionBackend(ABC):
         self._T_rows = {i: self._T[i].tolist() for i in self._dyn_list}
         self._rot_key = {i: None for i in self._dyn_list}
         self._prev_rows = {}
+        self._step_motion = {}
         # the arrays hold the state's rows now; the next query writes them again (as if the
         # bodies had moved now: prev_T = T unless they move)
         for i in self._dyn_list:
@@ -673,17 +687,18 @@ _SQRT3 = math.sqrt(3.0)
 _PACK3 = struct.Struct("3d").pack
 
 
-def _face_shift(T0: list, T1: list, rmax: float) -> float:
-    """Bound (m) on how far any face of a body's world AABB moves from pose ``T0`` to ``T1``
-    (4x4 nested lists): ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is
-    ``max_v (R v)_k + t_k`` over the hull vertices ``v`` (``|v| <= rmax``), and
-    ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <= ||R1 - R0||_F rmax``."""
+def _face_shift(T0: list, T1: list) -> Tuple[float, float]:
+    """The two terms of a bound on how far any face of a body's world AABB moves from pose
+    ``T0`` to ``T1`` (4x4 nested lists): ``|t1 - t0|`` and ``||R1 - R0||_F`` (m, 1); the bound
+    is ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is ``max_v (R v)_k + t_k`` over
+    the hull vertices ``v`` (``|v| <= rmax``), and ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <=
+    ||R1 - R0||_F rmax``."""
     (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = T0[0], T0[1], T0[2]
     (p0, p1, p2, p3), (q0, q1, q2, q3), (r0, r1, r2, r3) = T1[0], T1[1], T1[2]
     t2 = (p3 - a3) ** 2 + (q3 - b3) ** 2 + (r3 - c3) ** 2
     rot2 = ((p0 - a0) ** 2 + (p1 - a1) ** 2 + (p2 - a2) ** 2 + (q0 - b0) ** 2 + (q1 - b1) ** 2
             + (q2 - b2) ** 2 + (r0 - c0) ** 2 + (r1 - c1) ** 2 + (r2 - c2) ** 2)
-    return math.sqrt(t2) + math.sqrt(rot2) * rmax
+    return math.sqrt(t2), math.sqrt(rot2)
 
 
 def _at_rest(r: PairResult) -> PairResult:

@@ -123,6 +123,28 @@ def test_the_travel_of_a_far_skipped_body_is_that_of_its_poses(scene):
     assert be._travel(0) == expected
 
 
+def test_the_fast_mover_test_from_the_step_motion_is_that_of_the_travel(scene):
+    """_needs_toi's first test (translation and ||R1 - R0||_F of the move, recorded by _move)
+    answers as ``_travel(a) > ccd_fast * thin`` does, on moves around the threshold."""
+    be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
+    rng = np.random.default_rng(7)
+    threshold = be._toi_threshold[0]  # the avatar box: 0.5 x its 2 m thinnest extent
+    ball = (40.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    decided = 0
+    for _ in range(300):
+        p0 = (-30.0, 0.0, 2.5, *rng.uniform(-0.3, 0.3, 3))
+        step = rng.uniform(0.0, 1.2 * threshold)
+        turn = rng.uniform(0.0, 0.4, 3) * rng.integers(0, 2)
+        d = rng.normal(size=3)
+        p1 = tuple(np.add(p0[:3], step * d / np.linalg.norm(d)).tolist()) + tuple(np.add(p0[3:], turn).tolist())
+        be.query(p0 + ball)
+        be.query(p1 + ball)
+        t, f = be._step_motion[0]
+        decided += t + 1.111 * f * be._radius_list[0] < be._toi_clear[0]
+        assert be._needs_toi(0) == bool(be._travel(0) > threshold)
+    assert 50 < decided < 300  # the first test settles part of the moves, not all
+
+
 def _dive(n=40, turn=0.0):
     """campus_drive's missile: pitch 0.564 rad, 0.1738 m forward and 0.11 m down per 33 ms step,
     onto the centre of tank_0's turret cap and into it; ``turn``:
