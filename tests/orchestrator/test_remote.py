@@ -243,3 +243,48 @@ def test_replies_are_routed_to_their_unit(tmp_path, test_fmus):
         for inst in insts.values():
             inst.terminate()
         w.close()
+
+
+def test_mailbox_keeps_the_order_and_wakes_a_blocked_worker(tmp_path, test_fmus):
+    """The master's messages go through the worker's shared-memory mailbox: a message too long
+    for a slot (a batch of 5000 queued input sets) goes through the socket only after the
+    mailbox's earlier messages (else its step would run before the step posted first and the
+    FMU's time check would refuse it), and a worker blocked on its socket after ``spin_s`` of
+    silence is woken by the next post. Unit a, stepped that way, ends where unit b, stepped
+    plainly in the same worker, does."""
+    import pickle
+    import time
+
+    from immersim.orchestrator.remote import RemoteConfig, RemoteInstance, WorkerProcess
+
+    w = WorkerProcess(1, RemoteConfig(spin_s=0.001))
+    insts = {n: RemoteInstance(n, test_fmus["oscillator"], tmp_path / n, w) for n in ("a", "b")}
+    h = 33_000_000
+    try:
+        assert w._box is not None
+        for inst in insts.values():
+            inst.start_loading()
+        for inst in insts.values():
+            inst.finish_loading()
+            inst.initialize(0, None, {"x0": 1.0})
+        readers = {n: inst.reader(["x", "v"]) for n, inst in insts.items()}
+        a, b = insts["a"], insts["b"]
+        a.do_step(0, h)
+        a.post(read=False)                                  # through the mailbox
+        a.do_step(h, h)
+        a.queue += [("set", {"x_other": 0.0}) for _ in range(5000)]
+        assert not w._box.fits(len(pickle.dumps(("run", "a", a.queue, True, 0), 5)))
+        readers["a"].read()                                 # through the socket, after the first step
+        time.sleep(0.05)
+        assert w._box.head[2] == 1                          # the worker is blocked on its socket
+        a.do_step(2 * h, h)
+        xa = readers["a"].read()                            # woken by this post
+        assert w._box.head[2] == 0
+        for k in range(3):
+            b.do_step(k * h, h)
+        xb = readers["b"].read()                            # one message: the three steps and the read
+        assert xa == xb and xa[0] < 1.0
+    finally:
+        for inst in insts.values():
+            inst.terminate()
+        w.close()
