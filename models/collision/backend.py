@@ -332,6 +332,8 @@ class CollisionBackend(ABC):
         self._setup()
         #: the far-pair skip is on (set after ``_setup``: a backend may decide FAR_SKIP there)
         self._far_skip = bool(self.FAR_SKIP and math.isfinite(self.config.max_distance))
+        #: m; a far pair's members' AABB gaps are at least this (max_distance and the slack)
+        self._far_limit = self.config.max_distance + self.FAR_MARGIN
 
     # -- to implement -------------------------------------------------------------------
     def _setup(self) -> None:
@@ -388,32 +390,42 @@ class CollisionBackend(ABC):
             self._prev_T[i] = rows if self._prev_is_T else self._prev_rows.get(i, rows)
             at[i] = qn
 
-    def _move(self, i: int, row: tuple) -> list:
-        """Body ``i`` moves to pose ``row``: its new transform as nested lists (the rotation of
-        the last one when roll, pitch and yaw are the same bits: the same numbers
-        :func:`pose_rows` would compute), with the far-pair skip's face-shift bound. Records
-        the step's translation length and rotation change ``||R1 - R0||_F`` in
-        ``_step_motion`` (a cheap bound for the fast-mover test, :meth:`_needs_toi`)."""
-        key = _PACK3(row[3], row[4], row[5])
-        old = self._T_rows[i]
-        if key == self._rot_key[i]:
-            r0, r1, r2 = old[0], old[1], old[2]
-            x, y, z = float(row[0]), float(row[1]), float(row[2])
-            M = [[r0[0], r0[1], r0[2], x], [r1[0], r1[1], r1[2], y], [r2[0], r2[1], r2[2], z], [0.0, 0.0, 0.0, 1.0]]
-            self._same_rotation_at[i] = self._qn
-            # _face_shift without its rotation term (exactly 0)
-            t = math.sqrt((x - r0[3]) ** 2 + (y - r1[3]) ** 2 + (z - r2[3]) ** 2)
-            self._step_motion[i] = (t, 0.0)
-            if self._far_skip:
-                self._shift[i] += t
-            return M
-        M = pose_rows(row)
-        self._rot_key[i] = key
-        t, f = _face_shift(old, M)
-        self._step_motion[i] = (t, f)
-        if self._far_skip:
-            self._shift[i] += t + f * self._rmax[i]
-        return M
+    def _move(self, changed: List[Tuple[int, tuple]]) -> List[int]:
+        """The dynamic bodies of ``changed`` (body, new pose) move: returns the bodies moved.
+
+        Each gets its new transform as nested lists in ``_T_rows`` (its old one in
+        ``_prev_rows``; the rotation of the old one when roll, pitch and yaw are the same bits:
+        the same numbers :func:`pose_rows` would compute), the move's translation and rotation
+        change ``(|t1 - t0|, ||R1 - R0||_F)`` in ``_step_motion`` (a cheap bound for the
+        fast-mover test, :meth:`_needs_toi`) and, with the far-pair skip, the face-shift bound
+        (:func:`_face_shift`). One loop for all bodies: this runs every step for every body."""
+        dyn_poses, T_rows, prev_rows, motion = self._dyn_poses, self._T_rows, self._prev_rows, self._step_motion
+        rot_key, same_at, moved_at, stale, qn = self._rot_key, self._same_rotation_at, self._moved_at, self._stale, self._qn
+        shift, rmax, far_skip = self._shift, self._rmax, self._far_skip
+        moved = []
+        for i, row in changed:
+            dyn_poses[i] = row
+            old = prev_rows[i] = T_rows[i]
+            key = _PACK3(row[3], row[4], row[5])
+            if key == rot_key[i]:
+                r0, r1, r2 = old[0], old[1], old[2]
+                x, y, z = float(row[0]), float(row[1]), float(row[2])
+                T_rows[i] = [[r0[0], r0[1], r0[2], x], [r1[0], r1[1], r1[2], y], [r2[0], r2[1], r2[2], z],
+                             [0.0, 0.0, 0.0, 1.0]]
+                same_at[i] = qn
+                # _face_shift's terms: the rotation's is exactly 0
+                t, f = math.sqrt((x - r0[3]) ** 2 + (y - r1[3]) ** 2 + (z - r2[3]) ** 2), 0.0
+            else:
+                M = T_rows[i] = pose_rows(row)
+                rot_key[i] = key
+                t, f = _face_shift(old, M)
+            motion[i] = (t, f)
+            if far_skip:
+                shift[i] += t + f * rmax[i]
+            moved_at[i] = qn
+            stale[i] = True
+            moved.append(i)
+        return moved
 
     # -- bounds ---------------------------------------------------------------------------
     def ensure_bounds(self, idx) -> None:
@@ -503,7 +515,7 @@ class CollisionBackend(ABC):
         dyn_poses = self._dyn_poses
         changed = [(i, row) for i, row in zip(self._dyn_list, rows) if row != dyn_poses[i]]
         self._qn += 1
-        self._prev_rows = prev_rows = {}
+        self._prev_rows = {}
         self._step_motion = {}
         if self._last is not None and not changed:
             # nothing moved: the last contacts hold, nothing was tested, nothing is closing
@@ -515,15 +527,7 @@ class CollisionBackend(ABC):
         # pose to them is no motion (no time of impact, closing speed or honeycomb threshold)
         self._prev_is_T = self._last is None
         self._toi_need = {}
-        T_rows, moved_at, stale, qn = self._T_rows, self._moved_at, self._stale, self._qn
-        moved = []
-        for i, row in changed:
-            dyn_poses[i] = row
-            prev_rows[i] = T_rows[i]
-            T_rows[i] = self._move(i, row)
-            moved_at[i] = qn
-            stale[i] = True
-            moved.append(i)
+        moved = self._move(changed)
         self._poses_pending = True
         far_skip = self._far_skip
         if not far_skip:  # every moved pair is evaluated: write the rows at once
@@ -531,13 +535,14 @@ class CollisionBackend(ABC):
         self._moved(moved)
         moved_set = set(moved)
         out, n_cand, n_narrow = [], 0, 0
+        cache, pair_dyn, far = self._cache, self._pair_dyn, self._far
         for k, pair in enumerate(self.pairs):
-            cached = self._cache[k]
+            cached = cache[k]
             self._previous = cached  # the pair's result at the start of the step (for _evaluate)
-            if cached is not None and moved_set.isdisjoint(self._pair_dyn[k]):
+            if cached is not None and moved_set.isdisjoint(pair_dyn[k]):
                 out.append(_at_rest(cached))
                 continue
-            if far_skip and self._far[k] is not None and self._far_holds(k, pair, moved_set):
+            if far_skip and far[k] is not None and self._far_holds(k, pair, moved_set):
                 out.append(cached)  # the far result: no candidate, no test (class docstring)
                 continue
             self._last_gap = None
@@ -578,9 +583,8 @@ class CollisionBackend(ABC):
         by at most that sum). Otherwise the backend's :meth:`_far_gap` (the members' AABB gaps
         themselves, what the evaluation would compute) decides, and becomes the new record."""
         gap, shift0 = self._far[k]
-        shift = self._shift
-        now = sum(map(shift.__getitem__, self._pair_bodies[k]))
-        limit = self.config.max_distance + self.FAR_MARGIN
+        now = sum(map(self._shift.__getitem__, self._pair_bodies[k]))
+        limit = self._far_limit
         close = gap - _SQRT3 * (now - shift0) < limit
         if close and not self._far_gap_known:
             return False
