@@ -367,39 +367,38 @@ ANALYSIS = """\
 * The target of 100x real time leaves 0.33 ms per 33 ms step for the three units, the master
   and the MCAP log together. Each unit is a pythonfmu FMU: every FMI call goes through the C
   layer and back into Python (section 2 is that floor per unit and step).
-* Where a step goes (one process): the network and collision models replayed alone, without
-  FMI, cost about 0.12 ms each per step (the network's frame in Python floats, the collision
-  unit's bookkeeping in Python lists around python-fcl, whose own C code is ~0.05 ms per step:
-  the missile's whole-mesh distances before its impact and its time of impact at 0.6-1.1 ms
-  each); inside the FMUs, with their wrappers, the FMI calls and the other units in the same
-  process, about twice that. The platform is one compiled CasADi call (14 us) plus its FMU
-  wrapper. Logging: packed ROS 1 messages (section 3 compares JSON) and the 3D view's `/tf`.
 * How campus_drive steps in parallel (section 3b): the network and the collision unit are
   joined both ways by connections declared `delayed` (each reads the other's previous step), so
   under Gauss-Seidel they step at the same time, the network in worker process 1; the platform
   reads the network fresh, after it. The network's next step is posted as soon as the collision
-  unit has stepped and the network's last reply is in (`Master._post_ahead`), so the worker
-  steps while this process steps the platform and logs. The physics against net -> coll read
-  fresh: avatars within 5e-11 m, platform strokes within 1.2e-16 m over the 20 s; the collision
-  unit's contacts at a bounce come from poses extrapolated over the step (scenario file).
-* On this machine two busy processes each run slower than one alone (the worker's network step
-  takes ~10-25 % longer than in one process), and the two halves of a step are about equal
-  (network ~0.2-0.28 ms in the worker; collision, platform, logging and master ~0.25-0.3 ms
-  here), so the parallel gain is ~1.2-1.5x over one process and moves with the machine's load.
-* Base class (`fmus/common`): a value-reference list is resolved once into an
-  `operator.itemgetter` (pythonfmu hands over a fresh list per call), inputs are re-checked
-  for NaN/inf only after a `setReal` that brought a non-finite value (or a state restore), the
-  output check is one `sum`, and a unit at rest tells the base class that no output changed
-  (no check at all).
-* Collision: a far pair (every member's AABB at least `max_distance` away, no time of impact
-  needed) is skipped while a bound on the AABB faces' motion since its last evaluation says it
-  is still far, and else when its members' own AABB gaps say so; fcl transforms are set only
-  for bodies a pair evaluation needs; before an exact distance, a gap in the rotated tank's own
-  frame (its world AABB is loose) skips queries that cannot come under `max_distance`; contact
-  tests are skipped when a distance bound is above 1e-6 m. What is left is the physics: the
-  exact box-vs-tank distances while an avatar is within 2 m of its tank, and conservative
-  advancement for the missile's impact. Outputs are identical to the model before these
-  changes in every step (`tests/collision/test_fast_paths.py`, campus_drive replay).
+  unit has stepped, through the worker's shared-memory mailbox, before the master has taken the
+  network's last reply (two posts in flight, two shared output buffers), and the worker steps it
+  with the master's own gather/apply/lazy-skip code: the worker goes from one step to the next
+  while this process steps the platform and logs. Each macro step lasts as long as the slower
+  of the two sides: the worker (the network, ~0.2 ms) or this process (the collision unit, the
+  platform, the log and the master, ~0.2 ms in a typical step, more in the steps where an
+  avatar or the missile is within 2 m of a tank and the collision unit computes exact
+  distances, contacts and times of impact). The two sides are about equal in a typical step,
+  so each side's cost counts only where it is the slower one.
+* `plat:process=1` chains the platform to the network in the worker (its inputs gathered there,
+  no round trip): the same log, but the worker's side of a step then carries both units and is
+  the slower one in most steps (section 3b).
+* The physics of the declared delays against net -> coll read fresh: avatars within 5e-11 m,
+  platform strokes within 1.2e-16 m over the 20 s; the collision unit's contacts at a bounce come
+  from poses extrapolated over the step (scenario file).
+* Where a step goes: the collision unit's own per-step bookkeeping (8 moving bodies, 5 pairs),
+  its exact distances while an avatar or the missile is within `max_distance` (2 m) of a tank
+  (chunked box-vs-tank distances; distances against the turret caps on a triangulation without
+  the caps' 580-sliver fans, results/collision/campus.md), its contact tests and the conservative
+  advancement of a bounce; the network's frame in Python floats (results/network/campus.md);
+  the platform's one compiled CasADi call plus its FMU wrapper; the log's packed ROS 1 messages
+  and the 3D view's `/tf` (one generated function for the moving bodies' poses, one struct per
+  message, written with the units' messages as one batch).
+* Collision skip rules: a far pair is skipped while a bound on its AABB faces' motion says it is
+  still far; fcl transforms are set only for bodies a pair evaluation needs; a gap in the rotated
+  tank's own frame skips queries that cannot come under `max_distance`; contact tests are skipped
+  when a distance bound is above 1e-6 m. What is left is the physics. Outputs are identical to
+  the model before these changes (`tests/collision/test_fast_paths.py`, campus_drive replay).
 * Lazy stepping skips the FMI calls of units that report `at_rest`. The network's catch-up
   step simulates every skipped frame (its periodic traffic goes on at rest), so skipping it
   saves calls, not work; `RunResult.timing` counts the final catch-up in `Master.finish()`.
