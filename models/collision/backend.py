@@ -294,7 +294,9 @@ class CollisionBackend(ABC):
         self.sphere_c = np.zeros((self.n, 3))
         self.sphere_r = np.array([self._local[b.mesh_key][2] for b in scene.bodies])
         self._aabb_cache: Dict[tuple, np.ndarray] = {}
+        #: per dynamic body its last rotated local box: (rotation key, box, box as lists)
         self._dyn_box: Dict[int, tuple] = {}
+        self._static_lists: Dict[int, tuple] = {}  # static bodies' AABBs as (lo, hi) lists
         self._stale = np.zeros(self.n, bool)
         self._sphere_stale = np.zeros(self.n, bool)  # AABB current, bounding-sphere centre not
         self._is_dyn_list = self.is_dynamic.tolist()
@@ -461,12 +463,32 @@ class CollisionBackend(ABC):
                 pts = v @ T[:3, :3].T
                 box = np.stack([pts.min(0), pts.max(0)])
                 if dynamic[i]:
-                    self._dyn_box[i] = (rkey, box)
+                    self._dyn_box[i] = (rkey, box, box.tolist())
                 else:
                     self._aabb_cache[rkey] = box
             self.aabb[i] = box + T[:3, 3]
             if spheres:
                 self.sphere_c[i] = T[:3, :3] @ c + T[:3, 3]
+
+    def _aabb_lists(self, i: int) -> Tuple[list, list]:
+        """Body ``i``'s world AABB as ``(lo, hi)`` lists: the numbers of ``aabb[i]`` brought up
+        to date. A dynamic body that moved keeping the rotation of its last box gets them in
+        scalar code, ``box + t`` per coordinate (what :meth:`_update_bounds` computes; its
+        ``aabb`` row stays stale, written when read); a static body's are listed once."""
+        if not self._is_dyn_list[i]:
+            box = self._static_lists.get(i)
+            if box is None:
+                box = self._static_lists[i] = tuple(self.aabb[i].tolist())
+            return box
+        if self._stale[i]:
+            last = self._dyn_box.get(i)
+            if last is not None and last[0] == self._rot_key.get(i):
+                rows = self._T_rows[i]
+                (l0, l1, l2), (h0, h1, h2) = last[2]
+                t0, t1, t2 = rows[0][3], rows[1][3], rows[2][3]
+                return [l0 + t0, l1 + t1, l2 + t2], [h0 + t0, h1 + t1, h2 + t2]
+            self._update_bounds([i], spheres=False)
+        return self.aabb[i].tolist()
 
     def aabb_gap(self, a: int, members: np.ndarray) -> np.ndarray:
         """Euclidean gap between the AABB of ``a`` and those of ``members`` (0 if overlapping)."""

@@ -61,7 +61,7 @@ from .backend import CollisionBackend, PairResult, PairSpec, aggregate
 from .chunks import (CHUNK_MIN_FACES, CHUNK_OTHER_MAX_FACES, ChunkedMesh, chunk_lower_bounds, chunk_min_distance,
                      chunked_distance)
 from .fans import distance_faces
-from .geometry import Slerp, rotation_angle
+from .geometry import Slerp, norm3, rotation_angle
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +134,6 @@ class FclBackend(CollisionBackend):
         self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
         self._pair_now: List[int] = []
         self._static_rows: Dict[int, list] = {}
-        self._static_boxes: Dict[int, tuple] = {}  # the evaluated pair's dynamic bodies (their fcl transforms)
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
@@ -264,7 +263,7 @@ class FclBackend(CollisionBackend):
         far-pair skip too, before the pair's rows are written: writes ``a``'s.)"""
         self._sync_rows((a,))
         T0, T1 = self._prev_T[a], self._T[a]
-        return (np.linalg.norm(T1[:3, 3] - T0[:3, 3])
+        return (norm3(T1[:3, 3] - T0[:3, 3])
                 + rotation_angle(T1[:3, :3] @ T0[:3, :3].T) * self._radius[a])
 
     def _moved_now(self, a: int) -> bool:
@@ -347,10 +346,7 @@ class FclBackend(CollisionBackend):
         itself, a dynamic body's local AABB rotated and moved by its current transform
         (centre ``R c + t``, half extents ``|R| h``), up to rounding."""
         if not self._is_dyn[i]:
-            box = self._static_boxes.get(i)
-            if box is None:
-                box = self._static_boxes[i] = tuple(self.aabb[i].tolist())
-            return box
+            return self._aabb_lists(i)
         R = self._T_rows[i]
         (cx, cy, cz), (hx, hy, hz) = self._box_lists[i][2], self._box_lists[i][3]
         lo, hi = [], []
@@ -383,7 +379,7 @@ class FclBackend(CollisionBackend):
         c = max(res.contacts, key=lambda c: c.penetration_depth)
         n = -np.asarray(c.normal, float)  # fcl's normal points from its first object (b) to a
         return PairResult(True, 0.0, float(max(c.penetration_depth, 0.0)), np.asarray(c.pos, float).copy(),
-                          n / (np.linalg.norm(n) or 1.0))
+                          n / (norm3(n) or 1.0))
 
     def _distance(self, a: int, b: int, res: "fcl.DistanceResult") -> bool:
         """Narrow-phase distance into a shared result (it keeps the smallest distance and its
@@ -522,19 +518,9 @@ class FclBackend(CollisionBackend):
                 rows = self._static_rows[i] = self._T[i].tolist()
         return rows
 
-    def _fresh_bounds(self, bodies: List[int]) -> None:
-        """``ensure_bounds`` of the AABBs of a few bodies (scalar stale checks)."""
-        stale = self._stale
-        idx = [i for i in bodies if stale[i]]
-        if idx:
-            self._update_bounds(idx, spheres=False)
-
     def _gap(self, a: int, b: int) -> float:
         """AABB gap of two bodies (m, 0 if overlapping), scalar code for the per-candidate path."""
-        stale = self._stale
-        if stale[a] or stale[b]:
-            self._update_bounds([i for i in (a, b) if stale[i]], spheres=False)
-        (alo, ahi), (blo, bhi) = self.aabb[a].tolist(), self.aabb[b].tolist()
+        (alo, ahi), (blo, bhi) = self._aabb_lists(a), self._aabb_lists(b)
         g = 0.0
         for k in range(3):
             d = max(blo[k] - ahi[k], alo[k] - bhi[k], 0.0)
@@ -546,7 +532,7 @@ class FclBackend(CollisionBackend):
         if self._a_first:
             pa, pb = pb, pa
         n = pb - pa
-        norm = np.linalg.norm(n)
+        norm = norm3(n)
         return PairResult(False, float(max(res.min_distance, 0.0)), 0.0, pa, n / norm if norm > 0 else n)
 
     # -- one pair ------------------------------------------------------------------------
@@ -645,17 +631,25 @@ class FclBackend(CollisionBackend):
     # -- time of impact -------------------------------------------------------------------
     def _time_of_impact(self, a, stat, dyn, counts, dt) -> float:
         T0, T1 = self._prev_T[a], self._T[a]
-        # swept AABB of a over the step (padded by the rotation's chord at the bounding radius)
+        # swept AABB of a over the step (padded by the rotation's chord at the bounding radius;
+        # scalar code per coordinate, the numbers of the array expressions)
         ang = rotation_angle(T1[:3, :3] @ T0[:3, :3].T)
-        pad = 2 * self._radius[a] * math.sin(min(ang, math.pi) / 2)
-        self._fresh_bounds(self._pair_now if self.is_dynamic[a] else [a] + self._pair_now)  # a and dyn
-        box0 = self.aabb[a].copy()
-        shift = T0[:3, 3] - T1[:3, 3]
-        lo = np.minimum(box0[0], box0[0] + shift) - pad
-        hi = np.maximum(box0[1], box0[1] + shift) + pad
-        cands = [int(b) for b in dyn if np.all(self.aabb[b, 0] <= hi) and np.all(self.aabb[b, 1] >= lo)]
+        pad = 2 * self._radius_list[a] * math.sin(min(ang, math.pi) / 2)
+        box_lo, box_hi = self._aabb_lists(a)
+        R0, R1 = self._prev_rows[a], self._T_rows[a]  # T0, T1 as lists (a moved in this query)
+        lo, hi = [], []
+        for k in range(3):
+            shift = R0[k][3] - R1[k][3]
+            lo.append(min(box_lo[k], box_lo[k] + shift) - pad)
+            hi.append(max(box_hi[k], box_hi[k] + shift) + pad)
+        cands = []
+        for b in dyn.tolist():
+            blo, bhi = self._aabb_lists(b)
+            if all(blo[k] <= hi[k] and bhi[k] >= lo[k] for k in range(3)):
+                cands.append(b)
         if len(stat):
-            probe = fcl.CollisionObject(fcl.Box(*(hi - lo)), fcl.Transform(_EYE3, (lo + hi) / 2))
+            probe = fcl.CollisionObject(fcl.Box(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]),
+                                        fcl.Transform(_EYE3, [(lo[k] + hi[k]) / 2 for k in range(3)]))
             found: List[int] = []
             self.manager.collide(probe, None, self._collector(found))
             cands += sorted(set(found))
@@ -688,7 +682,7 @@ class FclBackend(CollisionBackend):
         one axis this is tighter than ``theta`` times its radius about the origin (an avatar
         box 4 x 2 x 4.4 m turning about the vertical: 2.24 m instead of 3.14 m), so conservative
         advancement takes longer steps."""
-        trans = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
+        trans = norm3(T1[:3, 3] - T0[:3, 3])
         if path.axis is None:
             return trans
         u = T0[:3, :3].T @ path.axis  # the axis in the body frame

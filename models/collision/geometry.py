@@ -11,8 +11,14 @@ import math
 
 import numpy as np
 
-__all__ = ["rotation", "pose_rows", "pose_matrix", "transform_points", "point_triangle_distance",
+__all__ = ["norm3", "rotation", "pose_rows", "pose_matrix", "transform_points", "point_triangle_distance",
            "rotation_angle", "Slerp", "slerp_pose"]
+
+
+def norm3(v: np.ndarray) -> float:
+    """Euclidean norm of a vector, shape (3,): the number ``np.linalg.norm(v)`` returns (numpy
+    computes ``sqrt(v . v)`` for a real vector), without its Python-level overhead."""
+    return math.sqrt(v.dot(v))
 
 
 def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -81,7 +87,7 @@ class Slerp:
         if self.ang < 1e-12:
             return
         w = np.array([R_rel[2, 1] - R_rel[1, 2], R_rel[0, 2] - R_rel[2, 0], R_rel[1, 0] - R_rel[0, 1]])
-        nw = np.linalg.norm(w)
+        nw = norm3(w)
         if nw < 1e-12:  # rotation by pi: axis from the symmetric part
             vals, vecs = np.linalg.eigh((R_rel + np.eye(3)) / 2)
             axis = vecs[:, np.argmax(vals)]

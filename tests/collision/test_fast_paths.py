@@ -145,6 +145,24 @@ def test_the_fast_mover_test_from_the_step_motion_is_that_of_the_travel(scene):
     assert 50 < decided < 300  # the first test settles part of the moves, not all
 
 
+def test_norm3_is_numpys_norm_bit_for_bit():
+    from immersim.models.collision.geometry import norm3
+
+    rng = np.random.default_rng(3)
+    for v in rng.normal(size=(20000, 3)) * rng.choice([1e-9, 1e-3, 1.0, 1e3], size=(20000, 1)):
+        assert norm3(v) == np.linalg.norm(v)
+
+
+def test_the_scalar_aabb_is_the_arrays(scene):
+    """_aabb_lists (scalar, the arrays left stale) gives the numbers _update_bounds writes."""
+    be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
+    for poses in _trajectory(30):
+        be.query(tuple(x for p in poses for x in p))
+        lists = [be._aabb_lists(i) for i in range(be.n)]
+        be.ensure_bounds(np.arange(be.n))
+        assert [tuple(map(list, box)) for box in lists] == [tuple(r) for r in be.aabb.tolist()]
+
+
 def _dive(n=40, turn=0.0):
     """campus_drive's missile: pitch 0.564 rad, 0.1738 m forward and 0.11 m down per 33 ms step,
     onto the centre of tank_0's turret cap and into it; ``turn``:
