@@ -266,11 +266,10 @@ class _Mailbox:
     def __init__(self, path: str) -> None:
         import mmap
 
-        import numpy as np
-
         with open(path, "r+b") as fh:
             self._map = mmap.mmap(fh.fileno(), self.nbytes())
-        self.head = np.frombuffer(self._map, dtype=np.int64, count=4)
+        self._view = memoryview(self._map)
+        self.head = self._view[:self.HEAD].cast("q")   # (a memoryview reads faster than numpy)
         self._taken = 0   # the worker's count (the master reads head[1])
 
     @classmethod
@@ -282,21 +281,23 @@ class _Mailbox:
 
     # -- the master's side
     def full(self) -> bool:
-        return int(self.head[0]) - int(self.head[1]) >= self.SLOTS
+        head = self.head
+        return head[0] - head[1] >= self.SLOTS
 
     def empty(self) -> bool:
         """Every message written has been taken."""
-        return int(self.head[0]) == int(self.head[1])
+        head = self.head
+        return head[0] == head[1]
 
     def put(self, data: bytes) -> bool:
         """Write a message (room checked by the caller: not :meth:`full`); True when the
         worker is blocked on its socket (wake it)."""
-        k = int(self.head[0])
+        head = self.head
+        k = head[0]
         off = self.HEAD + (k % self.SLOTS) * self.SLOT_BYTES
-        self._map[off + 8:off + 8 + len(data)] = data
-        self._map[off:off + 8] = len(data).to_bytes(8, "little")
-        self.head[0] = k + 1
-        return bool(self.head[2])
+        self._map[off:off + 8 + len(data)] = len(data).to_bytes(8, "little") + data
+        head[0] = k + 1
+        return head[2] != 0
 
     # -- the worker's side
     def take(self) -> Optional[bytes]:
@@ -315,7 +316,9 @@ class _Mailbox:
         self.head[2] = int(flag)
 
     def close(self) -> None:
-        self.head = None
+        self.head.release()
+        self._view.release()
+        self.head = self._view = None
         try:
             self._map.close()
         except BufferError:
@@ -519,8 +522,9 @@ class WorkerProcess:
         self._outbox, self._outbox_err = [], None
         data, mb = dumps(msg, 5), self._box
         try:
-            if mb is not None and mb.fits(len(data)):
-                self._wait_box(mb.full, unit, function, t_ns)
+            if mb is not None and len(data) <= mb.SLOT_BYTES - 8:
+                if mb.full():
+                    self._wait_box(mb.full, unit, function, t_ns)
                 if mb.put(data):    # the worker is blocked on its socket: wake it
                     self._send(b"")
                 return
