@@ -297,6 +297,7 @@ class CollisionBackend(ABC):
         #: per dynamic body its last rotated local box: (rotation key, box, box as lists)
         self._dyn_box: Dict[int, tuple] = {}
         self._static_lists: Dict[int, tuple] = {}  # static bodies' AABBs as (lo, hi) lists
+        self._static_rows: Dict[int, list] = {}  # static bodies' transforms as nested lists
         self._stale = np.zeros(self.n, bool)
         self._sphere_stale = np.zeros(self.n, bool)  # AABB current, bounding-sphere centre not
         self._is_dyn_list = self.is_dynamic.tolist()
@@ -391,6 +392,21 @@ class CollisionBackend(ABC):
             self._T[i] = rows
             self._prev_T[i] = rows if self._prev_is_T else self._prev_rows.get(i, rows)
             at[i] = qn
+
+    def _rows(self, i: int) -> list:
+        """The transform of body ``i`` as nested lists (a static body's converted once)."""
+        rows = self._T_rows.get(i)
+        if rows is None:
+            rows = self._static_rows.get(i)
+            if rows is None:
+                rows = self._static_rows[i] = self._T[i].tolist()
+        return rows
+
+    def _prev_rows_of(self, i: int) -> list:
+        """The transform of body ``i`` at the start of the current query's step as nested
+        lists: the numbers of its ``prev_T`` row (:meth:`_sync_rows`)."""
+        rows = self._rows(i)
+        return rows if self._prev_is_T else self._prev_rows.get(i, rows)
 
     def _move(self, changed: List[Tuple[int, tuple]]) -> List[int]:
         """The dynamic bodies of ``changed`` (body, new pose) move: returns the bodies moved.
@@ -649,22 +665,21 @@ class CollisionBackend(ABC):
                 res.distance, res.partner = float(md), -1
                 res.point, res.normal = np.zeros(3), np.zeros(3)
             return
-        n = -np.asarray(res.normal, float)
+        # scalar code on the three components (the numbers of the array expressions)
+        n = [-x for x in np.asarray(res.normal, float).tolist()]
         if (res.in_contact and prev is not None and prev.partner == res.partner
                 and prev.normal.any()):
-            n = prev.normal.copy()  # last separating direction, or the one the contact began with
-        elif pair.horizontal:
-            n = n.copy()
+            n = prev.normal.tolist()  # last separating direction, or the one the contact began with
         if pair.horizontal and n[2] != 0.0:
             n[2] = 0.0
             if math.hypot(n[0], n[1]) < 1e-9 and res.partner >= 0:  # (nearly) vertical: centre to centre
                 self.ensure_bounds([pair.a, res.partner])
-                n = self.sphere_c[pair.a] - self.sphere_c[res.partner]
+                n = (self.sphere_c[pair.a] - self.sphere_c[res.partner]).tolist()
                 n[2] = 0.0
                 if math.hypot(n[0], n[1]) < 1e-9:
-                    n[:] = 0.0
+                    n = [0.0, 0.0, 0.0]
         norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-        res.normal = n / norm if norm > 0 else np.zeros(3)
+        res.normal = np.array([n[0] / norm, n[1] / norm, n[2] / norm]) if norm > 0 else np.zeros(3)
 
     def _closing_speed(self, a: int, res: PairResult, dt: float) -> float:
         if res.partner < 0 or dt <= 0:
@@ -672,10 +687,13 @@ class CollisionBackend(ABC):
         b = res.partner
         if not (self.is_dynamic[a] or self.is_dynamic[b]):
             return 0.0
-        T, P = self._T, self._prev_T  # a and its partner are the pair's bodies: rows current
-        rel = (T[a, :3, 3] - P[a, :3, 3]) - (T[b, :3, 3] - P[b, :3, 3])
-        n = res.normal  # from b to a: approaching when a moves against it
-        return -float(rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]) / dt
+        # scalar code on the list forms of the T / prev_T rows (the same numbers)
+        A1, A0, B1, B0 = self._rows(a), self._prev_rows_of(a), self._rows(b), self._prev_rows_of(b)
+        n = res.normal.tolist()  # from b to a: approaching when a moves against it
+        r0 = (A1[0][3] - A0[0][3]) - (B1[0][3] - B0[0][3])
+        r1 = (A1[1][3] - A0[1][3]) - (B1[1][3] - B0[1][3])
+        r2 = (A1[2][3] - A0[2][3]) - (B1[2][3] - B0[2][3])
+        return -(r0 * n[0] + r1 * n[1] + r2 * n[2]) / dt
 
     # -- state (FMI get/set FMU state) ----------------------------------------------------
     def get_state(self) -> dict:

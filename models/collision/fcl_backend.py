@@ -133,7 +133,6 @@ class FclBackend(CollisionBackend):
         self._member_mask = np.zeros(self.n, bool)
         self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
         self._pair_now: List[int] = []
-        self._static_rows: Dict[int, list] = {}
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
         self._small: Dict[int, np.ndarray] = {}
@@ -508,15 +507,6 @@ class FclBackend(CollisionBackend):
                 g += sep * sep
             best = max(best, math.sqrt(g))
         return best
-
-    def _rows(self, i: int) -> list:
-        """The transform of body ``i`` as nested lists (a static body's converted once)."""
-        rows = self._T_rows.get(i)
-        if rows is None:
-            rows = self._static_rows.get(i)
-            if rows is None:
-                rows = self._static_rows[i] = self._T[i].tolist()
-        return rows
 
     def _gap(self, a: int, b: int) -> float:
         """AABB gap of two bodies (m, 0 if overlapping), scalar code for the per-candidate path."""

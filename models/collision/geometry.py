@@ -15,6 +15,10 @@ __all__ = ["norm3", "rotation", "pose_rows", "pose_matrix", "transform_points", 
            "rotation_angle", "Slerp", "slerp_pose"]
 
 
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+
+
 def norm3(v: np.ndarray) -> float:
     """Euclidean norm of a vector, shape (3,): the number ``np.linalg.norm(v)`` returns (numpy
     computes ``sqrt(v . v)`` for a real vector), without its Python-level overhead."""
@@ -78,6 +82,7 @@ class Slerp:
 
     def __init__(self, T0: np.ndarray, T1: np.ndarray) -> None:
         self.R0, self.t0, self.t1 = T0[:3, :3], T0[:3, 3], T1[:3, 3]
+        self._t01 = list(zip(self.t0.tolist(), self.t1.tolist()))  # for at(), scalar code
         R_rel = T1[:3, :3] @ T0[:3, :3].T
         self.ang = rotation_angle(R_rel)
         self.K = None
@@ -99,13 +104,14 @@ class Slerp:
     def at(self, s: float) -> np.ndarray:
         """The transform at fraction ``s`` in [0, 1], shape (4, 4)."""
         T = np.eye(4)
-        T[:3, 3] = (1 - s) * self.t0 + s * self.t1
+        r = 1 - s  # (1 - s) t0 + s t1 per coordinate: the numbers of the array expression
+        T[:3, 3] = [r * t0 + s * t1 for t0, t1 in self._t01]
         if self.K is None:
             T[:3, :3] = self.R0
             return T
         K = self.K
         a = s * self.ang
-        R_s = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+        R_s = _EYE3 + np.sin(a) * K + (1 - np.cos(a)) * K @ K
         T[:3, :3] = R_s @ self.R0
         return T
 

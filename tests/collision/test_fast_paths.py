@@ -163,6 +163,21 @@ def test_the_scalar_aabb_is_the_arrays(scene):
         assert [tuple(map(list, box)) for box in lists] == [tuple(r) for r in be.aabb.tolist()]
 
 
+def test_slerp_at_is_the_array_formula():
+    """Slerp.at's scalar translation and constant identity give the array expressions' bits."""
+    from immersim.models.collision.geometry import Slerp
+
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        T0, T1 = (pose_matrix(np.concatenate([rng.uniform(-50, 50, 3), rng.uniform(-3, 3, 3)])) for _ in range(2))
+        path, s = Slerp(T0, T1), float(rng.uniform())
+        T = np.eye(4)
+        T[:3, 3] = (1 - s) * T0[:3, 3] + s * T1[:3, 3]
+        K, a = path.K, s * path.ang
+        T[:3, :3] = (np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K) @ T0[:3, :3]
+        assert path.at(s).tobytes() == T.tobytes()
+
+
 def _dive(n=40, turn=0.0):
     """campus_drive's missile: pitch 0.564 rad, 0.1738 m forward and 0.11 m down per 33 ms step,
     onto the centre of tank_0's turret cap and into it; ``turn``:
