@@ -342,10 +342,6 @@ class CollisionBackend(ABC):
     def _setup(self) -> None:
         """Build backend structures (called once at the end of ``__init__``)."""
 
-    def _moved(self, idx: List[int]) -> None:
-        """Bodies ``idx`` got new transforms (update backend structures; the rows of ``_T`` /
-        ``_prev_T`` are written later, :meth:`_sync_rows`)."""
-
     @abstractmethod
     def _evaluate(self, pair: PairSpec, dt: float) -> Tuple[PairResult, int, int]:
         """Evaluate one pair at the current transforms (``self.prev_T`` holds the start of the
@@ -570,7 +566,6 @@ class CollisionBackend(ABC):
         far_skip = self._far_skip
         if not far_skip:  # every moved pair is evaluated: write the rows at once
             self._sync_rows(moved)
-        self._moved(moved)
         moved_set = set(moved)
         out, n_cand, n_narrow = [], 0, 0
         cache, pair_dyn, far = self._cache, self._pair_dyn, self._far
@@ -719,11 +714,12 @@ class CollisionBackend(ABC):
         self._prev_rows = {}
         self._step_motion = {}
         # the arrays hold the state's rows now; the next query writes them again (as if the
-        # bodies had moved now: prev_T = T unless they move)
+        # bodies had moved now, in a query number of their own: prev_T = T unless they move;
+        # a backend's structures tagged with the query of a body's last move are stale)
+        self._qn += 1
         for i in self._dyn_list:
             self._row_at[i] = self._moved_at[i] = self._qn
         self._far = [None] * len(self.pairs)
-        self._moved(self._dyn_list)
 
 
 _SQRT3 = math.sqrt(3.0)

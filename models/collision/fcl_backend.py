@@ -131,7 +131,9 @@ class FclBackend(CollisionBackend):
         for i in self.static_idx:
             self._by_pose.setdefault(self._key(self.objs[i]), []).append(int(i))
         self._member_mask = np.zeros(self.n, bool)
-        self._fcl_stale = [False] * self.n  # moved since its fcl transform was last set
+        #: per body the query of the last move whose transform its fcl objects hold (the
+        #: base class's _moved_at: a body moved since when they differ)
+        self._fcl_at = list(self._moved_at)
         self._pair_now: List[int] = []
         self._pair_sync: Dict[int, List[int]] = {}
         self._pair_parts = {}
@@ -185,7 +187,6 @@ class FclBackend(CollisionBackend):
         self._box_lists = [boxes[b.mesh_key] for b in self.scene.bodies]
         self._sphere_r = self.sphere_r.tolist()
         self._is_dyn = self.is_dynamic.tolist()
-        self._tf_version = [0] * self.n  # bumped when a body moves: tags its chunks' transform
         self._tf_cache: Dict[int, tuple] = {}
         self._unrotated = [not self.is_dynamic[i] and bool((self.T[i, :3, :3] == np.eye(3)).all())
                            for i in range(self.n)]
@@ -219,30 +220,26 @@ class FclBackend(CollisionBackend):
             return False
         return on_overlap
 
-    def _moved(self, idx: List[int]) -> None:
-        stale, version = self._fcl_stale, self._tf_version
-        for i in idx:
-            stale[i] = True
-            version[i] += 1
-
     def _chunk_tf(self, i: int) -> Tuple[tuple, "fcl.Transform"]:
-        """The tag (body, transform version) and fcl transform of body ``i`` for its chunks."""
-        tag = (i, self._tf_version[i])
+        """The tag (body, transform version: the query in which it last moved) and fcl
+        transform of body ``i`` for its chunks."""
+        tag = (i, self._moved_at[i])
         cached = self._tf_cache.get(i)
         if cached is None or cached[0] != tag:
             cached = self._tf_cache[i] = (tag, fcl_transform(self._T[i]))
         return cached
 
     def _sync(self, bodies: List[int]) -> None:
-        """Set the fcl transforms of ``bodies`` that moved since theirs was last set."""
-        stale, own = self._fcl_stale, self._dist_own
+        """Set the fcl transforms of ``bodies`` that moved since theirs was last set (the
+        query of the last move differs from the one whose transform the object holds)."""
+        moved_at, fcl_at, own = self._moved_at, self._fcl_at, self._dist_own
         for i in bodies:
-            if stale[i]:
+            if fcl_at[i] != moved_at[i]:
                 tf = fcl_transform(self._T[i])
                 self.objs[i].setTransform(tf)
                 if own[i] is not None:
                     own[i].setTransform(tf)
-                stale[i] = False
+                fcl_at[i] = moved_at[i]
 
     def _dobj(self, i: int) -> "fcl.CollisionObject":
         """Body ``i``'s object for exact distances: on its mesh's distance triangulation
