@@ -309,7 +309,8 @@ class CollisionBackend(ABC):
         self._pair_dyn = [set(np.append(p.members, p.a)[idx].tolist()) for p, idx in zip(self.pairs, self._pair_dyn)]
         self._dyn_list = self.dyn.tolist()
         self._n6 = 6 * len(self._dyn_list)
-        self._six = range(0, self._n6, 6)  # the start of each dynamic body's pose in a flat tuple
+        #: each dynamic body with the start of its pose in a flat tuple of poses
+        self._dyn_six = list(zip(self._dyn_list, range(0, self._n6, 6)))
         self._dyn_poses = {i: tuple(self._poses[i].tolist()) for i in self._dyn_list}
         self._cache: List[Optional[PairResult]] = [None] * len(self.pairs)
         self._previous: Optional[PairResult] = None
@@ -513,27 +514,28 @@ class CollisionBackend(ABC):
         return np.linalg.norm(np.maximum(lo, hi), axis=1)
 
     # -- the query ----------------------------------------------------------------------
-    def _pose_rows(self, poses) -> list:
-        """The poses of the dynamic bodies as one 6-tuple per body (scene order), checked finite.
+    def _changed(self, poses) -> List[Tuple[int, tuple]]:
+        """The dynamic bodies whose pose differs from their last one, with the new pose as a
+        6-tuple (scene order); every pose checked finite.
 
         A flat tuple of ``6 n_dynamic`` numbers (what the FMU passes) is sliced as it is when
         its sum is finite (then every entry is: an infinite or NaN entry makes the sum infinite
         or NaN); anything else (other forms, or a sum that overflows) goes through numpy."""
-        n6 = self._n6
-        if type(poses) is tuple and len(poses) == n6:
+        dyn_poses = self._dyn_poses
+        if type(poses) is tuple and len(poses) == self._n6:
             try:
                 fast = math.isfinite(sum(poses))
             except (TypeError, ValueError, OverflowError):
                 fast = False
             if fast:
-                return [poses[k:k + 6] for k in self._six]
+                return [(i, row) for i, k in self._dyn_six if (row := poses[k:k + 6]) != dyn_poses[i]]
         arr = np.asarray(poses, dtype=float).reshape(len(self.dyn), 6)
         bad = ~np.isfinite(arr)
         if bad.any():
             i, k = np.argwhere(bad)[0]
             raise ValueError(f"pose of dynamic body {self.scene.bodies[self.dyn[i]].name!r} "
                              f"({'x y z roll pitch yaw'.split()[k]}) = {arr[i, k]} is not finite")
-        return [tuple(r) for r in arr.tolist()]
+        return [(i, row) for i, row in zip(self._dyn_list, map(tuple, arr.tolist())) if row != dyn_poses[i]]
 
     def query(self, poses: Sequence[Sequence[float]], dt: float = 0.033) -> QueryResult:
         """Advance to new poses of the dynamic bodies and evaluate every monitored pair.
@@ -545,9 +547,7 @@ class CollisionBackend(ABC):
         dt : float
             Step length (s): time of impact and closing speed refer to it.
         """
-        rows = self._pose_rows(poses)
-        dyn_poses = self._dyn_poses
-        changed = [(i, row) for i, row in zip(self._dyn_list, rows) if row != dyn_poses[i]]
+        changed = self._changed(poses)
         self._qn += 1
         self._prev_rows = {}
         self._step_motion = {}
