@@ -102,6 +102,7 @@ class collision(TableSlave):
                              for name, value in (("toi", -1.0), ("closing_speed", 0.0))]
         self._rest_values += [("n_candidates", 0), ("n_narrow", 0), ("at_rest", True)]
         self._shown = [None] * len(self.model.pairs)  # the result object last written per pair
+        val["n_bodies"], val["n_pairs"] = len(scene.bodies), len(self.model.pairs)  # fixed by the parameters
         # the base class has checked every input (finite) before initialization and each step
         self._last_inputs = self._inputs(val)
         self._publish(self.model.query(self._last_inputs, 0.033))
@@ -119,8 +120,6 @@ class collision(TableSlave):
             shown[k] = r
             val.update(zip(names, (bool(r.in_contact), float(r.distance), float(r.depth),
                                    *r.point.tolist(), *r.normal.tolist(), float(r.toi), float(r.closing_speed))))
-        val["n_bodies"] = int(res.n_bodies)
-        val["n_pairs"] = len(res.pairs)
         val["n_candidates"] = int(res.n_candidates)
         val["n_narrow"] = int(res.n_narrow)
         val["at_rest"] = bool(res.at_rest)

@@ -756,6 +756,13 @@ def aggregate(results: List[Tuple[int, PairResult]], lower_bound: float) -> Pair
     """
     if not results:
         return PairResult(distance=float(lower_bound) if math.isfinite(lower_bound) else -1.0)
+    if len(results) == 1:  # (one member examined, the usual case: the same result, fewer steps)
+        b, best = results[0]
+        distance = best.distance
+        if not best.in_contact and distance > lower_bound:
+            distance = float(lower_bound)
+        return PairResult(best.in_contact, distance, best.depth, best.point, best.normal,
+                          best.toi if best.toi >= 0 else -1.0, best.closing_speed, b)
     contacts = [(b, r) for b, r in results if r.in_contact]
     if contacts:
         b, best = max(contacts, key=lambda br: br[1].depth)
