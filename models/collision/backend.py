@@ -573,7 +573,11 @@ class CollisionBackend(ABC):
             cached = cache[k]
             self._previous = cached  # the pair's result at the start of the step (for _evaluate)
             if cached is not None and moved_set.isdisjoint(pair_dyn[k]):
-                out.append(_at_rest(cached))
+                # its at-rest form becomes the cached result (the same in every field the next
+                # evaluation reads: contact, distance, partner, normal): the steps at rest that
+                # follow return that one object (no new result; the FMU skips a result it has written)
+                rest = cache[k] = _at_rest(cached)
+                out.append(rest)
                 continue
             if far_skip and far[k] is not None and self._far_holds(k, pair, moved_set):
                 out.append(cached)  # the far result: no candidate, no test (class docstring)

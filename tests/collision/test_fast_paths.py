@@ -178,6 +178,27 @@ def test_slerp_at_is_the_array_formula():
         assert path.at(s).tobytes() == T.tobytes()
 
 
+def test_a_pair_at_rest_reports_one_result_object(scene):
+    """A pair whose bodies stopped reports its at-rest result (no time of impact, no closing
+    speed) and, from the first step at rest on, the same object: the FMU skips writing it."""
+    be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
+    traj = _trajectory()
+    k = len(traj) // 2  # the avatar in contact with t, moving
+    for poses in traj[:k]:
+        be.query(tuple(x for p in poses for x in p))
+    moving = be.query(tuple(x for p in traj[k] for x in p)).pairs[0]
+    assert moving.in_contact and moving.closing_speed != 0.0
+    shown = []
+    for j in range(k + 1, k + 4):  # the avatar stops there, the ball keeps rolling
+        poses = (traj[k][0], traj[j][1])
+        shown.append(be.query(tuple(x for p in poses for x in p)).pairs[0])
+    assert shown[0] is shown[1] is shown[2]
+    r = shown[0]
+    assert (r.in_contact, r.distance, r.depth, r.partner, r.toi, r.closing_speed) == (
+        moving.in_contact, moving.distance, moving.depth, moving.partner, -1.0, 0.0)
+    assert r.point is moving.point and r.normal is moving.normal
+
+
 def _dive(n=40, turn=0.0):
     """campus_drive's missile: pitch 0.564 rad, 0.1738 m forward and 0.11 m down per 33 ms step,
     onto the centre of tank_0's turret cap and into it; ``turn``:
