@@ -530,9 +530,8 @@ class CollisionBackend(ABC):
             if fast:
                 return [(i, row) for i, k in self._dyn_six if (row := poses[k:k + 6]) != dyn_poses[i]]
         arr = np.asarray(poses, dtype=float).reshape(len(self.dyn), 6)
-        bad = ~np.isfinite(arr)
-        if bad.any():
-            i, k = np.argwhere(bad)[0]
+        if not math.isfinite(float(arr.sum())) and not np.isfinite(arr).all():  # (a finite sum: all are)
+            i, k = np.argwhere(~np.isfinite(arr))[0]
             raise ValueError(f"pose of dynamic body {self.scene.bodies[self.dyn[i]].name!r} "
                              f"({'x y z roll pitch yaw'.split()[k]}) = {arr[i, k]} is not finite")
         return [(i, row) for i, row in zip(self._dyn_list, map(tuple, arr.tolist())) if row != dyn_poses[i]]
