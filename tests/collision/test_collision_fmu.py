@@ -211,3 +211,47 @@ if __name__ == "__main__":  # regenerate the golden file: python tests/collision
     np.savetxt(UNIT / "reference.csv", data, delimiter=",", header="time," + ",".join(REF_OUTPUTS), comments="",
                fmt="%.17g")
     print(f"wrote {UNIT / 'reference.csv'} ({len(data)} rows)")
+
+
+def test_steps_without_a_changed_output_write_nothing_and_say_so():
+    """The wrapper's "outputs unchanged" answer (far pairs and pairs at rest hand out the
+    results already written, the counters repeat) leaves every output as writing them all
+    would: the same values step by step, with a state restored in between."""
+    import importlib.util
+
+    from immersim.fmus.common import OUTPUTS_UNCHANGED
+
+    spec = importlib.util.spec_from_file_location("collision_fmu_under_test", UNIT / "collision_fmu.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    cls = mod.collision
+    outs = [v.name for v in cls.VARIABLES if v.causality == "output"]
+    params = {"scene": "tanks:n=4,tris=5.4k,spacing=12;box:name=a,sx=4,sy=2,sz=4.4,dynamic=1,x=-20;"
+                       "sphere:name=e,r=1,dynamic=1,x=40",
+              "pairs": "a vs any tank (horizontal); e vs a", "max_distance": 2.0}
+
+    def run(every_step):
+        s = cls(instance_name="t", resources=str(UNIT), visible=False, logging_callback=None)
+        s.values.update(params)
+        s.setup_experiment(0.0, None, None)
+        s.exit_initialization_mode()
+        rows, unchanged, saved = [], 0, None
+        for k in range(60):
+            s.values["body[1].x"] = -20.0 + 0.4 * min(k, 40)  # drives up to tank_0 (origin), stops
+            s.values["body[2].y"] = 0.25 * k  # the ball keeps rolling, far from everything
+            if k == 20:
+                saved = s._get_fmu_state()
+            if k == 30:
+                s._set_fmu_state(saved)
+            if every_step:
+                s._shown, s._counters = [None] * len(s._shown), None
+            t = s._time
+            unchanged += s.step_model(t, H) is OUTPUTS_UNCHANGED
+            s._time = t + H
+            rows.append([s.values[n] for n in outs])
+        return rows, unchanged
+
+    fast, n_unchanged = run(False)
+    full, _ = run(True)
+    assert fast == full
+    assert 10 < n_unchanged < 50  # far steps and the steps at rest next to the tank
