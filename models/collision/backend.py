@@ -474,7 +474,9 @@ class CollisionBackend(ABC):
                 box = self._aabb_cache.get(rkey)
             if box is None:
                 pts = v @ T[:3, :3].T
-                box = np.stack([pts.min(0), pts.max(0)])
+                box = np.empty((2, 3))  # (lo, hi): the reductions written in place
+                np.minimum.reduce(pts, 0, out=box[0])
+                np.maximum.reduce(pts, 0, out=box[1])
                 if dynamic[i]:
                     self._dyn_box[i] = (rkey, box, box.tolist())
                 else:
