@@ -31,6 +31,7 @@ import orjson
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Sequence, Tuple, Union
 
+from .codegen import Generated
 from .errors import ScenarioError
 
 Ref = Union[str, float]
@@ -293,30 +294,21 @@ class FoxgloveObserver:
         ``source.cur[index]`` without a call; a constant position plus its offset is not
         written (``poses`` holds it from the start); about one axis the quaternion is the sine and cosine
         of half the angle, else :func:`euler_quaternion`."""
-        ns: Dict[str, Any] = {"sin": math.sin, "cos": math.cos, "euler_quaternion": euler_quaternion}
-        sources: Dict[int, str] = {}
+        gen = Generated(sin=math.sin, cos=math.cos, euler_quaternion=euler_quaternion)
         body: List[str] = []
-
-        def name(value: Any) -> str:
-            key = f"k{len(ns)}"
-            ns[key] = value
-            return key
 
         def read(g: Any) -> str:
             src = getattr(g, "source", None)
-            if src is not None:
-                if id(src) not in sources:
-                    sources[id(src)] = f"s{len(sources)}"
-                    ns[f"S{sources[id(src)]}"] = src
-                return f"{sources[id(src)]}[{int(g.index)}]"
-            return f"{name(g)}()" if callable(g) else name(g)
+            if src is not None:   # its values as a local: s0, s1, ... (read at the call)
+                return f"{gen.obj(src).lower()}[{int(g.index)}]"
+            return f"{gen.const(g)}()" if callable(g) else gen.const(g)
 
         for o, moves, spin, order in moving:
             if moves is not None:
                 (px, py, pz), offsets = moves
                 for j, (g, off) in enumerate(zip((px, py, pz), offsets)):
                     if callable(g):   # a constant's sum with its offset is in poses from the start
-                        body.append(f"poses[{o + j}] = {read(g)} + {name(off)}")
+                        body.append(f"poses[{o + j}] = {read(g)} + {gen.const(off)}")
             if spin is None:
                 continue
             if len(spin) == 2:
@@ -325,10 +317,8 @@ class FoxgloveObserver:
             else:
                 args = ", ".join(read(e) for e in spin)
                 body.append(f"poses[{o + 3}:{o + 7}] = euler_quaternion({args}, {order!r})")
-        head = [f"    {v} = S{v}.cur" for v in sources.values()]
-        src = "\n".join(["def update(poses):"] + head + [f"    {line}" for line in body] + ["    return None"])
-        exec(compile(src, "<foxglove poses>", "exec"), ns)
-        return ns["update"]
+        head = [f"{n.lower()} = {n}.cur" for n in gen.objects]
+        return gen.function("update(poses)", head + body + ["return None"], "foxglove poses")
 
     def __call__(self, k: int, t_ns: int) -> None:
         """Write step ``k``'s ``/tf`` (and ``/scene`` when due)."""

@@ -30,6 +30,7 @@ from time import perf_counter_ns
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
+from .codegen import Generated
 from .fmu import DiscreteSetter, FmuInstance, RealSetter, ValueReader
 from .graph import gauss_seidel_order
 from .manipulators import Fault, signal
@@ -113,24 +114,11 @@ def compile_gather(slot: "Slot") -> Callable[[int], tuple]:
     ``y - y0`` the short way round first. The arithmetic is the same, operation for operation,
     in every case, so the inputs are the same bit for bit whatever the feeds' order.
     """
-    ns: Dict[str, Any] = {"V": slot.in_vals, "TAU": _TAU, "SLOT": slot, "forced_inputs": _forced}
-    src_names: Dict[int, str] = {}
+    gen = Generated(V=slot.in_vals, TAU=_TAU, SLOT=slot, forced_inputs=_forced)
     lines: List[str] = []
-
-    def const(value: Any) -> str:
-        key = f"k{len(ns)}"
-        ns[key] = value
-        return key
-
-    def source(src: "Slot") -> str:
-        if id(src) not in src_names:
-            n = src_names[id(src)] = f"{len(src_names)}"
-            ns[f"S{n}"] = src
-        return src_names[id(src)]
-
     for i, src, j, delayed, gain, offset, linear in slot.float_feeds:
-        n = source(src)
-        g, o = const(gain), const(offset)
+        n = gen.obj(src)[1:]   # the source's values, previous values, stepped flag: cN, pN, mN
+        g, o = gen.const(gain), gen.const(offset)
         if not linear:
             lines.append(f"vals[{i}] = {g} * c{n}[{j}] + {o}")
             continue
@@ -144,14 +132,12 @@ def compile_gather(slot: "Slot") -> Callable[[int], tuple]:
         lines.append(f"vals[{i}] = {g} * y + {o}")
     if slot.signals:
         lines.append("t = t_ns / 1e9")
-        lines += [f"vals[{i}] = {const(fn)}(t)" for i, fn in slot.signals]
+        lines += [f"vals[{i}] = {gen.const(fn)}(t)" for i, fn in slot.signals]
     lines.append("forced = forced_inputs(SLOT, vals, t_ns)" if slot.faults else "forced = ()")
-    others = [f"c{source(src)}[{j}]" for _, src, j in slot.other_feeds]
+    others = [f"c{gen.obj(src)[1:]}[{j}]" for _, src, j in slot.other_feeds]
     lines.append(f"others = ({', '.join(others)}{',' if others else ''})")
-    head = ["vals = V"] + [f"c{n} = S{n}.cur; p{n} = S{n}.prev; m{n} = S{n}.stepped" for n in src_names.values()]
-    code = "\n".join(["def gather(t_ns):"] + [f"    {x}" for x in head + lines] + ["    return tuple(vals), others, forced"])
-    exec(compile(code, f"<gather {slot.name}>", "exec"), ns)
-    return ns["gather"]
+    head = ["vals = V"] + [f"c{s[1:]} = {s}.cur; p{s[1:]} = {s}.prev; m{s[1:]} = {s}.stepped" for s in gen.objects]
+    return gen.function("gather(t_ns)", head + lines + ["return tuple(vals), others, forced"], f"gather {slot.name}")
 
 
 def _same_floats(a: tuple, b: tuple) -> bool:

@@ -136,20 +136,18 @@ def _next_message(conn, spin_s: float, mailbox: List["_Mailbox"]) -> Callable[[]
 
     def next_message() -> bytes:
         box = mailbox[0] if mailbox else None
-        if box is not None:
-            data = box.take()
-            if data is not None:
-                return data
-        if poll(0):
-            return conn.recv_bytes()
-        end = now() + spin_s
-        while now() < end:
+        end = None
+        while True:   # both, then again (yielding the core) until spin_s has passed
             if box is not None:
                 data = box.take()
                 if data is not None:
                     return data
             if poll(0):
                 return conn.recv_bytes()
+            if end is None:
+                end = now() + spin_s
+            elif now() >= end:
+                break
             yield_cpu()
         if box is None:
             return conn.recv_bytes()
