@@ -269,6 +269,7 @@ class Execution:
                     bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None)
                 t0, h, stop = sc.start_ns, sc.step_ns, sc.stop_ns
                 master.schedule = (t0, stop, h)
+                pipelined = master.pipelined
                 loop_start = time.perf_counter()
                 for k in range(n):
                     if sigint.requested:
@@ -276,7 +277,7 @@ class Execution:
                     t_ns, t_next = t0 + k * h, min(t0 + (k + 1) * h, stop)
                     master.step(t_ns, t_next - t_ns)
                     try:   # units in worker processes start the next step while this one is logged
-                        if master.pipelined and k + 1 < n:
+                        if pipelined and k + 1 < n:
                             master.post_remote(t_next, min(t0 + (k + 2) * h, stop) - t_next)
                     finally:
                         self._observe(master, k + 1, t_next)

@@ -272,6 +272,7 @@ class Master(Stepper):
         else:
             self.order, self.delayed = list(slots), list(connections)
         delayed = set(self.delayed)
+        self._order_slots = [slots[n] for n in self.order]   # the slots in stepping order
         for c in connections:
             dst, src = slots[c.dst_unit], slots[c.src_unit]
             fam = dst.inst.var(c.dst_var).family
@@ -386,12 +387,12 @@ class Master(Stepper):
                 slot.busy_ns += t1 - t0
                 t0 = t1
             return
-        for name in self.order:
-            slots[name].stepped = False
+        order = self._order_slots
+        for slot in order:
+            slot.stepped = False
         ready = {id(slot): self._gather(slot, t_ns) for slot in self._start_gathered} if self._start_gathered else None
         t0 = perf_counter_ns()
-        for name in self.order:
-            slot = slots[name]
+        for slot in order:
             inputs = ready.get(id(slot)) if ready else None
             if inputs is None and slot.has_inputs:
                 inputs = self._gather(slot, t_ns)
