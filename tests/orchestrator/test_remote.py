@@ -275,8 +275,10 @@ def test_mailbox_keeps_the_order_and_wakes_a_blocked_worker(tmp_path, test_fmus)
         a.queue += [("set", {"x_other": 0.0}) for _ in range(5000)]
         assert not w._box.fits(len(pickle.dumps(("run", "a", a.queue, True, 0), 5)))
         readers["a"].read()                                 # through the socket, after the first step
-        time.sleep(0.05)
-        assert w._box.head[2] == 1                          # the worker is blocked on its socket
+        deadline = time.monotonic() + 5.0                   # the worker blocks on its socket after spin_s
+        while w._box.head[2] != 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert w._box.head[2] == 1
         a.do_step(2 * h, h)
         xa = readers["a"].read()                            # woken by this post
         assert w._box.head[2] == 0
