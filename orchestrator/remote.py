@@ -338,6 +338,7 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     #: its chained units: each holds the unit's last two reads (updated at every read)
     slots: Dict[str, Any] = {}
     stepper: List[Any] = []   # the master.Stepper, made with the first slot
+    mailbox: List[_Mailbox] = []   # the master's messages come through it once it is set up
     clock = time.perf_counter_ns
 
     def slot_of(name: str):
@@ -399,6 +400,9 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                 slot = slots[name]
                 stepper[0].catch_up(slot)
                 return name, "ok", slot.skipped_steps
+            if op == "mailbox":      # ("mailbox", "", file): the master's messages come through it
+                mailbox.append(_Mailbox(msg[2]))
+                return name, "ok", None
             if op == "load":         # ("load", unit, path, unzip dir)
                 units[name] = FmuInstance(name, msg[2], msg[3])
                 return name, "ok", os.getpid()
@@ -428,7 +432,6 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                 shared[name].fail(msg[-1])   # the master stops waiting there and reads this reply
             return name, "err", _portable(exc)
 
-    mailbox: List[_Mailbox] = []
     next_message = _next_message(conn, config.spin_s, mailbox)
     while True:
         try:
@@ -438,10 +441,6 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
         if not data:   # a wake-up (the master saw this worker blocked)
             continue
         msg = loads(data)
-        if msg[0] == "mailbox":   # ("mailbox", "", file): the master's messages come through it
-            mailbox.append(_Mailbox(msg[2]))
-            conn.send_bytes(dumps(("", "ok", None), 5))
-            continue
         # ("batch", "", [messages]): several units' steps in one message, one reply each, in order
         if msg[0] == "batch":
             reply = [r for r in map(handle, msg[2]) if r is not None]
