@@ -56,6 +56,7 @@ from . import errors as _errors
 from .child import message_sender, start_child
 from .errors import FmuCallError, FmuLoadError
 from .fmu import FmuInstance, VarInfo, read_model, step_error
+from .master import Slot, Stepper
 
 log = logging.getLogger(__name__)
 
@@ -323,6 +324,24 @@ class _Mailbox:
             pass
 
 
+def _shared_file(label: str, nbytes: int, attach: Callable[[str], None]) -> bool:
+    """Make a zeroed file of ``nbytes`` in ``/dev/shm`` and let ``attach(path)`` map it (the worker
+    and this process); the file is removed right after (both sides keep their mapping, nothing
+    is left behind). False when there is no ``/dev/shm`` (the messages go through the socket)."""
+    if not os.path.isdir("/dev/shm"):
+        return False
+    import tempfile
+
+    fd, path = tempfile.mkstemp(prefix=f"immersim_{os.getpid()}_{label}_", dir="/dev/shm")
+    with os.fdopen(fd, "wb") as fh:
+        fh.truncate(nbytes)
+    try:
+        attach(path)
+    finally:
+        os.unlink(path)
+    return True
+
+
 # -- the worker side ----------------------------------------------------------------------------
 def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in the worker process
     """Worker main loop: load units, run their queued calls, reply with outputs."""
@@ -337,15 +356,13 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     #: slots (master.Slot) of the units this worker steps (Master._ahead) and of the sources of
     #: its chained units: each holds the unit's last two reads (updated at every read)
     slots: Dict[str, Any] = {}
-    stepper: List[Any] = []   # the master.Stepper, made with the first slot
+    stepper = Stepper()   # the master's own code steps the units this worker steps
     mailbox: List[_Mailbox] = []   # the master's messages come through it once it is set up
     clock = time.perf_counter_ns
 
     def slot_of(name: str):
         """The slot of ``name`` (made with the reader's values now)."""
         if name not in slots:
-            from .master import Slot
-
             slot = slots[name] = Slot(name, units[name], readers[name].names, reader=readers[name])
             slot.cur = readers[name].read()
             slot.stepped = True   # a chained unit reads its sources fresh, after their step
@@ -364,7 +381,7 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
             if op == "step":         # ("step", unit, t_ns, h_ns, inputs or None, read?, sequence number)
                 t0 = clock()
                 slot = slots[name]
-                stepper[0].step_slot(slot, msg[2], msg[3], msg[4])
+                stepper.step_slot(slot, msg[2], msg[3], msg[4])
                 return answer(name, msg, slot.cur, t0)
             if op == "run":          # ("run", unit, queued calls, read?, sequence number)
                 t0 = clock()
@@ -383,10 +400,6 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                     slot.prev, slot.cur = slot.cur, values
                 return answer(name, msg, values, t0)
             if op == "stepping":     # ("stepping", unit, spec): this worker steps the unit (Master._ahead)
-                from .master import Stepper
-
-                if not stepper:
-                    stepper.append(Stepper())
                 spec, slot = msg[2], slot_of(name)
                 slot.setter, slot.other_setter = setters.get((name, "reals")), setters.get((name, "discrete"))
                 slot.in_vals, slot.rest_idx = list(spec["in_vals"]), spec["rest_idx"]
@@ -398,7 +411,7 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
                 return name, "ok", None
             if op == "finish":       # ("finish", unit): catch up a lazy skip; the skipped steps
                 slot = slots[name]
-                stepper[0].catch_up(slot)
+                stepper.catch_up(slot)
                 return name, "ok", slot.skipped_steps
             if op == "mailbox":      # ("mailbox", "", file): the master's messages come through it
                 mailbox.append(_Mailbox(msg[2]))
@@ -485,20 +498,16 @@ class WorkerProcess:
         #: replies read but not taken yet, by unit (a unit has at most one message outstanding)
         self._arrived: Dict[str, tuple] = {}
         self._box: Optional[_Mailbox] = None   # the master's messages through shared memory
-        if os.path.isdir("/dev/shm"):
-            import tempfile
 
-            fd, path = tempfile.mkstemp(prefix=f"immersim_{os.getpid()}_mailbox{number}_", dir="/dev/shm")
-            with os.fdopen(fd, "wb") as fh:
-                fh.truncate(_Mailbox.nbytes())
-            try:
-                self.call("", "mailbox", path, function="mailbox")
-                self._box = _Mailbox(path)
-            except Exception:
-                self.close()
-                raise
-            finally:
-                os.unlink(path)   # both sides have it mapped; nothing is left behind
+        def attach(path: str) -> None:
+            self.call("", "mailbox", path, function="mailbox")
+            self._box = _Mailbox(path)
+
+        try:
+            _shared_file(f"mailbox{number}", _Mailbox.nbytes(), attach)
+        except Exception:
+            self.close()
+            raise
 
     def send(self, msg: tuple, function: str = "", t_ns: Optional[int] = None, hold: bool = False) -> None:
         """Send ``msg`` now, or with ``hold`` keep it for the next :meth:`flush` (several units'
@@ -519,7 +528,7 @@ class WorkerProcess:
         self._outbox, self._outbox_err = [], None
         data, mb = dumps(msg, 5), self._box
         try:
-            if mb is not None and len(data) <= mb.SLOT_BYTES - 8:
+            if mb is not None and mb.fits(len(data)):
                 if mb.full():
                     self._wait_box(mb.full, unit, function, t_ns)
                 if mb.put(data):    # the worker is blocked on its socket: wake it
@@ -608,18 +617,14 @@ class RemoteReader:
         self.inst = inst
         self.names = inst.worker.call(inst.name, "reader", list(names), True, function="reader")
         fams = [inst.var(n).family for n in self.names]
-        if "string" not in fams and os.path.isdir("/dev/shm"):   # the outputs through shared memory
-            import tempfile
-
+        if "string" not in fams:   # the outputs through shared memory
             layout = (fams.count("float"), fams.count("int"), fams.count("bool"))
-            fd, path = tempfile.mkstemp(prefix=f"immersim_{os.getpid()}_{inst.name}_", dir="/dev/shm")
-            with os.fdopen(fd, "wb") as fh:
-                fh.truncate(_SharedValues.nbytes(layout))
-            try:
+
+            def attach(path: str) -> None:
                 inst.worker.call(inst.name, "shared", path, layout, function="reader")
                 inst.shared = _SharedValues(path, layout)
-            finally:
-                os.unlink(path)   # both sides have it mapped; nothing is left behind
+
+            _shared_file(inst.name, _SharedValues.nbytes(layout), attach)
 
     def read(self) -> List[Any]:
         return self.inst.collect()
