@@ -31,8 +31,10 @@ from typing import Any, Callable, Deque, Dict, List, Optional, Sequence
 import numpy as np
 
 from .errors import FmuCallError, FmuLoadError
+from .pythonfmu_exit import install as _install_pythonfmu_exit
 
 log = logging.getLogger(__name__)
+_install_pythonfmu_exit()   # a process that loads pythonfmu FMUs can exit normally (see that module)
 
 #: type families that may be connected to each other
 _FAMILY = {

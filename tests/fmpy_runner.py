@@ -10,6 +10,10 @@ import numpy as np
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
+from immersim.orchestrator.pythonfmu_exit import install
+
+install()   # this process loads pythonfmu binaries through plain FMPy: let it exit normally
+
 H = 0.033
 
 
