@@ -29,7 +29,6 @@ from common import ROOT, interleaved, median, stamp  # noqa: E402
 
 import immersim.orchestrator.master as master_module  # noqa: E402
 from immersim.orchestrator.execution import Execution, RunResult  # noqa: E402
-from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 CAMPUS = ROOT / "scenarios" / "campus_drive.toml"
 #: campus_drive's units all in this process (as shipped the network steps in worker process 1)
@@ -404,5 +403,5 @@ ANALYSIS = """\
   saves calls, not work; `RunResult.timing` counts the final catch-up in `Master.finish()`.
 """
 
-if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
-    exit_now(main() or 0)
+if __name__ == "__main__":
+    sys.exit(main() or 0)

@@ -35,7 +35,6 @@ import fcl
 from immersim.models.collision import BackendConfig, make_backend, parse_scene
 from immersim.models.collision.fcl_backend import fcl_transform
 from immersim.models.collision.geometry import pose_matrix
-from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "collision"
@@ -868,5 +867,5 @@ def main():
     print(f"wrote {OUT} in {elapsed:.0f} s")
 
 
-if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
-    exit_now(main() or 0)
+if __name__ == "__main__":
+    sys.exit(main() or 0)

@@ -44,7 +44,6 @@ from common import ROOT, stamp  # noqa: E402
 from immersim.orchestrator.execution import run_scenario  # noqa: E402
 from immersim.orchestrator.mcapio import read_series  # noqa: E402
 from immersim.orchestrator.patterns import matches  # noqa: E402
-from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 OUT = ROOT / "results" / "cosim"
 SCEN = Path(__file__).resolve().parent / "scenarios"
@@ -454,5 +453,5 @@ def main(argv=None) -> int:
     return 0
 
 
-if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
-    exit_now(main() or 0)
+if __name__ == "__main__":
+    sys.exit(main() or 0)

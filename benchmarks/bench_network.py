@@ -32,7 +32,6 @@ from pathlib import Path
 import numpy as np
 
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
-from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "network"
@@ -572,5 +571,5 @@ Plots: `inconsistency_vs_latency.png`, `traffic_vs_nodes.png`.
     print(readme)
 
 
-if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
-    exit_now(main() or 0)
+if __name__ == "__main__":
+    sys.exit(main() or 0)

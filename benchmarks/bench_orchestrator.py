@@ -23,7 +23,6 @@ from immersim.orchestrator.build import build_unit  # noqa: E402
 from immersim.orchestrator.execution import run_scenario  # noqa: E402
 from immersim.orchestrator.fmu import clear_caches  # noqa: E402
 from immersim.orchestrator.observers import McapObserver  # noqa: E402
-from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 
 def scenario(tmp: Path, fmu: Path, n_units: int, steps: int) -> Path:
@@ -146,5 +145,5 @@ def main() -> None:
     print((out / "README.md").read_text())
 
 
-if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
-    exit_now(main() or 0)
+if __name__ == "__main__":
+    sys.exit(main() or 0)

@@ -34,7 +34,6 @@ import numpy as np  # noqa: E402
 from immersim.models.platform.control import ControlParams, prefiltered_loop  # noqa: E402
 from immersim.models.platform.integrators import IntegratorConfig, StepIntegrator  # noqa: E402
 from immersim.models.platform.params import PlatformParams  # noqa: E402
-from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 H = 0.033
 
@@ -264,5 +263,5 @@ Files: `bench.csv` (all rows), `work_precision.png`; `tracking_*.png` and `track
           f"CVODE ratio {ratio:.0f}x")
 
 
-if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
-    exit_now(main() or 0)
+if __name__ == "__main__":
+    sys.exit(main() or 0)

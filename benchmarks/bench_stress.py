@@ -43,7 +43,6 @@ from hypothesis import strategies as st  # noqa: E402
 
 import stresslib as sl  # noqa: E402
 from test_random_scenarios import cue_amplitudes, network_params, platform_params  # noqa: E402
-from immersim.orchestrator.cli import exit_now  # noqa: E402
 
 OUT = ROOT / "results" / "stress"
 CLI = [sys.executable, "-m", "immersim.orchestrator.cli"]
@@ -325,5 +324,5 @@ def main(argv=None) -> int:
     return 0
 
 
-if __name__ == "__main__":  # many FMU instances: leave without the interpreter teardown (exit_now)
-    exit_now(main() or 0)
+if __name__ == "__main__":
+    sys.exit(main() or 0)

@@ -160,33 +160,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def exit_now(code: int) -> None:
-    """End the process with ``code`` once everything is written, skipping interpreter teardown.
-
-    pythonfmu FMUs run in this interpreter; after a process has loaded and freed FMU instances,
-    its teardown (the FMU binaries unloading after Python's own finalization) can abort in
-    glibc's heap check ("corrupted double-linked list", exit 134), rarely after one run and more
-    often after many (a benchmark, a sweep worker). Nothing is left to do at that point: every
-    log is closed and the output is flushed here, so the process leaves without the teardown.
-    """
-    import os
-
-    sys.stdout.flush()
-    sys.stderr.flush()
-    logging.shutdown()
-    os._exit(code)
-
-
 def main(argv: Optional[List[str]] = None) -> int:
-    """The ``immersim`` command; as the program's entry point (``argv`` None) it does not
-    return but ends the process through :func:`exit_now`."""
-    code = _main(argv)
-    if argv is None:
-        exit_now(code)
-    return code
-
-
-def _main(argv: Optional[List[str]]) -> int:
+    """The ``immersim`` command (``argv`` None: the program's arguments); returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG

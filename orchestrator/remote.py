@@ -473,7 +473,7 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
         box.close()
     conn.close()
     logging.shutdown()
-    os._exit(0)   # not the interpreter's teardown: pythonfmu's unloading can abort in it
+    os._exit(0)   # all is flushed and closed: the interpreter's teardown would only cost time
 
 
 class WorkerProcess:
