@@ -46,6 +46,7 @@ from __future__ import annotations
 import builtins
 import logging
 import os
+import platform
 import time
 from pickle import dumps, loads
 from dataclasses import dataclass
@@ -174,7 +175,8 @@ class _SharedValues:
     (Reals, Integers, Booleans, in the reader's order). The worker writes the values, then the
     status, busy time and, last, the sequence number of the post; the master waits for its
     sequence number (x86 keeps the order of stores, so the values are complete when it
-    appears). A status 1 means the step failed: its error comes as a normal reply.
+    appears; used only where :data:`STORE_ORDERED`). A status 1 means the step failed: its
+    error comes as a normal reply.
 
     Parameters
     ----------
@@ -243,13 +245,14 @@ class _Mailbox:
 
     A ring of ``SLOTS`` slots of ``SLOT_BYTES`` after a header of four int64: messages written
     (by the master), messages taken (by the worker), the worker's *blocked* flag, 0. The master
-    writes a message's bytes and length into the next slot, then the count (x86 keeps the
-    order of stores, so the worker never sees a count before its message); the worker takes
-    messages in order. A worker that found nothing for ``spin_s`` sets its flag and blocks on
-    its socket; the master sends an empty message to wake it when it sees the flag, and the
-    blocked worker looks at the ring every ``BLOCKED_POLL_MS`` anyway (the flag and the count
-    can cross unseen: a late wake, never a lost message). A message too long for a slot goes
-    through the socket once the worker has taken every earlier one (the order is kept).
+    writes a message's bytes and length into the next slot, then the count (x86 keeps the order
+    of stores, so the worker never sees a count before its message; used only where
+    :data:`STORE_ORDERED`); the worker takes messages in order. A worker that found nothing for
+    ``spin_s`` sets its flag and blocks on its socket; the master sends an empty message to wake
+    it when it sees the flag, and the blocked worker looks at the ring every ``BLOCKED_POLL_MS``
+    anyway (the flag and the count can cross unseen: a late wake, never a lost message). A
+    message too long for a slot goes through the socket once the worker has taken every earlier
+    one (the order is kept).
 
     Parameters
     ----------
@@ -324,11 +327,18 @@ class _Mailbox:
             pass
 
 
+#: the shared-memory channels rely on stores becoming visible to the other process in program
+#: order, which x86 guarantees (total store order); on other machines (ARM, POWER) the writes
+#: could be seen out of order without barriers, which Python cannot issue: the socket is used
+STORE_ORDERED = platform.machine().lower() in ("x86_64", "amd64", "i386", "i686", "x86")
+
+
 def _shared_file(label: str, nbytes: int, attach: Callable[[str], None]) -> bool:
     """Make a zeroed file of ``nbytes`` in ``/dev/shm`` and let ``attach(path)`` map it (the worker
     and this process); the file is removed right after (both sides keep their mapping, nothing
-    is left behind). False when there is no ``/dev/shm`` (the messages go through the socket)."""
-    if not os.path.isdir("/dev/shm"):
+    is left behind). False when there is no ``/dev/shm`` or the machine does not keep the order
+    of stores (:data:`STORE_ORDERED`): the messages and outputs then go through the socket."""
+    if not STORE_ORDERED or not os.path.isdir("/dev/shm"):
         return False
     import tempfile
 

@@ -290,3 +290,23 @@ def test_mailbox_keeps_the_order_and_wakes_a_blocked_worker(tmp_path, test_fmus)
         for inst in insts.values():
             inst.terminate()
         w.close()
+
+
+def test_without_shared_memory_the_socket_gives_the_same_log(tmp_path, monkeypatch):
+    """Where the machine does not keep the order of stores (``remote.STORE_ORDERED`` False: ARM,
+    POWER) no shared-memory channel is made: the messages and outputs go through the socket,
+    and campus_drive as shipped (net in a worker, posted ahead) logs the same to 4.5 s."""
+    from immersim.orchestrator import remote
+
+    ov = {"simulation.stop": 4.5}
+    run_scenario(SCEN / "campus_drive.toml", tmp_path / "shm.mcap", overrides=ov)
+    monkeypatch.setattr(remote, "STORE_ORDERED", False)
+
+    def refuse(self, *args):
+        raise AssertionError("a shared-memory channel was made")
+
+    monkeypatch.setattr(remote._Mailbox, "__init__", refuse)
+    monkeypatch.setattr(remote._SharedValues, "__init__", refuse)
+    res = run_scenario(SCEN / "campus_drive.toml", tmp_path / "socket.mcap", overrides=ov)
+    assert res.remote_units == ["net"]
+    assert _same_logs(tmp_path / "shm.mcap", tmp_path / "socket.mcap") > 300
