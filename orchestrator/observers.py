@@ -82,6 +82,51 @@ class ChannelEncoder:
         except TypeError:  # orjson.JSONEncodeError subclasses TypeError
             return (self._template % tuple(_json_value(v) for v in values)).encode()
 
+    def source(self, gen: Any, values: str, positions: Sequence[int]) -> str:
+        """A Python expression for :meth:`encode` of ``values[i] for i in positions`` (``values``:
+        the expression of a sequence), for a generated step writer (``gen``: a
+        :class:`~immersim.orchestrator.codegen.Generated`): orjson on a dict display, or on
+        ``dict(zip(...))`` for a long channel (faster from about 50 values); the same bytes. It
+        raises ``TypeError`` where :meth:`encode` falls back to its template."""
+        dumps = gen.const(_dumps)
+        if len(positions) <= _DISPLAY_MAX:
+            return f"{dumps}({{{', '.join(f'{n!r}: {values}[{i}]' for n, i in zip(self.names, positions))}}})"
+        return f"{dumps}(dict(zip({gen.const(self.names)}, {_picked(gen, values, positions)})))"
+
+
+#: a generated encoder spells out at most this many values (a dict display or the packer's
+#: arguments); a longer channel is zipped or unpacked from its sequence
+_DISPLAY_MAX = 32
+
+
+def _picked(gen: Any, values: str, positions: Sequence[int]) -> str:
+    """The expression of ``values`` itself when ``positions`` are all of them in order, else of
+    the tuple of the picked values (an ``itemgetter``)."""
+    from operator import itemgetter
+
+    if list(positions) == list(range(len(positions))):
+        return values
+    return f"{gen.const(itemgetter(*positions))}({values})" if len(positions) > 1 else f"({values}[{positions[0]}],)"
+
+
+class Ros1Encoder:
+    """Packs one unit's values into a ROS 1 message (:func:`ros1_struct`)."""
+
+    def __init__(self, packer: struct.Struct) -> None:
+        self._pack = packer.pack
+
+    def encode(self, values: Sequence[Any]) -> bytes:
+        """The packed message; ``values`` in the order of the channel's variables."""
+        return self._pack(*values)
+
+    def source(self, gen: Any, values: str, positions: Sequence[int]) -> str:
+        """A Python expression for :meth:`encode` of ``values[i] for i in positions`` (see
+        :meth:`ChannelEncoder.source`)."""
+        pack = gen.const(self._pack)
+        if len(positions) <= _DISPLAY_MAX:
+            return f"{pack}({', '.join(f'{values}[{i}]' for i in positions)})"
+        return f"{pack}(*{_picked(gen, values, positions)})"
+
 
 #: ROS 1 field type and ``struct`` code of each JSON schema type ("ros1" encoding); a
 #: variable of another type (a String) has no fixed-size field: its channel is written as JSON
@@ -244,13 +289,14 @@ class McapObserver:
     def add_metadata(self, name: str, data: Dict[str, str]) -> None:
         self.writer.add_metadata(name, {k: str(v) for k, v in data.items()})
 
-    def add_channel(self, topic: str, infos: Sequence[VarInfo]) -> Tuple[int, Callable[[Sequence[Any]], bytes]]:
+    def add_channel(self, topic: str, infos: Sequence[VarInfo]) -> Tuple[int, Any]:
         """Register a channel with its JSON schema.
 
         Returns
         -------
         (channel id, encoder)
-            The channel id :meth:`write_step` takes and the function encoding its values.
+            The channel id :meth:`write_step` takes and the :class:`ChannelEncoder` or
+            :class:`Ros1Encoder` of its values (``encoder.encode(values)``).
         """
         schema = json_schema(topic, infos)
         text = json.dumps(schema)
@@ -258,17 +304,16 @@ class McapObserver:
         if packer is None:
             sid = self.writer.register_schema(name=topic, encoding="jsonschema", data=text.encode())
             cid = self.writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-            encode = ChannelEncoder(infos).encode
+            encoder: Any = ChannelEncoder(infos)
         else:  # the JSON schema rides along as channel metadata: names, units, descriptions
             sid = self.writer.register_schema(name="immersim/" + re.sub(r"[^A-Za-z0-9_]+", "_", topic),
                                               encoding="ros1msg", data=ros1_definition(schema).encode())
             cid = self.writer.register_channel(topic=topic, message_encoding="ros1", schema_id=sid,
                                                metadata={"jsonschema": text})
-            pack = packer.pack
-            encode = lambda values: pack(*values)   # noqa: E731
+            encoder = Ros1Encoder(packer)
         self.channels[topic] = cid
-        self.encoders[topic] = encode
-        return cid, encode
+        self.encoders[topic] = encoder.encode
+        return cid, encoder
 
     def write(self, topic: str, t_ns: int, values: Sequence[Any], sequence: int = 0) -> None:
         """One message (non-finite Reals are written as ``null``)."""
