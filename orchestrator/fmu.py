@@ -102,35 +102,48 @@ def forget_python_code(folder: Path) -> int:
     FMU in this process (a sweep worker, a benchmark) would reuse them and fail on its first
     lazy import of a sibling module. Call this after the instances are freed, before the folder
     goes. Returns the number of modules dropped.
+
+    A module is under ``folder`` when its file (or package path) starts with one of the folder's
+    spellings: as given, absolute, resolved, or a ``sys.path`` entry that resolves into it (the
+    spelling its modules were found through). Only the few ``sys.path`` entries are resolved (not
+    every loaded module's file): ~0.3 ms per call instead of ~4 ms.
     """
     import sys
 
-    prefix = str(Path(folder).resolve()) + os.sep
-    realpath, split = os.path.realpath, os.path.split
-    dirs: Dict[str, str] = {}  # real path of each folder met: most modules share folders
-
-    def resolved(p) -> str:
-        """``os.path.realpath(p)``, resolving the folder part once per folder."""
-        head, tail = split(p)
-        if tail in ("", ".", "..") or os.path.islink(p):
-            return realpath(p)
-        real = dirs.get(head)
-        if real is None:
-            real = dirs[head] = realpath(head)
-        return os.path.join(real, tail)
+    folder = Path(folder)
+    real = os.path.join(os.path.realpath(folder), "")
+    spellings = {os.path.join(str(p), "") for p in (folder, folder.absolute())} | {real}
+    inside_path = []   # the sys.path entries to drop
+    for entry in sys.path:
+        try:
+            spelled = os.path.join(os.fspath(entry), "")
+        except TypeError:
+            continue
+        if spelled.startswith(tuple(spellings)) or os.path.join(os.path.realpath(spelled), "").startswith(real):
+            inside_path.append(entry)
+            spellings.add(spelled)
+    prefixes = tuple(spellings)
 
     def inside(p) -> bool:
         try:
-            return p is not None and resolved(os.fspath(p)).startswith(prefix)
-        except (OSError, ValueError):
+            return p is not None and os.fspath(p).startswith(prefixes)
+        except TypeError:
             return False
 
-    names = [n for n, m in list(sys.modules.items())
-             if inside(getattr(m, "__file__", None))
-             or any(inside(p) for p in list(getattr(m, "__path__", None) or []))]
+    def module_inside(m) -> bool:
+        file = getattr(m, "__file__", None)
+        if file is not None:   # a module, or a package by its __init__ (its __path__ is that folder)
+            return inside(file)
+        # a namespace package: the folders of its last search (``_NamespacePath._path``, as
+        # iterating would search sys.path again: a listdir per entry) when it has them
+        path = getattr(m, "__path__", None)   # (no truth test: len() searches too)
+        return path is not None and any(inside(p) for p in list(getattr(path, "_path", path)))
+
+    names = [n for n, m in list(sys.modules.items()) if module_inside(m)]
     for n in names:
         del sys.modules[n]
-    sys.path[:] = [p for p in sys.path if not inside(p)]
+    dropped = set(map(id, inside_path))
+    sys.path[:] = [p for p in sys.path if id(p) not in dropped]
     importlib.invalidate_caches()
     return len(names)
 

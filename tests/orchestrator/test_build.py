@@ -161,3 +161,36 @@ def test_exception_left_by_an_in_process_fmu_is_a_typed_error(test_fmus, tmp_pat
             inst.do_step(33_000_000, 33_000_000)
     finally:
         inst.terminate()
+
+
+def test_forget_python_code_drops_what_was_imported_from_the_folder(tmp_path):
+    """Modules imported from a folder through a sys.path entry spelled through a symlink (a
+    package, its submodule, a namespace package and its module) are dropped with that entry,
+    given the folder's real path; modules and entries elsewhere stay."""
+    import importlib
+    import sys
+
+    from immersim.orchestrator.fmu import forget_python_code
+
+    folder = tmp_path / "extracted"
+    (folder / "pkg_forget_t").mkdir(parents=True)
+    (folder / "pkg_forget_t" / "__init__.py").write_text("")
+    (folder / "pkg_forget_t" / "sub.py").write_text("X = 1\n")
+    (folder / "ns_forget_t").mkdir()
+    (folder / "ns_forget_t" / "mod.py").write_text("Y = 2\n")
+    link = tmp_path / "link"
+    link.symlink_to(folder)
+    sys.path.insert(0, str(link))
+    try:
+        importlib.import_module("pkg_forget_t.sub")
+        importlib.import_module("ns_forget_t.mod")
+        assert sys.modules["pkg_forget_t.sub"].__file__.startswith(str(link))
+        before = set(sys.modules) - {"pkg_forget_t", "pkg_forget_t.sub", "ns_forget_t", "ns_forget_t.mod"}
+        path_before = [p for p in sys.path if p != str(link)]
+        assert forget_python_code(folder.resolve()) == 4
+        assert not {"pkg_forget_t", "pkg_forget_t.sub", "ns_forget_t", "ns_forget_t.mod"} & set(sys.modules)
+        assert before <= set(sys.modules) and sys.path == path_before
+        assert forget_python_code(folder) == 0
+    finally:
+        if str(link) in sys.path:
+            sys.path.remove(str(link))
