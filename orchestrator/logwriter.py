@@ -170,9 +170,9 @@ class LogWriter:
         """:meth:`write` as straight-line code generated for this log: each channel's message
         encoded in place from its source's values (a dict display for orjson, the ROS 1
         packer's arguments; a long channel zipped or unpacked), with no per-step loop over the
-        channels and no encoder call. A value the JSON
-        encoder refuses (``TypeError``) sends that step through :meth:`write` (its template
-        fallback); the bytes are the same either way."""
+        channels and no encoder call. A value the JSON encoder refuses (``TypeError``) sends
+        that step through :meth:`write` (its template fallback); the bytes are the same either
+        way (``tests/orchestrator/test_mcap_writer.py``)."""
         gen = Generated(WRITE_STEP=self.mcap.write_step, GENERAL=LogWriter.write.__get__(self))
         body, items, local = [], [], {}
         for cid, encoder, src, positions in channels:

@@ -86,7 +86,7 @@ class ChannelEncoder:
         """A Python expression for :meth:`encode` of ``values[i] for i in positions`` (``values``:
         the expression of a sequence), for a generated step writer (``gen``: a
         :class:`~immersim.orchestrator.codegen.Generated`): orjson on a dict display, or on
-        ``dict(zip(...))`` for a long channel (faster from about 50 values); the same bytes. It
+        ``dict(zip(...))`` for a long channel (the faster from a few tens of values); the same bytes. It
         raises ``TypeError`` where :meth:`encode` falls back to its template."""
         dumps = gen.const(_dumps)
         if len(positions) <= _DISPLAY_MAX:
