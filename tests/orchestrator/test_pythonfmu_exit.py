@@ -102,13 +102,17 @@ def _valgrind(fmu: Path, mode: str, tmp: Path) -> subprocess.Popen:
 
 @pytest.mark.skipif(shutil.which("valgrind") is None, reason="needs valgrind")
 def test_exit_reads_no_freed_memory_under_valgrind(test_fmus, tmp_path):
-    """Without the handler valgrind sees ``finalizePythonInterpreter`` read the freed state at
-    exit (the defect is real in this pythonfmu); with it, the FMU binary makes no invalid access."""
+    """With the handler the FMU binary makes no invalid access at exit; without it (the
+    control), valgrind sees ``finalizePythonInterpreter`` read the freed state, in the pythonfmu
+    releases known to have the defect (up to 0.7.0, the newest when this was written)."""
+    from importlib.metadata import version
+
     fmu = test_fmus["oscillator"]
     runs = {mode: _valgrind(fmu, mode, tmp_path) for mode in ("plain", "fix")}
     out = {mode: p.communicate(timeout=300) for mode, p in runs.items()}
     for mode, p in runs.items():
         assert p.returncode == 0, (mode, out[mode][1][-3000:])
     plain, fixed = out["plain"][1], out["fix"][1]
-    assert "Invalid read" in plain and "finalizePythonInterpreter" in plain, plain[-3000:]
     assert "finalizePythonInterpreter" not in fixed and "oscillator.so" not in fixed, fixed[-3000:]
+    if tuple(int(x) for x in version("pythonfmu").split(".")[:3] if x.isdigit()) <= (0, 7, 0):
+        assert "Invalid read" in plain and "finalizePythonInterpreter" in plain, plain[-3000:]
