@@ -21,6 +21,7 @@ Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus] [--bas
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import subprocess
@@ -39,6 +40,7 @@ T = 0.033
 # ownership variants: label -> (rule, reading of eq. 3-12)
 RULES = {"mahalanobis": ("mahalanobis", "frame"), "mahalanobis_reach": ("mahalanobis", "reach"),
          "euclidean": ("euclidean", "frame"), "none": ("none", "frame")}
+NETWORK_DIR = str(ROOT / "fmus" / "network")
 
 
 def machine() -> str:
@@ -143,19 +145,46 @@ CAMPUS = (("campus_drive (driving)", 8, True), ("campus_idle (at rest)", 0, Fals
 CAMPUS_DRIVE = ((0.8, 0.0), (0.7, 0.1), (0.6, -0.2))
 
 
-def campus_inprocess(steps: int, fmu_dir: str = str(ROOT / "fmus" / "network")):
+def network_class(fmu_dir: str = NETWORK_DIR):
+    """The FMU class of ``fmu_dir``'s ``network_fmu.py`` (another tree's for a baseline run,
+    with that tree's ``immersim`` first on ``PYTHONPATH``)."""
+    sys.path.insert(0, fmu_dir)
+    from network_fmu import network
+    return network
+
+
+def campus_slave(network, entities: int, name: str):
+    """An instance of the FMU class ``network`` at the campus scenes' size (3 players x 3 render
+    nodes, ``entities`` free entities, seed 0, order 1), out of initialization mode."""
+    s = network(instance_name=name, resources=str(ROOT), visible=False, logging_callback=None)
+    s.values.update(players=3, render_nodes=3, entities=entities, seed=0, prediction_order=1)
+    s.setup_experiment(0.0, None, None)
+    s.exit_initialization_mode()
+    return s
+
+
+def in_tree(tree, fn: str, *args, **kwargs):
+    """``fn(*args, fmu_dir=..., **kwargs)``, a function of this module, in a fresh process on
+    ``tree``'s code (a directory with another commit's ``immersim``, put first on ``PYTHONPATH``,
+    and its ``network_fmu.py``) or this tree's (None); returns its (JSON) result."""
+    fmu_dir = NETWORK_DIR if tree is None else str(Path(tree) / "immersim" / "fmus" / "network")
+    call = ", ".join([*map(repr, args), f"fmu_dir={fmu_dir!r}", *(f"{k}={v!r}" for k, v in kwargs.items())])
+    code = (f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); "
+            f"import bench_network; print(json.dumps(bench_network.{fn}({call})))")
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = tree
+    return json.loads(subprocess.check_output([sys.executable, "-c", code], env=env, cwd="/", text=True))
+
+
+def campus_inprocess(steps: int, fmu_dir: str = NETWORK_DIR):
     """CPU and wall time of the FMU class's do_step (model + wrapper, in process) at the campus
     scenes' size; ``fmu_dir`` holds the ``network_fmu.py`` to load (another tree's for a
     baseline run, with that tree's ``immersim`` first on ``PYTHONPATH``)."""
-    sys.path.insert(0, fmu_dir)
-    from network_fmu import network
-
+    network = network_class(fmu_dir)
     res = []
     for label, entities, drive in CAMPUS:
-        s = network(instance_name="bench", resources=str(ROOT), visible=False, logging_callback=None)
-        s.values.update(players=3, render_nodes=3, entities=entities, seed=0, prediction_order=1)
-        s.setup_experiment(0.0, None, None)
-        s.exit_initialization_mode()
+        s = campus_slave(network, entities, "bench")
         if drive:
             for p, (thr, steer) in enumerate(CAMPUS_DRIVE, start=1):
                 s.values[f"avatar[{p}].throttle"], s.values[f"avatar[{p}].steer"] = thr, steer
@@ -238,22 +267,10 @@ def bench_campus(quick: bool, baseline: str = ""):
     steps = 200 if quick else 600
     if not baseline:
         return campus_inprocess(steps), campus_fmpy(steps), []
-    import json
-
-    def sub(tree):
-        """campus_inprocess in a fresh process: ``tree``'s code, or this tree's (None)."""
-        fmu_dir = str(ROOT / "fmus" / "network") if tree is None else str(Path(tree) / "immersim" / "fmus" / "network")
-        code = (f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); "
-                f"from bench_network import campus_inprocess; print(json.dumps(campus_inprocess({steps}, {fmu_dir!r})))")
-        env = dict(os.environ)
-        if tree is not None:
-            env["PYTHONPATH"] = tree
-        return json.loads(subprocess.check_output([sys.executable, "-c", code], env=env, cwd="/", text=True))
-
     rows = []
     for rnd in range(3):
         for code, tree in (("baseline", baseline), ("current", None)):
-            rows += [dict(r, code=code, round=rnd + 1) for r in sub(tree)]
+            rows += [dict(r, code=code, round=rnd + 1) for r in in_tree(tree, "campus_inprocess", steps)]
     current = [r for r in rows if r["code"] == "current" and r["round"] == 3]
     return current, campus_fmpy(steps), rows
 
@@ -277,8 +294,7 @@ def campus_log_inputs(log: str):
     return t_ns, steps
 
 
-def campus_replay(inputs_path: str, fmu_dir: str = str(ROOT / "fmus" / "network"), passes: int = 3,
-                  outputs_path: str = ""):
+def campus_replay(inputs_path: str, fmu_dir: str = NETWORK_DIR, passes: int = 3, outputs_path: str = ""):
     """Replay campus_drive's logged inputs through the FMU class's ``do_step`` in process
     (model + wrapper + the base class's checks), ``passes`` times with a fresh instance each;
     the first pass warms up. Step ``k`` sets the logged inputs and steps from the log's
@@ -286,22 +302,15 @@ def campus_replay(inputs_path: str, fmu_dir: str = str(ROOT / "fmus" / "network"
     ``perf_counter_ns`` and ``thread_time_ns``. ``outputs_path``: every output of every step of
     the last pass (float64, (n, outputs), bools and integers as floats) saved there (.npy).
     Returns the per-step CPU and wall times (us) of the passes after the first."""
-    import json
-
-    sys.path.insert(0, fmu_dir)
-    from network_fmu import network
-
+    network = network_class(fmu_dir)
     with open(inputs_path) as f:
         t_ns, steps = json.load(f)
     outs = [v.name for v in network.VARIABLES if v.causality == "output"]
     cpu, wall, table_ = [], [], []
     for rep in range(passes):
-        s = network(instance_name="replay", resources=str(ROOT), visible=False, logging_callback=None)
-        s.values.update(players=3, render_nodes=3, entities=8, seed=0, prediction_order=1)
-        s.setup_experiment(0.0, None, None)
-        s.exit_initialization_mode()
-        v, do_step, last = s.values, s.do_step, rep == passes - 1
-        keep = last and outputs_path
+        s = campus_slave(network, 8, "replay")
+        v, do_step = s.values, s.do_step
+        keep = outputs_path and rep == passes - 1
         for k, ins in enumerate(steps, start=1):
             v.update(ins)
             t0, h = t_ns[k - 1] / 1e9, (t_ns[k] - t_ns[k - 1]) / 1e9
@@ -327,30 +336,19 @@ def bench_campus_log(log: str, baseline: str = "", rounds: int = 3):
     alternates too); every output of every step of each run is compared with this tree's
     first run, bit for bit. Returns the rows, the number of runs whose outputs differ, and
     whether the first run's outputs equal those the log holds (the replay is faithful)."""
-    import json
     import tempfile
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_net_replay_"))
-    with open(tmp / "inputs.json", "w") as f:
+    inputs = str(tmp / "inputs.json")
+    with open(inputs, "w") as f:
         json.dump(campus_log_inputs(log), f)
-
-    def sub(tree, out):
-        fmu_dir = str(ROOT / "fmus" / "network") if tree is None else str(Path(tree) / "immersim" / "fmus" / "network")
-        code = (f"import json, sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); "
-                f"from bench_network import campus_replay; "
-                f"print(json.dumps(campus_replay({str(tmp / 'inputs.json')!r}, {fmu_dir!r}, outputs_path={out!r})))")
-        env = dict(os.environ)
-        if tree is not None:
-            env["PYTHONPATH"] = tree
-        return json.loads(subprocess.check_output([sys.executable, "-c", code], env=env, cwd="/", text=True))
-
     trees = [("current", None)] + ([("baseline", baseline)] if baseline else [])
     rows, ref, differ = [], None, 0
     for rnd in range(rounds):
         for code, tree in (trees if rnd % 2 == 0 else trees[::-1]):
             out = str(tmp / f"{code}_{rnd}.npy")
             load0 = os.getloadavg()[0]
-            r = sub(tree, out)
+            r = in_tree(tree, "campus_replay", inputs, outputs_path=out)
             got = np.load(out)
             if ref is None:
                 ref = got
@@ -361,11 +359,8 @@ def bench_campus_log(log: str, baseline: str = "", rounds: int = 3):
     # the replay against the run that wrote the log: each logged output after step k, k = 1..n
     from immersim.orchestrator.mcapio import read_series
 
-    sys.path.insert(0, str(ROOT / "fmus" / "network"))
-    from network_fmu import network
-
     logged = read_series(log, ["net.*"])
-    outs = [v.name for v in network.VARIABLES if v.causality == "output"]
+    outs = [v.name for v in network_class().VARIABLES if v.causality == "output"]
     as_logged = all(np.array_equal(logged["net." + n][1][1:].astype(float), ref[:, i]) for i, n in enumerate(outs))
     return rows, differ, as_logged
 
