@@ -206,7 +206,8 @@ def read_transforms(path) -> List[Tuple[int, List[Dict[str, Any]]]]:
 class FoxgloveObserver:
     """Writes ``/tf`` and ``/scene`` into an open :class:`~immersim.orchestrator.observers.McapObserver`.
 
-    ``/tf`` is written every step, one transform per body. The message is built once and
+    ``/tf`` goes with every step, one transform per body (:meth:`transforms`: the log writer
+    writes it with the step's other messages); ``/scene`` when due (:meth:`scene_due`). The message is built once and
     updated in place: a value given as a number is computed once, a body rotating about one
     axis only (the others 0, e.g. an avatar's yaw) gets its quaternion from one sine and one
     cosine. ``/scene`` holds frame-locked entities of a fixed shape, size and colour that never
@@ -319,11 +320,6 @@ class FoxgloveObserver:
                 body.append(f"poses[{o + 3}:{o + 7}] = euler_quaternion({args}, {order!r})")
         head = [f"{n.lower()} = {n}.cur" for n in gen.objects]
         return gen.function("update(poses)", head + body + ["return None"], "foxglove poses")
-
-    def __call__(self, k: int, t_ns: int) -> None:
-        """Write step ``k``'s ``/tf`` (and ``/scene`` when due)."""
-        self.mcap.writer.add_message(*self.transforms(k, t_ns), log_time=t_ns, publish_time=t_ns, sequence=k)
-        self.scene_due(k, t_ns)
 
     def transforms(self, k: int, t_ns: int) -> Tuple[int, bytes]:
         """``(channel id, data)`` of step ``k``'s ``/tf`` message (the log writer puts it with the

@@ -131,14 +131,12 @@ class LogWriter:
             sources = [_Values() for _ in range(1 + max([c[2] for c in plan.channels]
                                                         + [s for s, _ in plan.refs.values()], default=-1))]
         self._sources = sources
-        #: (channel id, encode function, source, picker or None)
+        #: (channel id, encoder, source, positions of its values in the source's, picker or None: all)
         self._plan: List[tuple] = []
-        #: (channel id, encoder, source, positions of its values), for the generated writer
-        channels = []
         for topic, infos, slot, idx in plan.channels:
             cid, encoder = obs.add_channel(topic, infos)
-            self._plan.append((cid, encoder.encode, sources[slot], _picker(idx)))
-            channels.append((cid, encoder, sources[slot], range(len(infos)) if idx is None else idx))
+            positions = range(len(infos)) if idx is None else idx
+            self._plan.append((cid, encoder, sources[slot], positions, _picker(idx)))
         for unit, infos, values, t_ns in plan.parameters:
             write_parameters(obs, unit, infos, values, t_ns)
         self._view = None   # the 3D view (FoxgloveObserver): /tf with each step, /scene when due
@@ -149,7 +147,7 @@ class LogWriter:
                 return _Signal(sources[plan.refs[ref][0]], plan.refs[ref][1])
 
             self._view = FoxgloveObserver(obs, plan.bodies, lookup)
-        self.write = self._compile_write(channels)   # the method below is its general form
+        self.write = self._compile_write()   # the method below is its general form
 
     @property
     def closed(self) -> bool:
@@ -158,7 +156,8 @@ class LogWriter:
     def write(self, k: int, t_ns: int) -> None:
         """Log step ``k`` ending at ``t_ns`` from the sources' current values: the units'
         messages and the 3D view's ``/tf`` as one step, then ``/scene`` when due."""
-        items = [(cid, encode(src.cur if pick is None else pick(src.cur))) for cid, encode, src, pick in self._plan]
+        items = [(cid, encoder.encode(src.cur if pick is None else pick(src.cur)))
+                 for cid, encoder, src, _, pick in self._plan]
         view = self._view
         if view is not None:
             items.append(view.transforms(k, t_ns))
@@ -166,7 +165,7 @@ class LogWriter:
         if view is not None:
             view.scene_due(k, t_ns)
 
-    def _compile_write(self, channels: List[tuple]) -> Callable[[int, int], None]:
+    def _compile_write(self) -> Callable[[int, int], None]:
         """:meth:`write` as straight-line code generated for this log: each channel's message
         encoded in place from its source's values (a dict display for orjson, the ROS 1
         packer's arguments; a long channel zipped or unpacked), with no per-step loop over the
@@ -175,13 +174,12 @@ class LogWriter:
         way (``tests/orchestrator/test_mcap_writer.py``)."""
         gen = Generated(WRITE_STEP=self.mcap.write_step, GENERAL=LogWriter.write.__get__(self))
         body, items, local = [], [], {}
-        for cid, encoder, src, positions in channels:
+        for cid, encoder, src, positions, _ in self._plan:
             name = gen.obj(src)
             if name not in local:   # one local per source: its current values
-                local[name] = cur = f"c{len(local)}"
-                body.append(f"{cur} = {name}.cur")
-            cur = local[name]
-            items.append(f"({cid}, {encoder.source(gen, cur, positions)})")
+                local[name] = f"c{len(local)}"
+                body.append(f"{local[name]} = {name}.cur")
+            items.append(f"({cid}, {encoder.source(gen, local[name], positions)})")
         body += ["try:", f"    items = [{', '.join(items)}]", "except TypeError:", "    return GENERAL(k, t_ns)"]
         view = self._view
         if view is not None:

@@ -366,10 +366,8 @@ class Master(Stepper):
     def _post(self, slot: Slot, t_ns: int, h_ns: int, hold: bool = False) -> None:
         """Post the step from ``t_ns`` of a unit its worker steps: with the inputs gathered
         here, or, chained, to be gathered there."""
-        if slot.chained:
-            slot.inst.post_chain(t_ns, h_ns, hold)
-        else:
-            slot.inst.post_step(t_ns, h_ns, self._gather(slot, t_ns) if slot.has_inputs else None, hold)
+        inputs = self._gather(slot, t_ns) if slot.has_inputs and not slot.chained else None
+        slot.inst.post_step(t_ns, h_ns, inputs, hold)
 
     def step(self, t_ns: int, h_ns: int) -> None:
         """Advance every slot from ``t_ns`` by ``h_ns``."""
@@ -442,15 +440,15 @@ class Master(Stepper):
         if self.schedule is None or not self.POST_AHEAD:
             return
         t_next = t_ns + h_ns
+        _, stop, h = self.schedule
         if self._posted is None or self._posted[0] != t_next:
-            start, stop, h = self.schedule
             if t_next >= stop:
                 return
             self._posted = (t_next, [], set())
         _, posted, handled = self._posted
         if len(handled) == len(self._ahead):   # every one posted already
             return
-        h_next = min(t_next + self.schedule[2], self.schedule[1]) - t_next
+        h_next = min(t_next + h, stop) - t_next
         new = []
         for slot in self._ahead:
             if id(slot) in handled or (not slot.inst.queues and any(p is slot for p in pending)):
@@ -480,19 +478,16 @@ class Master(Stepper):
         in order, a unit in a worker is posted when the units before it that feed it have
         stepped, and a reply is taken when a later unit needs it. Every reply is taken before
         the step ends. The inputs every unit gets are those of the one-process algorithm."""
-        slots = self.slots
         if (self._posted is None or self._posted[0] != t_ns or len(self._posted[2]) < len(self._ahead)
                 or self._ahead_error is not None):
             self.post_remote(t_ns, h_ns)
         pending = list(self._posted[1])
         self._posted = None
-        for name in self.order:
-            slots[name].stepped = False
-        for slot in self._ahead:   # stepped once its reply is taken
+        for slot in self._order_slots:   # a worker unit: stepped once its reply is taken
             slot.stepped = False
         if self.algorithm == "jacobi":
             work = [(slot, self._gather(slot, t_ns) if slot.has_inputs else None)
-                    for slot in map(slots.__getitem__, self.order) if not slot.inst.remote]
+                    for slot in self._order_slots if not slot.inst.remote]
         else:
             ready = {id(slot): self._gather(slot, t_ns) for slot in self._start_gathered}
             work = [(slot, ready.get(id(slot))) for slot in self._gs_work]

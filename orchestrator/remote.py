@@ -731,10 +731,6 @@ class RemoteInstance:
         self._send(lambda seq: ("step", self.name, t_ns, h_ns, inputs, True, seq), True, hold, t_ns,
                    2 if self.queues else 1)
 
-    def post_chain(self, t_ns: int, h_ns: int, hold: bool = False) -> None:
-        """:meth:`post_step` of a chained unit (its inputs are gathered by its worker)."""
-        self.post_step(t_ns, h_ns, None, hold)
-
     def setup_stepping(self, spec: Dict[str, Any]) -> None:
         """Let the worker step this unit (``Master._ahead``): ``spec`` holds the index of
         ``at_rest`` when stepped lazily, the inputs' start values, and, for a chained unit,
