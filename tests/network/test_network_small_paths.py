@@ -135,11 +135,17 @@ def _load_wrapper():
     return mod.network
 
 
-def _fmu_run(cls, params, steps):
-    s = cls(instance_name="t", resources=str(UNIT.parent), visible=False, logging_callback=None)
+def _instance(cls, params, name="t"):
+    """An instance of the wrapper class ``cls`` with ``params``, out of initialization mode."""
+    s = cls(instance_name=name, resources=str(UNIT.parent), visible=False, logging_callback=None)
     s.values.update(params)
     s.setup_experiment(0.0, None, None)
     s.exit_initialization_mode()
+    return s
+
+
+def _fmu_run(cls, params, steps):
+    s = _instance(cls, params)
     outs = [v.name for v in cls.VARIABLES if v.causality == "output"]
     rows, unchanged, saved = [], 0, None
     for k in range(steps):
@@ -180,10 +186,7 @@ def test_fmu_output_check_reads_the_written_outputs_and_names_a_bad_one(monkeypa
     cls = _load_wrapper()
 
     def fresh():
-        s = cls(instance_name="chk", resources=str(UNIT.parent), visible=False, logging_callback=None)
-        s.values.update(players=3, render_nodes=3, entities=8, seed=0, prediction_order=1)
-        s.setup_experiment(0.0, None, None)
-        s.exit_initialization_mode()
+        s = _instance(cls, dict(players=3, render_nodes=3, entities=8, seed=0, prediction_order=1), "chk")
         s.values["avatar[1].throttle"] = 0.8
         return s
 
