@@ -761,22 +761,19 @@ def aggregate(results: List[Tuple[int, PairResult]], lower_bound: float) -> Pair
     """
     if not results:
         return PairResult(distance=float(lower_bound) if math.isfinite(lower_bound) else -1.0)
-    if len(results) == 1:  # (one member examined, the usual case: the same result, fewer steps)
+    if len(results) == 1:  # (one member examined, the usual case: no search)
         b, best = results[0]
-        distance = best.distance
-        if not best.in_contact and distance > lower_bound:
-            distance = float(lower_bound)
-        return PairResult(best.in_contact, distance, best.depth, best.point, best.normal,
-                          best.toi if best.toi >= 0 else -1.0, best.closing_speed, b)
-    contacts = [(b, r) for b, r in results if r.in_contact]
-    if contacts:
-        b, best = max(contacts, key=lambda br: br[1].depth)
+        toi = best.toi if best.toi >= 0 else -1.0
     else:
-        b, best = min(results, key=lambda br: br[1].distance)
-        if best.distance > lower_bound:  # an unexamined member may be nearer: report the bound
-            best = PairResult(best.in_contact, float(lower_bound), best.depth, best.point, best.normal,
-                              best.toi, best.closing_speed, best.partner)
-    toi = [r.toi for _, r in results if r.toi >= 0]
+        contacts = [(b, r) for b, r in results if r.in_contact]
+        if contacts:
+            b, best = max(contacts, key=lambda br: br[1].depth)
+        else:
+            b, best = min(results, key=lambda br: br[1].distance)
+        tois = [r.toi for _, r in results if r.toi >= 0]
+        toi = min(tois) if tois else -1.0
+    distance = best.distance
+    if not best.in_contact and distance > lower_bound:  # an unexamined member may be nearer: report the bound
+        distance = float(lower_bound)
     # (the constructor, not dataclasses.replace: the same fields, a few microseconds less)
-    return PairResult(best.in_contact, best.distance, best.depth, best.point, best.normal,
-                      min(toi) if toi else -1.0, best.closing_speed, b)
+    return PairResult(best.in_contact, distance, best.depth, best.point, best.normal, toi, best.closing_speed, b)
