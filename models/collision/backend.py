@@ -737,13 +737,15 @@ def _face_shift(T0: list, T1: list) -> Tuple[float, float]:
     ``T0`` to ``T1`` (4x4 nested lists): ``|t1 - t0|`` and ``||R1 - R0||_F`` (m, 1); the bound
     is ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is ``max_v (R v)_k + t_k`` over
     the hull vertices ``v`` (``|v| <= rmax``), and ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <=
-    ||R1 - R0||_F rmax``."""
+    ||R1 - R0||_F rmax``. (The fcl backend's pair distance cache bounds a body's motion with
+    the same two terms.) Scalar code, the sums in row order, unrolled: this runs per moved body
+    and step."""
     (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = T0[0], T0[1], T0[2]
     (p0, p1, p2, p3), (q0, q1, q2, q3), (r0, r1, r2, r3) = T1[0], T1[1], T1[2]
-    t2 = (p3 - a3) ** 2 + (q3 - b3) ** 2 + (r3 - c3) ** 2
-    rot2 = ((p0 - a0) ** 2 + (p1 - a1) ** 2 + (p2 - a2) ** 2 + (q0 - b0) ** 2 + (q1 - b1) ** 2
-            + (q2 - b2) ** 2 + (r0 - c0) ** 2 + (r1 - c1) ** 2 + (r2 - c2) ** 2)
-    return math.sqrt(t2), math.sqrt(rot2)
+    d3, e3, f3 = p3 - a3, q3 - b3, r3 - c3
+    d0, d1, d2, e0, e1, e2, f0, f1, f2 = p0 - a0, p1 - a1, p2 - a2, q0 - b0, q1 - b1, q2 - b2, r0 - c0, r1 - c1, r2 - c2
+    return (math.sqrt(d3 * d3 + e3 * e3 + f3 * f3),
+            math.sqrt(d0 * d0 + d1 * d1 + d2 * d2 + e0 * e0 + e1 * e1 + e2 * e2 + f0 * f0 + f1 * f1 + f2 * f2))
 
 
 def _at_rest(r: PairResult) -> PairResult:

@@ -57,7 +57,7 @@ from typing import Dict, List, Tuple
 import fcl
 import numpy as np
 
-from .backend import CollisionBackend, PairResult, PairSpec, aggregate
+from .backend import CollisionBackend, PairResult, PairSpec, _face_shift, aggregate
 from .chunks import (CHUNK_MIN_FACES, CHUNK_OTHER_MAX_FACES, ChunkedMesh, chunk_lower_bounds, chunk_min_distance,
                      chunked_distance)
 from .fans import distance_faces
@@ -455,16 +455,10 @@ class FclBackend(CollisionBackend):
             X1 = self._rows(i)
             if X1 is X0:
                 continue  # not moved since
-            # |(R1 - R0) p + t1 - t0| <= |t1 - t0| + ||R1 - R0||_F |p|  (Frobenius >= spectral norm;
-            # the sums in row order, unrolled)
-            (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = X1[0], X1[1], X1[2]
-            (p0, p1, p2, p3), (q0, q1, q2, q3), (r0, r1, r2, r3) = X0[0], X0[1], X0[2]
-            d3, e3, f3 = a3 - p3, b3 - q3, c3 - r3
-            t2 = d3 * d3 + e3 * e3 + f3 * f3
-            d0, d1, d2, e0, e1, e2, f0, f1, f2 = a0 - p0, a1 - p1, a2 - p2, b0 - q0, b1 - q1, b2 - q2, c0 - r0, c1 - r1, c2 - r2
-            rot2 = d0 * d0 + d1 * d1 + d2 * d2 + e0 * e0 + e1 * e1 + e2 * e2 + f0 * f0 + f1 * f1 + f2 * f2
-            if t2 or rot2:
-                mu += math.sqrt(t2) + math.sqrt(rot2) * radius[i]
+            # |(R1 - R0) p + t1 - t0| <= |t1 - t0| + ||R1 - R0||_F |p|  (Frobenius >= spectral norm)
+            t, f = _face_shift(X0, X1)
+            if t or f:
+                mu += t + f * radius[i]
         return mu
 
     #: m; the body-frame gap must beat the best distance by this much to skip a query (it can
