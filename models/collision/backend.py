@@ -428,8 +428,9 @@ class CollisionBackend(ABC):
                 T_rows[i] = [[r0[0], r0[1], r0[2], x], [r1[0], r1[1], r1[2], y], [r2[0], r2[1], r2[2], z],
                              [0.0, 0.0, 0.0, 1.0]]
                 same_at[i] = qn
-                # _face_shift's terms: the rotation's is exactly 0
-                t, f = math.sqrt((x - r0[3]) ** 2 + (y - r1[3]) ** 2 + (z - r2[3]) ** 2), 0.0
+                # _face_shift's terms (its arithmetic): the rotation's is exactly 0
+                dx, dy, dz = x - r0[3], y - r1[3], z - r2[3]
+                t, f = math.sqrt(dx * dx + dy * dy + dz * dz), 0.0
             else:
                 M = T_rows[i] = pose_rows(row)
                 rot_key[i] = key
