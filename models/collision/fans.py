@@ -43,8 +43,11 @@ __all__ = ["FAN_MIN_TRIANGLES", "FAN_INNER", "halving_cap", "fan_centres", "dist
 FAN_MIN_TRIANGLES = 64
 #: a re-triangulated fan keeps at most this many triangles at its centre
 FAN_INNER = 4
-#: relative to the mesh's scale: fan triangles whose normals differ by more, or ring vertices
-#: farther from the centre's plane, are not a plane polygon (left alone)
+#: fan triangles whose unit normals differ by more (in any component) are not a plane polygon
+#: (left alone)
+FAN_NORMAL_TOL = 1e-9
+#: relative to the fan's scale (at least 1 m): ring vertices farther from the centre's plane
+#: are not a plane polygon (left alone)
 FAN_PLANE_TOL = 1e-12
 
 
@@ -136,16 +139,19 @@ def _normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 def fan_centres(vertices: np.ndarray, faces: np.ndarray, min_triangles: int = FAN_MIN_TRIANGLES) -> List[int]:
     """Vertices at the centre of a plane fan of at least ``min_triangles`` triangles (every
-    triangle that contains the vertex has the same normal, within ``FAN_PLANE_TOL``)."""
+    triangle that contains the vertex has the same unit normal within ``FAN_NORMAL_TOL``, and
+    their vertices lie in the centre's plane within ``FAN_PLANE_TOL`` x the fan's scale)."""
     V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
     counts = np.bincount(F.ravel(), minlength=len(V))
     out = []
     for c in np.flatnonzero(counts >= min_triangles).tolist():
-        tri = V[F[(F == c).any(axis=1)]]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        fan = F[(F == c).any(axis=1)]
+        tri = V[fan]
+        n = _normals(V, fan)
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         scale = float(np.abs(tri - V[c]).max())
-        if np.abs(n - n[0]).max() <= 1e-9 and np.abs((tri - V[c]) @ n[0]).max() <= FAN_PLANE_TOL * max(scale, 1.0):
+        if (np.abs(n - n[0]).max() <= FAN_NORMAL_TOL
+                and np.abs((tri - V[c]) @ n[0]).max() <= FAN_PLANE_TOL * max(scale, 1.0)):
             out.append(int(c))
     return out
 
