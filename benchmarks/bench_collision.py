@@ -441,14 +441,19 @@ class Deviation:
                 f"{w['toi']:.2g} s, closing speed {w['closing_speed']:.2g} m/s, point {w['point']:.2g} m")
 
 
+def _campus_params():
+    """The collision unit's parameters in campus_drive.toml."""
+    import tomllib
+
+    return next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
+
+
 def _campus_inputs(log):
     """The collision unit's parameters in campus_drive.toml and its logged inputs in ``log``:
     per step one flat tuple of the dynamic bodies' 6 pose numbers, as the FMU passes them."""
-    import tomllib
-
     from immersim.orchestrator.mcapio import read_series
 
-    params = next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
+    params = _campus_params()
     n_dyn = len(parse_scene(params["scene"]).dynamic)
     axes = ("x", "y", "z", "roll", "pitch", "yaw")
     series = read_series(log, ["coll.body*"])
@@ -576,8 +581,6 @@ def fcl_share(log, reps=3):
 def fmu_rest_cost(n_calls=300):
     """Median us of an fmi2DoStep whose inputs did not change, through FMPy (campus scene and
     the 5040-tank field)."""
-    import tomllib
-
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
@@ -587,7 +590,7 @@ def fmu_rest_cost(n_calls=300):
     md = read_model_description(path)
     unzipped = extract(path)
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    params = next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
+    params = _campus_params()
     out = []
     for label, scene, pairs in (("campus_drive scene and pairs", params["scene"], params["pairs"]),
                                 ("5040-tank field, missile vs any tank", "tanks:n=5040,tris=5.4k;missile:z=8",
