@@ -221,9 +221,9 @@ def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", T_big: n
     Returns
     -------
     float
-        A lower bound of this pair's distance (the smallest distance found, or the bound of
-        the chunk where the visit stopped when smaller): what the pair's distance cache may
-        keep.
+        A lower bound of this pair's distance (the smallest distance found, or when smaller
+        the bound of the chunk where the visit stopped, or ``within`` when the visit of the
+        chunks nearer than it ended): what the pair's distance cache may keep.
     """
     within = min(within, res.min_distance)
     bounds, tie, idx = chunk_lower_bounds(chunks, T_big, T_other, *other_box, within=within)
