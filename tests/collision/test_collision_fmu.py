@@ -8,7 +8,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
 from immersim.orchestrator.build import build_unit, default_build_dir
-from tests.fmpy_runner import Runner, readme_has_generated_table, simulate
+from tests.fmpy_runner import Runner, readme_has_generated_table, simulate, wrapper_class
 
 UNIT = Path(__file__).resolve().parents[2] / "fmus" / "collision"
 H = 0.033
@@ -217,14 +217,9 @@ def test_steps_without_a_changed_output_write_nothing_and_say_so():
     """The wrapper's "outputs unchanged" answer (far pairs and pairs at rest hand out the
     results already written, the counters repeat) leaves every output as writing them all
     would: the same values step by step, with a state restored in between."""
-    import importlib.util
-
     from immersim.fmus.common import OUTPUTS_UNCHANGED
 
-    spec = importlib.util.spec_from_file_location("collision_fmu_under_test", UNIT / "collision_fmu.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    cls = mod.collision
+    cls = wrapper_class(UNIT)
     outs = [v.name for v in cls.VARIABLES if v.causality == "output"]
     params = {"scene": "tanks:n=4,tris=5.4k,spacing=12;box:name=a,sx=4,sy=2,sz=4.4,dynamic=1,x=-20;"
                        "sphere:name=e,r=1,dynamic=1,x=40",
