@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import List, Optional, Tuple
+from typing import List, Optional
 
 import fcl
 import numpy as np
@@ -55,15 +55,12 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 __all__ = ["CHUNK_MIN_FACES", "CHUNK_OTHER_MAX_FACES", "CHUNK_TIE", "ChunkedMesh", "split_faces", "chunk_lower_bounds",
-           "chunked_distance", "chunk_min_distance"]
+           "chunked_distance"]
 
 #: meshes with fewer triangles keep the whole-mesh query (their traversal is cheap)
 CHUNK_MIN_FACES = 1024
 #: m; a chunk whose lower bound is within this of the best distance so far is not visited
 CHUNK_TIE = 1e-12
-#: m; :func:`chunk_min_distance` skips a chunk only when its bound exceeds the best distance so
-#: far by this (far above the rounding of the bounds: coordinates up to 1e4 m, ~1e-11 m)
-CHUNK_MIN_MARGIN = 1e-9
 #: the other body of a chunked query has at most this many triangles (boxes, low-poly
 #: proxies): each chunk query pairs the chunk's triangles with all of the other body's that
 #: its BVH cannot prune, and a body of long triangles (the missile's 2.5 m side strips,
@@ -256,56 +253,3 @@ def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", T_big: n
     log.debug("chunked distance: %.6g m was not a bound (best %.6g m): the full order", within, res.min_distance)
     return min(own, chunked_distance(chunks, tag, tf_big, T_big, T_other, other_box, other, big_first, req, res))
 
-
-def chunk_min_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", lb: np.ndarray,
-                       lower: Optional[np.ndarray], other: "fcl.CollisionObject",
-                       req: "fcl.DistanceRequest") -> Tuple[float, np.ndarray]:
-    """The smallest distance of ``other`` (fcl's first object) to any chunk: the whole-mesh value.
-
-    Unlike :func:`chunked_distance` (nearest points, ``CHUNK_TIE``) this is the minimum over
-    every chunk that could hold a smaller distance: chunks are visited by increasing bound
-    ``max(lb, lower)`` and the visit stops at the first whose bound exceeds the best distance
-    so far by ``CHUNK_MIN_MARGIN`` (a chunk whose distance is at least the best cannot lower
-    the minimum; ties do not change the value). Each chunk's distance is computed by fcl with
-    the arithmetic of the whole-mesh query (same vertex coordinates, same transforms, same
-    order of the objects), so the minimum is the number ``fcl.distance(other, whole mesh)``
-    returns (conservative advancement needs only that number).
-
-    Parameters
-    ----------
-    chunks, tag, tf_big
-        As in :func:`chunked_distance`.
-    lb : ndarray, shape (n_chunks,)
-        Lower bounds of the chunks' distances at this pose (the first array that
-        :func:`chunk_lower_bounds` returns).
-    lower : ndarray, shape (n_chunks,) or None
-        Other lower bounds at this pose (m), e.g. the ``bounds`` returned at an earlier pose
-        less the motion since (conservative advancement), or None.
-    other : fcl.CollisionObject
-    req : fcl.DistanceRequest
-
-    Returns
-    -------
-    distance : float
-        m; what fcl's distance returns for the whole mesh.
-    bounds : ndarray, shape (n_chunks,)
-        Per chunk its distance where it was computed, else its lower bound: lower bounds of
-        the chunks' distances at this pose.
-    """
-    bounds = lb.copy() if lower is None else np.maximum(lb, lower)
-    order = np.argsort(bounds, kind="stable").tolist()
-    listed = bounds.tolist()
-    best = math.inf
-    objs, tags = chunks.objs, chunks.tag
-    for i in order:
-        if listed[i] - CHUNK_MIN_MARGIN >= best:
-            break
-        obj = objs[i]
-        if tags[i] != tag:
-            obj.setTransform(tf_big)
-            tags[i] = tag
-        d = fcl.distance(other, obj, req, fcl.DistanceResult())
-        bounds[i] = d
-        if d < best:
-            best = d
-    return best, bounds

@@ -38,12 +38,8 @@
   (:mod:`.chunks`; ``BackendConfig.chunk_faces``, 0 for the whole-mesh query): the same
   distances (round-off), far fewer triangle pairs where a large flat face is nearest.
   A larger body (the missile) keeps the whole-mesh query, also in its conservative
-  advancement; ``CA_CHUNKS`` (off) takes that distance as the minimum over the chunks
-  instead (:func:`.chunks.chunk_min_distance`), each chunk bounded by its box gap and by its
-  distance at the last iteration less the motion since: the same numbers. It paid off while
-  the whole-mesh query met the turret cap's fan (5.2 ms instead of 11.6 ms for
-  campus_drive's missile impact); on the distance triangulation the whole-mesh query is
-  cheaper (1.6 ms instead of 2.5 ms).
+  advancement: on the distance triangulation it is cheaper than the minimum over the
+  chunks (1.6 ms instead of 2.5 ms for campus_drive's missile impact).
 * Far pairs (every member's AABB at least ``max_distance`` away, no time of impact needed)
   are skipped by the base class's far-pair skip (``FAR_SKIP``); the fcl transform of a moved
   body is set only when a pair that involves it is evaluated.
@@ -58,8 +54,7 @@ import fcl
 import numpy as np
 
 from .backend import CollisionBackend, PairResult, PairSpec, _face_shift, aggregate
-from .chunks import (CHUNK_MIN_FACES, CHUNK_OTHER_MAX_FACES, ChunkedMesh, chunk_lower_bounds, chunk_min_distance,
-                     chunked_distance)
+from .chunks import CHUNK_MIN_FACES, CHUNK_OTHER_MAX_FACES, ChunkedMesh, chunked_distance
 from .fans import distance_faces
 from .geometry import Slerp, norm3, rotation_angle
 
@@ -96,12 +91,6 @@ class FclBackend(CollisionBackend):
     FAR_SKIP = True
     #: distance (m) below which conservative advancement reports contact
     toi_tol = 1e-4
-    #: conservative advancement of a body that keeps the whole-mesh query against a static
-    #: chunked mesh (the missile vs a tank) computes the whole mesh's distance chunk by chunk,
-    #: each chunk pruned by its box bound or by its distance at the last iteration less the
-    #: motion since (:func:`.chunks.chunk_min_distance`): the same numbers. False (default):
-    #: one whole-mesh query each, cheaper on the distance triangulation (module docstring).
-    CA_CHUNKS = False
     #: the motion bound between two iterations is inflated by this (relative) and this (m):
     #: covers the rounding of the interpolated pose and of fcl's distances (~1e-15 relative)
     CA_MOTION_REL = 1e-9
@@ -160,7 +149,6 @@ class FclBackend(CollisionBackend):
         self._a_first = False
         # (a, b) -> at the last exact distance: a lower bound of it, T_a, T_b (rows), an upper bound
         self._exact: Dict[Tuple[int, int], tuple] = {}
-        self._ca_tag = 0  # conservative advancement on whole_chunks: one chunk transform tag per iteration
         # each body's local AABB (its mesh's, in the body frame) for _frame_gap
         self._frame_box = [(np.asarray(self.scene.meshes[b.mesh_key].vertices, float).min(0),
                             np.asarray(self.scene.meshes[b.mesh_key].vertices, float).max(0))
@@ -692,34 +680,22 @@ class FclBackend(CollisionBackend):
         ob = fcl.CollisionObject(self.dgeoms[self.scene.bodies[b].mesh_key], fcl_transform(B0))
         req = fcl.DistanceRequest()
         # a static chunked partner: its chunks at its (fixed) pose, a's pose interpolated; a
-        # body that keeps the whole-mesh query (more than CHUNK_OTHER_MAX_FACES triangles) gets
-        # the whole mesh's value chunk by chunk (whole_chunks, CA_CHUNKS)
-        static_b = not self.is_dynamic[b]
-        chunks = self._body_chunks[b] if static_b and self._chunk_partner[a] else None
-        whole_chunks = self._body_chunks[b] if static_b and chunks is None and self.CA_CHUNKS else None
-        if chunks is not None or whole_chunks is not None:
+        # body that keeps the whole-mesh query (more than CHUNK_OTHER_MAX_FACES triangles)
+        # keeps it here too (module docstring)
+        chunks = self._body_chunks[b] if not self.is_dynamic[b] and self._chunk_partner[a] else None
+        if chunks is not None:
             tag, tf = self._chunk_tf(b)
             hull, box_c, box_h = self._hull[a], self._box_c[a], self._box_h[a]
-        if chunks is not None:
             path_b = None  # b at its static pose B1 (its chunks' transform)
-        TA, TB = A0, B0
+        TA = A0
         within = math.inf  # chunks: a bound above the distance at this iteration's pose
-        tf_b = None  # whole_chunks: b's transform at the current fraction, as the whole-mesh query has it
-        lower = None  # whole_chunks: the chunks' distance bounds at the last pose, less the motion since
         s = 0.0
         for it in range(200):
             if it == 0 and d0 is not None:
                 d = d0
             else:
                 counts[1] += 1
-                if whole_chunks is not None:
-                    # the chunks where the whole-mesh query has b (its interpolated pose: the
-                    # rounding of the interpolation moves it by ulps), a tag of its own
-                    self._ca_tag += 1
-                    lb, _, _ = chunk_lower_bounds(whole_chunks, TB, TA, hull, box_c, box_h)
-                    tf_now = fcl_transform(TB) if tf_b is None else tf_b
-                    d, lower = chunk_min_distance(whole_chunks, ("ca", self._ca_tag), tf_now, lb, lower, oa, req)
-                elif chunks is None:
+                if chunks is None:
                     d = fcl.distance(oa, ob, req, fcl.DistanceResult())
                 else:
                     # the distance is at most the last one plus the motion since (chunked_distance's
@@ -736,17 +712,12 @@ class FclBackend(CollisionBackend):
             if s > s_max:
                 return None
             # no surface point of a or b moves farther than mu (s - s_last) between the two poses
-            # (mu bounds both; b is static up to the rounding of its interpolation): each chunk's
-            # distance changed by at most that, plus the rounding margins
+            # (mu bounds both): the distance (each chunk's, the chunked query's within) changed
+            # by at most that, plus the rounding margins
             motion = mu * (s - s_last) * (1.0 + self.CA_MOTION_REL) + self.CA_MOTION_ABS
             within = d + motion
-            if lower is not None:
-                lower -= motion
             TA = path_a.at(s)
             oa.setTransform(fcl_transform(TA))
             if path_b is not None:
-                TB = path_b.at(s)
-                tf_b = fcl_transform(TB)
-                if whole_chunks is None:
-                    ob.setTransform(tf_b)
+                ob.setTransform(fcl_transform(path_b.at(s)))
         return s
