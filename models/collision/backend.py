@@ -302,7 +302,6 @@ class CollisionBackend(ABC):
         self._sphere_stale = np.zeros(self.n, bool)  # AABB current, bounding-sphere centre not
         self._is_dyn_list = self.is_dynamic.tolist()
         self._rot_key: Dict[int, Optional[bytes]] = {}
-        self._moved_set = np.zeros(self.n, bool)
         self._update_bounds(np.arange(self.n))
         # dynamic bodies each pair depends on (for the skip rule)
         self._pair_dyn = [np.flatnonzero(self.is_dynamic[np.append(p.members, p.a)]) for p in self.pairs]

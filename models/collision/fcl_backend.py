@@ -56,14 +56,13 @@ import numpy as np
 from .backend import CollisionBackend, PairResult, PairSpec, _face_shift, aggregate
 from .chunks import CHUNK_MIN_FACES, CHUNK_OTHER_MAX_FACES, ChunkedMesh, chunked_distance
 from .fans import distance_faces
-from .geometry import Slerp, norm3, rotation_angle
+from .geometry import _EYE3, Slerp, norm3, rotation_angle
 
 log = logging.getLogger(__name__)
 
 __all__ = ["FclBackend", "bvh_model", "fcl_transform"]
 
 
-_EYE3 = np.eye(3)
 #: a rotation by theta <= pi has ||R1 - R0||_F = 2 sqrt(2) sin(theta / 2) >= 2 sqrt(2) theta / pi:
 #: theta <= _ANGLE_PER_FRO ||R1 - R0||_F (rounded up)
 _ANGLE_PER_FRO = math.pi / (2.0 * math.sqrt(2.0)) * (1.0 + 1e-12)
