@@ -68,16 +68,21 @@ def compiler() -> Optional[str]:
     return None
 
 
+def library_source(name: str, functions: Sequence[ca.Function], extra_c: str = "") -> str:
+    """The C source of a library: CasADi's generated code of ``functions``, then ``extra_c``."""
+    cg = ca.CodeGenerator(f"{name}.c", {"with_header": False, "casadi_real": "double", "casadi_int": "long long int"})
+    for f in functions:
+        cg.add(f)
+    return cg.dump() + extra_c
+
+
 def compile_library(name: str, functions: Sequence[ca.Function], extra_c: str = "") -> Optional[ctypes.CDLL]:
     """Generate C for ``functions`` (plus ``extra_c``), compile (cached) and load; None without a compiler."""
     cc = compiler()
     if cc is None:
         log.info("no C compiler: %s runs in the CasADi virtual machine", name)
         return None
-    cg = ca.CodeGenerator(f"{name}.c", {"with_header": False, "casadi_real": "double", "casadi_int": "long long int"})
-    for f in functions:
-        cg.add(f)
-    source = cg.dump() + extra_c
+    source = library_source(name, functions, extra_c)
     digest = hashlib.sha256((source + " ".join(CFLAGS) + ca.__version__).encode()).hexdigest()[:20]
     lib = cache_dir() / f"{name}_{digest}.so"
     if not lib.exists():

@@ -204,6 +204,13 @@ CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casa
 def _library(rhs: ca.Function):
     """(library or None, (pre, check, sub, post), (driver name, its sz_arg, sz_res)) for the closed loop
     ``rhs``, compiled once per process."""
+    fns, driver, extra_c = macro_parts(rhs)
+    return compile_library(driver[0], list(fns), extra_c), fns, driver
+
+
+def macro_parts(rhs: ca.Function):
+    """((pre, check, sub, post), (driver name, its sz_arg, sz_res), C of the RK4 loop and the driver)
+    for the closed loop ``rhs``; :func:`.codegen.library_source` of these is the library's whole C."""
     pre = pre_function(f"{rhs.name()}_pre")
     check = check_function(f"{rhs.name()}_check")
     sub = rk4_substep(rhs)
@@ -216,7 +223,7 @@ def _library(rhs: ca.Function):
     c_src += DRIVER_C.format(name=name, pre=pre.name(), check=check.name(), loop=loop, post=post.name(),
                              nx=NX, nu=NU, iters=CLAMP_ITERS, sz_arg=sz_arg, sz_res=sz_res,
                              ow=W.start, ou=U.start, oraw=RAW.start, oreach=REACH.start)
-    return compile_library(name, list(fns), c_src), fns, (name, sz_arg, sz_res)
+    return fns, (name, sz_arg, sz_res), c_src
 
 
 class MacroStep:
