@@ -37,14 +37,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
         res = run_scenario(scenario, out, progress=not args.quiet, overrides=overrides)
     except RunInterrupted as exc:
         sys.stderr.write(f"immersim: {exc}\n")
-        return EXIT_INTERRUPTED
+        return 128 + exc.signum
     except RunFailed as exc:
         sys.stderr.write(f"immersim: error: {exc}\n")
         return EXIT_FAILED
-    if args.late_sigint.requested:  # the signal came after the last step, while the run closed
-        sys.stderr.write(f"immersim: interrupted by SIGINT after the run completed; the log {out} holds "
+    late = args.late_sigint
+    if late.requested:  # the signal came after the last step, while the run closed
+        sys.stderr.write(f"immersim: interrupted by {late.name} after the run completed; the log {out} holds "
                          f"all {res.steps_done} steps\n")
-        return EXIT_INTERRUPTED
+        return 128 + (late.signum or 2)
     sys.stdout.write(f"{res.scenario}: {res.steps_done} steps to t = {res.t_ns / 1e9:.6g} s -> {out}\n")
     summary = res.timing_summary()
     if summary:
@@ -172,6 +173,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     from .execution import DeferredSigint
 
     args.late_sigint = DeferredSigint(restore=argv is not None)
+    if args.fn is _cmd_run and argv is None and not args.debug:
+        from . import supervisor   # the run in a child process: a unit that crashes it is reported
+
+        if supervisor.available():
+            code = supervisor.supervise()
+            if code is not None:
+                return code
     try:
         if args.fn is _cmd_run:
             with args.late_sigint:

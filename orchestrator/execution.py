@@ -8,14 +8,17 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional
 
-from .errors import ImmersimError, LogWriteError
 from .fmu import forget_python_code
+from . import supervisor
+from .errors import FmuLoadError, ImmersimError, LogWriteError, ScenarioError
 from .master import Master, Slot
 from .logwriter import LogPlan, LogProcess, LogWriter
 from .scenario import Scenario, load_scenario
@@ -24,48 +27,75 @@ from .system import System, check_system, fmu_hashes
 log = logging.getLogger(__name__)
 
 
+#: the signals that stop a run between macro steps (SIGINT, SIGTERM, SIGHUP): exit 128 + signal
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
 class DeferredSigint:
-    """Turn SIGINT into a flag checked between macro steps.
+    """Turn SIGINT, SIGTERM and SIGHUP into a flag checked between macro steps.
 
     A KeyboardInterrupt raised inside an FMU's own Python code (pythonfmu FMUs share this
-    interpreter) would leave the FMU in a fatal state; deferring it to the end of the step
-    stops the run cleanly with every completed step logged. Only the main thread can install
-    the handler; elsewhere SIGINT keeps its default behaviour.
+    interpreter) would leave the FMU in a fatal state, and SIGTERM's default action would end
+    the process with the log unfinished; deferring them to the end of the step stops the run
+    cleanly with every completed step logged. Only the main thread can install the handlers;
+    elsewhere the signals keep their default behaviour.
 
     Parameters
     ----------
     restore : bool
-        Put the previous handler back on exit. False (a program's entry point): ignore SIGINT
-        from then on, so a late signal cannot kill the interpreter while it frees the FMUs
-        (Python's finalization puts a Python-level handler back to the default, not SIG_IGN).
+        Put the previous handlers back on exit. False (a program's entry point): ignore the
+        signals from then on, so a late signal cannot kill the interpreter while it frees the
+        FMUs (Python's finalization puts a Python-level handler back to the default, not SIG_IGN).
+
+    Attributes
+    ----------
+    requested : bool
+        A signal came.
+    signum : int or None
+        The first signal that came.
     """
 
     def __init__(self, restore: bool = True) -> None:
         self.requested = False
+        self.signum: Optional[int] = None
         self.restore = restore
-        self._old = None
+        self._old: Dict[int, Any] = {}
 
     def __enter__(self) -> "DeferredSigint":
         import signal
         import threading
 
         if threading.current_thread() is threading.main_thread():
-            self._old = signal.signal(signal.SIGINT, self._handle)
+            for name in STOP_SIGNALS:
+                sig = getattr(signal, name)
+                self._old[sig] = signal.signal(sig, self._handle)
         return self
 
     def _handle(self, signum, frame) -> None:
         self.requested = True
+        if self.signum is None:
+            self.signum = signum
+
+    @property
+    def name(self) -> str:
+        """The signal's name (``"SIGTERM"``), ``"SIGINT"`` when none came."""
+        import signal
+
+        return signal.Signals(self.signum).name if self.signum else "SIGINT"
 
     def __exit__(self, *exc) -> None:
         import signal
 
-        if self._old is not None and not self.restore:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-        elif self._old is not None:
-            signal.signal(signal.SIGINT, self._old)
-            outer = getattr(self._old, "__self__", None)
-            if self.requested and isinstance(outer, DeferredSigint):
+        for sig, old in self._old.items():
+            if not self.restore:
+                signal.signal(sig, signal.SIG_IGN)
+                continue
+            signal.signal(sig, old)
+            outer = getattr(old, "__self__", None)
+            if self.requested and isinstance(outer, DeferredSigint) and not outer.requested:
                 outer.requested = True  # not acted on here (it came after the last check): pass it on
+                outer.signum = self.signum
+        self._old = {}
 
 
 class RunFailed(ImmersimError, RuntimeError):
@@ -77,7 +107,11 @@ class RunFailed(ImmersimError, RuntimeError):
 
 
 class RunInterrupted(RunFailed):
-    """The run was interrupted by SIGINT."""
+    """The run was interrupted by SIGINT, SIGTERM or SIGHUP (``signum``)."""
+
+    def __init__(self, message: str, result: "RunResult", signum: int = 2) -> None:
+        super().__init__(message, result)
+        self.signum = signum
 
 
 @dataclass
@@ -136,7 +170,9 @@ class Execution:
         self.output = Path(output) if output else None
         self.progress = progress
         self.system: System = check_system(self.scenario)
-        self._tmp = tempfile.TemporaryDirectory(prefix="immersim_run_")
+        supervisor.remove_stale()   # what runs killed outright left behind
+        supervisor.reset()
+        self._tmp = tempfile.TemporaryDirectory(prefix=f"immersim_run_{os.getpid()}_")
         self.observer: Optional[LogWriter | LogProcess] = None   # the MCAP log
         self._log_step: Optional[Callable[[int, int], None]] = None   # logs step k at t_ns
         self.observers: List[Callable[[int, int], None]] = []
@@ -145,6 +181,7 @@ class Execution:
     # -- set-up --------------------------------------------------------------------------
     def _setup(self) -> Master:
         sc, system = self.scenario, self.system
+        supervisor.note(scenario=str(sc.file), steps_total=sc.n_steps)
         system.instantiate(Path(self._tmp.name))
         conns = system.connections()
         slots: Dict[str, Slot] = {}
@@ -247,7 +284,8 @@ class Execution:
         sc = self.scenario
         n = sc.n_steps
         result = RunResult(sc.file, self.output, 0, n, sc.start_ns, start_ns=sc.start_ns,
-                           skipped_units=list(self.system.skipped))
+                           skipped_units=list(self.system.skipped), status="failed",
+                           reason="the run ended without a reason (an error of immersim itself)")
         loop_start = None
         master: Optional[Master] = None
         bar = None
@@ -261,7 +299,10 @@ class Execution:
                                               if sc.algorithm == "gauss-seidel" else [])
                 if sigint.requested:
                     raise KeyboardInterrupt
+                crumb, STEPS = supervisor.CRUMB, supervisor.STEPS
+                crumb[supervisor.PHASE] = supervisor.STEPPING
                 if self.output is not None:
+                    supervisor.note(log=str(self.output), start_ns=sc.start_ns, step_ns=sc.step_ns)
                     self._open_log(master)
                 self._observe(master, 0, sc.start_ns)
                 if self.progress:
@@ -282,16 +323,28 @@ class Execution:
                     finally:
                         self._observe(master, k + 1, t_next)
                         result.steps_done, result.t_ns = k + 1, t_next
+                        crumb[STEPS] = k + 1
                     if bar is not None:
                         bar.update(1)
                 master.finish()
+                result.status, result.reason = "completed", ""
                 if self.observer is not None:
                     self._close_log(result)
         except KeyboardInterrupt:
-            result.status, result.reason = "interrupted", "interrupted by SIGINT"
-            raise RunInterrupted(self._stop_message(result), result) from None
+            result.status, result.reason = "interrupted", f"interrupted by {sigint.name}"
+            raise RunInterrupted(self._stop_message(result), result, sigint.signum or 2) from None
+        except (ScenarioError, FmuLoadError):
+            if loop_start is None:   # known at load (a connection rule, an FMU that does not load):
+                result.status = "refused"   # refused as bad input, nothing was run
+                raise
+            result.status, result.reason = "failed", str(sys.exc_info()[1])
+            raise RunFailed(self._stop_message(result), result) from sys.exc_info()[1]
         except ImmersimError as exc:
             result.status, result.reason = "failed", str(exc)
+            raise RunFailed(self._stop_message(result), result) from exc
+        except Exception as exc:   # not an error of ours: the run failed all the same, and says so
+            result.status, result.reason = "failed", f"{type(exc).__name__}: {exc}"
+            log.debug("run failed", exc_info=True)
             raise RunFailed(self._stop_message(result), result) from exc
         finally:
             if bar is not None:
@@ -343,6 +396,7 @@ class Execution:
         """Free the FMU instances and remove their extraction (with the Python modules loaded
         from it, see :func:`~immersim.orchestrator.fmu.forget_python_code`). :meth:`run` calls
         it; call it after using :meth:`_setup` directly."""
+        supervisor.CRUMB[supervisor.PHASE] = supervisor.CLOSING
         if isinstance(self.observer, LogProcess):
             self.observer.reap()
         self.system.terminate()

@@ -30,6 +30,7 @@ from typing import Any, Callable, Deque, Dict, List, Optional, Sequence
 
 import numpy as np
 
+from . import supervisor as _supervisor
 from .errors import FmuCallError, FmuLoadError
 from .pythonfmu_exit import install as _install_pythonfmu_exit
 
@@ -44,6 +45,9 @@ _FAMILY = {
     "Boolean": "bool", "String": "string",
 }
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
+#: the unit called last and the time of the call, for a supervising parent (two int64 stores
+#: before each doStep; see :mod:`.supervisor`)
+_CRUMB = _supervisor.CRUMB
 
 #: the FMI 2.0 functions called every step; they are called through prototypes without
 #: ``argtypes`` and with pre-built ctypes arguments (component pointer, counts, buffers, the
@@ -264,6 +268,7 @@ class FmuInstance:
         self.messages: Deque[str] = deque(maxlen=20)
         if not self.path.exists():
             raise FmuLoadError(f"unit {name}: FMU file {self.path} does not exist")
+        self._crumb_id = _supervisor.unit_id(name)
         md, self.variables = read_model(self.path, name)
         self.model_description = md
         self.fmi_version = md.fmiVersion
@@ -306,6 +311,7 @@ class FmuInstance:
         kwargs = dict(guid=md.guid, unzipDirectory=self.unzip_dir,
                       modelIdentifier=md.coSimulation.modelIdentifier, instanceName=self.name)
         cwd = os.getcwd()  # FMPy changes into the binaries folder and does not return on failure
+        _CRUMB[_supervisor.PHASE], _CRUMB[_supervisor.UNIT] = _supervisor.LOADING, self._crumb_id
         try:
             cls = FMU2Slave if self.fmi_version.startswith("2") else FMU3Slave
             if not self.fmi_version.startswith(("2", "3")):
@@ -403,6 +409,8 @@ class FmuInstance:
                    tolerance: Optional[float] = None) -> None:
         """Set parameters and start values, enter and exit initialization mode."""
         self.t_ns = start_ns
+        _CRUMB[_supervisor.PHASE], _CRUMB[_supervisor.UNIT] = _supervisor.INITIALIZING, self._crumb_id
+        _CRUMB[_supervisor.T_NS] = start_ns
         t0 = ns_to_s(start_ns)
         t1 = ns_to_s(stop_ns) if stop_ns is not None else None
         if self.fmi_version.startswith("2"):
@@ -420,6 +428,8 @@ class FmuInstance:
         """Advance from ``t_ns`` by ``h_ns`` (integer nanoseconds)."""
         if h_ns <= 0 or t_ns != self.t_ns:
             raise step_error(self.name, t_ns, h_ns, self.t_ns)
+        _CRUMB[2] = self._crumb_id   # supervisor.UNIT, T_NS
+        _CRUMB[3] = t_ns
         if self._fmi2:
             if h_ns != self._h_ns:
                 self._c_h.value, self._h_ns = h_ns / 1e9, h_ns

@@ -20,8 +20,9 @@ Failures keep the rules of the in-process log:
 * A write that fails (full disk) is reported by the writer with its message (path, time); the
   master raises it as :class:`LogWriteError` at its next step or at the close. The log keeps
   every step the writer finished before it.
-* The writer ignores SIGINT (the master acts on it between steps and closes the log). When
-  the master dies, its socket closes and the writer finishes the file with every step it got.
+* The writer ignores SIGINT, SIGTERM and SIGHUP (the master acts on them between steps and
+  closes the log). When the master dies, its socket closes and the writer finishes the file
+  with every step it got.
 * A writer that dies gives a :class:`LogWriteError` naming the file, its exit code and the time.
 """
 from __future__ import annotations
@@ -291,6 +292,9 @@ class LogProcess:
         except OSError as exc:
             raise LogWriteError(f"cannot write the log {self.path}: the log-writer process did not start: "
                                 f"{exc}") from None
+        from . import supervisor
+
+        supervisor.CRUMB[supervisor.WRITER_PID] = self.proc.pid   # a supervising parent waits for it
         self._poller = select.poll()
         self._poller.register(self.conn.fileno(), select.POLLIN)
         self._send, self._poll = self.conn.send_bytes, self._poller.poll
@@ -388,7 +392,8 @@ def _main(argv: List[str]) -> None:  # pragma: no cover - runs in the writer pro
     import signal
     from multiprocessing.connection import Connection
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):   # the master acts on them
+        signal.signal(sig, signal.SIG_IGN)
     logging.basicConfig(level=logging.WARNING, format="immersim log writer: %(message)s")
     _serve(Connection(int(argv[0])))
 

@@ -193,6 +193,13 @@ def _fast_writer_class():
             stream.write(struct.pack(f"<BQHI{n}Q", 0x07, 6 + 8 * n, self.channel_id, 8 * n, *self.flat))
 
     class FastWriter(Writer):
+        #: a supervisor.Journal: each step's records are copied there until their chunk is on disk
+        journal = None
+
+        def _Writer__finalize_chunk(self) -> None:   # the library's, then the journal is emptied
+            Writer._Writer__finalize_chunk(self)
+            if self.journal is not None:
+                self.journal.committed()
         def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
                         sequence: int = 0) -> None:
             if publish_time != log_time:  # not ours: the library's method
@@ -237,6 +244,9 @@ def _fast_writer_class():
                 pos += 31 + n  # 9 bytes record header + 22 bytes message fields + data
                 write(header.pack(0x05, 22 + n, cid, sequence, log_time, log_time))
                 write(data)
+            if self.journal is not None:
+                with buf.getbuffer() as view:
+                    self.journal.append(view[pos - sum(31 + len(d) for _, d in items):pos])
             if pos > self._Writer__chunk_size:
                 self._Writer__finalize_chunk()
 
@@ -277,6 +287,10 @@ class McapObserver:
             self.writer = _fast_writer_class()(self._fh, chunk_size=self.CHUNK_BYTES,
                                                compression=CompressionType[self.COMPRESSION.upper()])
             self.writer.start(profile="", library="immersim")
+            from . import supervisor
+
+            if supervisor.supervised():   # a crash of the process keeps the chunk in progress too
+                self.writer.journal = supervisor.Journal(self._fh)
         except OSError as exc:
             raise LogWriteError(f"cannot write the log {self.path}: {exc.strerror or exc}") from None
         self.channels: Dict[str, int] = {}

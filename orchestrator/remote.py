@@ -30,7 +30,7 @@ Inside the worker every call goes through a real ``FmuInstance``, so status chec
 checks and error messages are the same; an exception raised there is rebuilt here with its type
 and message (:func:`_portable`, :func:`_rebuild`). A worker that dies gives an
 :class:`~immersim.orchestrator.errors.FmuCallError` naming the unit, the call, the time and the
-exit code. Workers ignore SIGINT (the master acts on it between steps, see
+exit code. Workers ignore SIGINT, SIGTERM and SIGHUP (the master acts on them between steps, see
 :class:`~immersim.orchestrator.execution.DeferredSigint`) and end when their pipe closes.
 
 The master's messages to a worker go through a mailbox in shared memory (:class:`_Mailbox`;
@@ -357,7 +357,8 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     """Worker main loop: load units, run their queued calls, reply with outputs."""
     import signal
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):   # the master acts on them
+        signal.signal(sig, signal.SIG_IGN)
     logging.basicConfig(level=logging.WARNING, format="worker %(process)d: %(levelname)s %(name)s: %(message)s")
     units: Dict[str, FmuInstance] = {}
     readers: Dict[str, Any] = {}
