@@ -1,6 +1,8 @@
 """A 3D view in the MCAP log for Foxglove: ``foxglove.FrameTransforms`` and ``foxglove.SceneUpdate``.
 
-A scenario lists the bodies to draw; each body's pose comes from logged signals (or constants)::
+A scenario lists the bodies to draw (their keys are declared in
+:class:`~immersim.orchestrator.schema.BodyTable`); each body's pose comes from logged signals
+(or constants)::
 
     [[foxglove.bodies]]
     name = "platform"                      # frame id and entity id
@@ -32,7 +34,6 @@ from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Sequence, Tuple, Union
 
 from .codegen import Generated
-from .errors import ScenarioError
 
 Ref = Union[str, float]
 SHAPES = {"cube": "cubes", "sphere": "spheres", "cylinder": "cylinders"}
@@ -65,43 +66,6 @@ class Body:
 
     def refs(self) -> List[str]:
         return [r for r in (*self.position, *self.euler) if isinstance(r, str)]
-
-
-def parse_bodies(raw: Any, where: str) -> List[Body]:
-    """Check the ``[foxglove]`` table of a scenario; errors name the file and the key."""
-    if raw is None:
-        return []
-    if not isinstance(raw, dict) or set(raw) - {"bodies"}:
-        raise ScenarioError(f"{where}: [foxglove] must be a table with a 'bodies' array")
-    bodies = []
-    for i, b in enumerate(raw.get("bodies", [])):
-        w = f"{where}: foxglove.bodies[{i}]"
-        if not isinstance(b, dict) or not isinstance(b.get("name"), str):
-            raise ScenarioError(f"{w} needs a 'name'")
-        unknown = set(b) - {"name", "parent", "position", "euler", "order", "offset", "shape", "size", "color"}
-        if unknown:
-            raise ScenarioError(f"{w}: unknown key {sorted(unknown)[0]!r}")
-
-        def triple(key: str, default: Sequence[Any], refs: bool = True) -> Tuple:
-            v = b.get(key, default)
-            if not isinstance(v, list) or len(v) != len(default):
-                raise ScenarioError(f"{w}.{key} must be a list of {len(default)} values")
-            for x in v:
-                ok = isinstance(x, (int, float)) and not isinstance(x, bool) or (refs and isinstance(x, str) and "." in x)
-                if not ok:
-                    raise ScenarioError(f"{w}.{key}: {x!r} is neither a number nor a 'unit.variable' reference")
-            return tuple(x if isinstance(x, str) else float(x) for x in v)
-
-        shape = b.get("shape", "cube")
-        if shape not in SHAPES:
-            raise ScenarioError(f"{w}.shape {shape!r} is not one of {', '.join(SHAPES)}")
-        order = b.get("order", "xyz")
-        if order not in ("xyz", "zyx"):
-            raise ScenarioError(f"{w}.order {order!r} is not 'xyz' or 'zyx'")
-        bodies.append(Body(b["name"], str(b.get("parent", "world")), triple("position", [0.0] * 3),
-                           triple("euler", [0.0] * 3), order, triple("offset", [0.0] * 3, False), shape,
-                           triple("size", [1.0] * 3, False), triple("color", [0.6, 0.6, 0.6, 1.0], False)))
-    return bodies
 
 
 def _axis_quat(axis: int, angle: float) -> Tuple[float, float, float, float]:

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
+from .. import schema
 from ..errors import ScenarioError
-from ..scenario import tomllib
 
-from .common import BUILTIN_METRICS, FIXED_COLUMNS, REDUCERS, SIM_KEYS, TAIL_COLUMNS, _EDGE, _UNSAFE
+from .common import BUILTIN_METRICS, FIXED_COLUMNS, SIM_KEYS, TAIL_COLUMNS, _EDGE, _UNSAFE
 
 
 # -- the sweep file ----------------------------------------------------------------------
@@ -129,16 +129,8 @@ def load_sweep(path: Path | str) -> SweepSpec:
         Naming the sweep file and the offending key (or variant).
     """
     path = Path(path)
-    if not path.exists():
-        raise ScenarioError(f"sweep file {path} does not exist")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise _err(path, f"invalid TOML: {exc}") from None
-    known = {"scenario", "grid", "variants", "metrics", "plot", "description", "title"}
-    for key in data:
-        if key not in known:
-            raise _err(path, f"unknown top-level key {key!r} (expected one of {', '.join(sorted(known))})")
+    data, _ = schema.read_toml(path, "sweep file")
+    schema.validate(schema.SweepFile, data, path)   # keys, types and ranges; the rest below
     scenario = _parse_scenario_path(data.get("scenario"), path)
     grid = _parse_grid(data.get("grid", {}), path)
     explicit = _parse_variants(data.get("variants", []), path)
@@ -157,7 +149,9 @@ def _parse_scenario_path(value: Any, path: Path) -> Path:
         raise _err(path, "'scenario' must be the path of a scenario file (relative to the sweep file)")
     scenario = (path.parent / value).resolve()
     if not scenario.exists():
-        raise _err(path, f"scenario {value!r} does not exist (looked for {scenario})")
+        raise _err(path, f"scenario: {value!r} does not exist (looked for {scenario})")
+    if not scenario.is_file():
+        raise _err(path, f"scenario: {value!r} is not a file ({scenario})")
     return scenario
 
 
@@ -303,14 +297,8 @@ def _parse_metrics(raw: Any, path: Path, keys: Sequence[str]) -> List[MetricSpec
         extra = set(m) - {"signal", "reduce", "after"}
         if extra:
             raise _err(path, f"{where}: unknown key {sorted(extra)[0]!r} (expected signal, reduce, after)")
-        signal, reduce, after = m.get("signal"), m.get("reduce", "max"), m.get("after", -math.inf)
-        if not isinstance(signal, str) or "." not in signal:
-            raise _err(path, f"{where}: 'signal' must be a 'unit.variable' pattern, got {signal!r}")
-        if reduce not in REDUCERS:
-            raise _err(path, f"{where}: reduce {reduce!r} is not one of {'|'.join(REDUCERS)}")
-        if isinstance(after, bool) or not isinstance(after, (int, float)):
-            raise _err(path, f"{where}: 'after' must be a time in s, got {after!r}")
-        out.append(MetricSpec(name, None, signal, reduce, float(after)))
+        # keys and types were checked by schema.MetricTable
+        out.append(MetricSpec(name, None, m["signal"], m.get("reduce", "max"), float(m.get("after", -math.inf))))
     return out
 
 

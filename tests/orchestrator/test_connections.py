@@ -61,5 +61,5 @@ gain = 3.0
 
 
 def test_bad_gain(tmp_path, test_fmus):
-    with pytest.raises(ScenarioError, match=r"connections\[0\]: gain must be a finite number, got 'big'"):
+    with pytest.raises(ScenarioError, match=r"connections\[0\].gain: expected a number, got 'big'"):
         run_scenario(scenario(tmp_path, test_fmus["oscillator"], 'gain = "big"'))

@@ -88,5 +88,5 @@ delayed = true
 def test_delayed_must_be_a_boolean(tmp_path, test_fmus):
     scn = oscillator_scenario(tmp_path, test_fmus["oscillator"])
     scn.write_text(scn.read_text().replace('to = "m2.x_other"', 'to = "m2.x_other"\ndelayed = 1'))
-    with pytest.raises(ScenarioError, match=r"osc.toml: connections\[0\]: delayed must be true or false, got 1"):
+    with pytest.raises(ScenarioError, match=r"osc.toml: connections\[0\].delayed: expected true or false, got 1"):
         load_scenario(scn)

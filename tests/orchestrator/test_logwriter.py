@@ -119,6 +119,6 @@ def test_when_the_master_is_killed_the_writer_finishes_the_file(tmp_path, test_f
 
 def test_process_must_be_a_boolean(tmp_path, test_fmus):
     scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], extra='[log]\nprocess = "yes"\n')
-    with pytest.raises(ScenarioError, match=r"osc.toml: \[log\] process must be true or false, got 'yes'"):
+    with pytest.raises(ScenarioError, match=r"osc.toml: log.process: expected true or false, got 'yes'"):
         load_scenario(scn)
     assert load_scenario(scn, {"log.process": True}).log.process is True

@@ -213,7 +213,7 @@ def test_a_worker_that_dies_stops_the_run_and_the_log_keeps_every_step(tmp_path,
 
 def test_bad_process_number_is_refused(tmp_path, test_fmus):
     scn = oscillator_scenario(tmp_path, test_fmus["oscillator"])
-    with pytest.raises(ScenarioError, match=r"override 'm1:process': 'process' must be an integer >= 0"):
+    with pytest.raises(ScenarioError, match=r"osc.toml: units\[0\].process \(set by override 'm1:process'\): must be an integer >= 0"):
         load_scenario(scn, {"m1:process": -1})
     with pytest.raises(ScenarioError, match=r"override 'mx:process': no unit 'mx'"):
         load_scenario(scn, {"mx:process": 1})

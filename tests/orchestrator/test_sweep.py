@@ -187,31 +187,31 @@ def test_run_ids_are_short_and_file_system_safe():
 
 
 BAD = [
-    ("scenario = 1\n[grid]\n'm1.k' = [1.0]\n", r"bad.toml: 'scenario' must be the path of a scenario file"),
-    ("scenario = 'nope.toml'\n[grid]\n'm1.k' = [1.0]\n", r"bad.toml: scenario 'nope.toml' does not exist"),
+    ("scenario = 1\n[grid]\n'm1.k' = [1.0]\n", r"bad.toml: scenario: expected a string, got 1"),
+    ("scenario = 'nope.toml'\n[grid]\n'm1.k' = [1.0]\n", r"bad.toml: scenario: 'nope.toml' does not exist"),
     ("scenario = 'osc.toml'\n[grid\n", r"bad.toml: invalid TOML"),
-    ("scenario = 'osc.toml'\nruns = 3\n", r"bad.toml: unknown top-level key 'runs'"),
+    ("scenario = 'osc.toml'\nruns = 3\n", r"bad.toml: unknown key 'runs' \(expected one of description, grid"),
     ("scenario = 'osc.toml'\n", r"bad.toml: nothing to run: give a \[grid\] or \[\[variants\]\]"),
-    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = 2.0\n", r"bad.toml: grid key 'm1.k' must be a non-empty list of values, got 2.0"),
-    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = []\n", r"bad.toml: grid key 'm1.k' must be a non-empty list"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = 2.0\n", r"bad.toml: grid\['m1.k'\]: expected an array, got 2.0"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = []\n", r"bad.toml: grid\['m1.k'\]: must not be empty"),
     ("scenario = 'osc.toml'\n[grid]\n'simulation.dt' = [0.1]\n",
      r"bad.toml: grid key 'simulation.dt': unknown simulation setting 'simulation.dt'"),
     ("scenario = 'osc.toml'\n[grid]\n'stiffness' = [1]\n", r"bad.toml: grid key 'stiffness': 'stiffness' is not an override key"),
     ("scenario = 'osc.toml'\n[grid]\n'mx.k' = [1.0, 2.0]\n",
      r"bad.toml: variant 000_1 \{'mx.k': 1.0\}: override 'mx.k': no unit 'mx' in .*osc.toml"),
     ("scenario = 'osc.toml'\n[grid]\n'simulation.algorithm' = ['jacobi', 'euler']\n",
-     r"bad.toml: variant 001_euler \{'simulation.algorithm': 'euler'\}: .*osc.toml: simulation.algorithm 'euler' is not "
-     r"one of gauss-seidel, jacobi"),
+     r"bad.toml: variant 001_euler \{'simulation.algorithm': 'euler'\}: .*osc.toml: simulation.algorithm \(set by override "
+     r"'simulation.algorithm'\): 'euler' is not one of gauss-seidel, jacobi"),
     ("scenario = 'osc.toml'\n[grid]\n'simulation.step' = [0.01, -1.0]\n",
-     r"bad.toml: variant 001_-1 .*simulation.step = -1.0 s must be > 0"),
+     r"bad.toml: variant 001_-1 .*simulation.step \(set by override 'simulation.step'\): must be > 0, got -1.0"),
     ("scenario = 'osc.toml'\n[[variants]]\nname = 'a'\n[[variants]]\nname = 'a'\n",
      r"bad.toml: variants\[1\]: duplicate variant name 'a'"),
     ("scenario = 'osc.toml'\n[[variants]]\nname = 'a'\n'm1.k' = [1, 2]\n",
-     r"bad.toml: variants\[0\] \(a\) key 'm1.k': expected a single value, got \[1, 2\]"),
+     r"bad.toml: variants\[0\]: key 'm1.k': expected a single value, got \[1, 2\]"),
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = { signal = 'm1.x', reduce = 'median' }\n",
-     r"bad.toml: metrics.e: reduce 'median' is not one of max\|min\|mean\|rms\|absmax\|final"),
+     r"bad.toml: metrics.e.reduce: 'median' is not one of max, min, mean, rms, absmax, final"),
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = { signal = 'x' }\n",
-     r"bad.toml: metrics.e: 'signal' must be a 'unit.variable' pattern, got 'x'"),
+     r"bad.toml: metrics.e.signal: 'x' is not of the form 'unit.variable'"),
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[metrics]\ne = 'cpu'\n",
      r"bad.toml: metrics.e: unknown built-in metric 'cpu' \(expected one of wall_time, loop_time, realtime_factor, "
      r"steps, status, unit_time:<unit>, or a table \{signal, reduce\}\)"),
@@ -224,7 +224,7 @@ BAD = [
     ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[plot]\nx = 'm1.k'\ny = 'err'\n",
      r"bad.toml: plot.y: 'err' is not an override key or metric \(columns: m1.k, steps, t_end_s, "
      r"wall_time_s, loop_time_s\)"),
-    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[[plot]]\ny = 'steps'\n", r"bad.toml: plot\[0\]: needs 'x' and 'y'"),
+    ("scenario = 'osc.toml'\n[grid]\n'm1.k' = [1.0]\n[[plot]]\ny = 'steps'\n", r"bad.toml: plot\[0\].x: missing \(required\)"),
 ]
 
 

@@ -1,0 +1,551 @@
+"""The schema of scenario and sweep files, declared once (pydantic v2 models, one per table).
+
+Every key of a scenario (``[simulation]``, ``[[units]]``, ``[[connections]]``, ``[[inputs]]``,
+``[[faults]]``, ``[log]``, ``[[foxglove.bodies]]``) and of a sweep file (``scenario``,
+``[grid]``, ``[[variants]]``, ``[metrics]``, ``[plot]``) is a field here with its type, range
+and unit; a key no model declares is refused with a "did you mean". :func:`validate` turns the
+first violation into a :class:`~immersim.orchestrator.errors.ScenarioError` that names the file
+and the key path (``units[2].parameters.M``, ``inputs[4].times``). The loaders
+(:mod:`~immersim.orchestrator.scenario`, :mod:`~immersim.orchestrator.sweep.spec`) convert the
+validated models into their dataclasses; what depends on the FMUs (a variable's FMI type and
+range, causality, variability) is checked by :func:`check_value` once the model descriptions
+are read (:mod:`~immersim.orchestrator.system`).
+"""
+from __future__ import annotations
+
+import difflib
+import math
+import re
+import sys
+from pathlib import Path
+from typing import Annotated, Any, Dict, List, Literal, Optional, Tuple, Union
+
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag,
+                      ValidationError, model_validator)
+from pydantic_core import PydanticCustomError
+
+from .errors import ScenarioError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+#: the largest time a scenario may name (s): times are int64 nanoseconds
+MAX_TIME_S = 9.2e9
+ALGORITHMS = ("gauss-seidel", "jacobi")
+EXTRAPOLATIONS = ("zoh", "linear")
+#: a connection may also say "angle": linear, the difference of two samples taken the short way
+#: round the circle (an angle output wrapped to (-pi, pi] does not turn by 2 pi when it wraps)
+CONNECTION_EXTRAPOLATIONS = EXTRAPOLATIONS + ("angle",)
+INPUT_KINDS = ("constant", "step", "ramp", "sine", "table")
+LOG_ENCODINGS = ("json", "ros1")
+SHAPES = ("cube", "sphere", "cylinder")
+REDUCE_NAMES = ("max", "min", "mean", "rms", "absmax", "final")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
+
+#: range of each FMI integer type (FMI 2.0 ``Integer`` and ``Enumeration`` are 32-bit; FMI 3.0
+#: ``Enumeration`` is Int64)
+INT_RANGES: Dict[str, Tuple[int, int]] = {
+    "Integer": (-2 ** 31, 2 ** 31 - 1),
+    "Int8": (-2 ** 7, 2 ** 7 - 1), "UInt8": (0, 2 ** 8 - 1),
+    "Int16": (-2 ** 15, 2 ** 15 - 1), "UInt16": (0, 2 ** 16 - 1),
+    "Int32": (-2 ** 31, 2 ** 31 - 1), "UInt32": (0, 2 ** 32 - 1),
+    "Int64": (-2 ** 63, 2 ** 63 - 1), "UInt64": (0, 2 ** 64 - 1),
+}
+
+
+# -- value types ---------------------------------------------------------------------------
+def _fail(kind: str, message: str, **ctx: Any) -> PydanticCustomError:
+    return PydanticCustomError(kind, message, ctx)
+
+
+def _number(x: Any) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise _fail("number", "expected a number, got {got}", got=_show(x))
+    try:
+        value = float(x)
+    except OverflowError:
+        raise _fail("number", "{got} is too large", got=_show(x)) from None
+    if not math.isfinite(value):
+        raise _fail("finite", "must be finite, got {got}", got=_show(x))
+    return value
+
+
+def _seconds(x: Any) -> float:
+    value = _number(x)
+    if abs(value) > MAX_TIME_S:
+        raise _fail("time", "{got} s is outside +-{lim} s (times are int64 nanoseconds)", got=_show(x),
+                    lim=f"{MAX_TIME_S:g}")
+    return value
+
+
+def _above(low: float, strict: bool = True):
+    def check(x: float) -> float:
+        if x <= low if strict else x < low:
+            raise _fail("range", "must be {op} {low}, got {got}", op=">" if strict else ">=", low=f"{low:g}", got=_show(x))
+        return x
+    return check
+
+
+def _unit_interval(x: float) -> float:
+    if not 0.0 <= x <= 1.0:
+        raise _fail("range", "must be in 0..1, got {got}", got=_show(x))
+    return x
+
+
+def _scalar(x: Any) -> Any:
+    if not isinstance(x, (bool, int, float, str)):
+        raise _fail("scalar", "expected a number, true/false or a string, got {got}", got=_show(x))
+    return x
+
+
+def _ref(x: Any) -> str:
+    if not isinstance(x, str):
+        raise _fail("ref", "expected a 'unit.variable' string, got {got}", got=_show(x))
+    unit, _, var = x.partition(".")
+    if not unit.strip() or not var.strip():
+        raise _fail("ref", "{got} is not of the form 'unit.variable'", got=_show(x))
+    return x
+
+
+def _ref_or_number(x: Any) -> Union[str, float]:
+    if isinstance(x, str):
+        return _ref(x)
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise _fail("ref", "expected a number or a 'unit.variable' reference, got {got}", got=_show(x))
+    return _number(x)
+
+
+def _identifier(x: Any) -> str:
+    if not isinstance(x, str) or not _NAME.match(x):
+        raise _fail("name", "must be an identifier (letters, digits, _ and -), got {got}", got=_show(x))
+    return x
+
+
+def _process(x: Any) -> int:
+    if isinstance(x, str) and x.strip().isdigit():
+        x = int(x)
+    if isinstance(x, bool) or not isinstance(x, int) or x < 0:
+        raise _fail("process", "must be an integer >= 0 (0: the master's process, N: worker process N), "
+                               "got {got}", got=_show(x))
+    return x
+
+
+def _nonempty(x: str) -> str:
+    if not x.strip():
+        raise _fail("empty", "must not be empty")
+    return x
+
+
+Number = Annotated[Any, AfterValidator(_number)]
+Seconds = Annotated[Any, AfterValidator(_seconds)]
+Positive = Annotated[Any, AfterValidator(_number), AfterValidator(_above(0.0))]
+NonNegative = Annotated[Any, AfterValidator(_number), AfterValidator(_above(0.0, strict=False))]
+UnitInterval = Annotated[Any, AfterValidator(_number), AfterValidator(_unit_interval)]
+Scalar = Annotated[Any, AfterValidator(_scalar)]
+Ref = Annotated[Any, AfterValidator(_ref)]
+RefOrNumber = Annotated[Any, AfterValidator(_ref_or_number)]
+Identifier = Annotated[Any, AfterValidator(_identifier)]
+Text = Annotated[str, AfterValidator(_nonempty)]
+
+
+def _array(item: Any, n: int) -> Any:
+    """An array of exactly ``n`` items (TOML arrays are lists)."""
+    return Annotated[List[item], Field(min_length=n, max_length=n)]
+
+
+Triple = _array(RefOrNumber, 3)
+
+
+class Table(BaseModel):
+    """A TOML table: the declared keys only (an unknown key gets a "did you mean")."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True, populate_by_name=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_keys(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            raise _fail("table", "expected a table, got {got}", got=_show(data))
+        if cls.model_config.get("extra") == "forbid":
+            known = [f.alias or name for name, f in cls.model_fields.items()]
+            for key in data:
+                if key not in known:
+                    raise _fail("unknown_key", "unknown key {key}{hint}", key=_show(key), hint=did_you_mean(key, known))
+        return data
+
+
+def did_you_mean(word: Any, known: List[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the closest known word, else the list of known words."""
+    close = difflib.get_close_matches(str(word), known, n=1, cutoff=0.6)
+    if close:
+        return f" (did you mean {close[0]!r}?)"
+    return f" (expected one of {', '.join(sorted(known))})" if known else ""
+
+
+# -- scenario files ------------------------------------------------------------------------
+class SimulationTable(Table):
+    """``[simulation]``: the time grid (s) and the master algorithm."""
+
+    start: Seconds = Field(0.0, description="start time, s")
+    stop: Optional[Seconds] = Field(None, description="stop time, s (default: start + 10 steps)")
+    step: Positive = Field(0.033, description="macro step, s")
+    algorithm: Literal[ALGORITHMS] = "gauss-seidel"
+    extrapolation: Literal[EXTRAPOLATIONS] = "linear"
+    tolerance: Optional[Positive] = Field(None, description="relative tolerance handed to the units")
+    lazy: bool = Field(True, description="step units that report at_rest lazily")
+
+
+class UnitTable(Table):
+    """``[[units]]``: one FMU instance and its parameters (checked against the FMU's types)."""
+
+    name: Identifier
+    fmu: Text = Field(description="a built-in unit name or the path of an FMI 2.0/3.0 CS FMU")
+    parameters: Dict[str, Scalar] = Field(default_factory=dict)
+    process: Annotated[Any, AfterValidator(_process)] = Field(0, description="0: the master's process, N: worker N")
+
+
+class ConnectionTable(Table):
+    """``[[connections]]``: ``to = gain * from + offset`` (gain and offset for Real variables)."""
+
+    src: Ref = Field(alias="from")
+    dst: Ref = Field(alias="to")
+    gain: Number = 1.0
+    offset: Number = 0.0
+    extrapolation: Optional[Literal[CONNECTION_EXTRAPOLATIONS]] = None
+    delayed: bool = False
+
+
+def _arrow(x: Any) -> str:
+    if "->" not in x:
+        raise _fail("arrow", "{got} is not of the form 'unit.out -> unit.in'", got=_show(x))
+    for ref in x.split("->", 1):
+        _ref(ref.strip())
+    return x
+
+
+def _table_or_string(x: Any) -> str:
+    return "<string>" if isinstance(x, str) else "<table>"
+
+
+ConnectionEntry = Annotated[Union[Annotated[Annotated[str, AfterValidator(_arrow)], Tag("<string>")],
+                                  Annotated[ConnectionTable, Tag("<table>")]], Discriminator(_table_or_string)]
+
+
+class _Input(Table):
+    target: Ref = Field(description="the Real input driven, 'unit.variable'")
+
+
+class ConstantInput(_Input):
+    kind: Literal["constant"] = "constant"
+    value: Number
+
+
+class StepInput(_Input):
+    kind: Literal["step"]
+    at: Seconds
+    value: Number
+    initial: Number = Field(0.0, description="value before 'at'")
+
+
+class RampInput(_Input):
+    kind: Literal["ramp"]
+    at: Seconds
+    slope: Number = Field(description="per s")
+    initial: Number = 0.0
+
+
+class SineInput(_Input):
+    kind: Literal["sine"]
+    amplitude: Number
+    frequency: NonNegative = Field(description="Hz")
+    offset: Number = 0.0
+    phase: Number = Field(0.0, description="rad")
+
+
+class TableInput(_Input):
+    kind: Literal["table"]
+    times: Annotated[List[Seconds], Field(min_length=1)]
+    values: Annotated[List[Number], Field(min_length=1)]
+
+    @model_validator(mode="after")
+    def _increasing(self) -> "TableInput":
+        if len(self.times) != len(self.values):
+            raise ValueError(f"'times' has {len(self.times)} entries, 'values' {len(self.values)}: "
+                             "they must be as long")
+        for j, (a, b) in enumerate(zip(self.times, self.times[1:])):
+            if b < a:
+                raise ValueError(f"'times' must be increasing: times[{j + 1}] = {b:g} < times[{j}] = {a:g}")
+        return self
+
+
+def _input_kind(x: Any) -> Any:
+    return f"<{x.get('kind', 'constant')}>" if isinstance(x, dict) else None
+
+
+InputEntry = Annotated[Union[Annotated[ConstantInput, Tag("<constant>")], Annotated[StepInput, Tag("<step>")],
+                             Annotated[RampInput, Tag("<ramp>")], Annotated[SineInput, Tag("<sine>")],
+                             Annotated[TableInput, Tag("<table>")]], Discriminator(_input_kind)]
+
+
+class FaultTable(Table):
+    """``[[faults]]``: from ``at`` on, force an input (or tunable parameter) to ``value``."""
+
+    target: Ref
+    at: Seconds = Field(0.0, description="s")
+    value: Scalar = Field(description="of the target's FMI type; NaN/inf only into a Real input")
+
+
+class LogTable(Table):
+    """``[log]``: what the MCAP log holds and how it is written."""
+
+    include: List[str] = Field(default_factory=lambda: ["*"], description="glob patterns over unit.variable")
+    exclude: List[str] = Field(default_factory=list)
+    parameters: bool = True
+    encoding: Literal[LOG_ENCODINGS] = "json"
+    process: bool = False
+
+
+class BodyTable(Table):
+    """``[[foxglove.bodies]]``: one body of the 3D view (see orchestrator/foxglove.py)."""
+
+    name: Text
+    parent: Text = "world"
+    position: Triple = Field((0.0, 0.0, 0.0), description="m, numbers or signal references")
+    euler: Triple = Field((0.0, 0.0, 0.0), description="rad, numbers or signal references")
+    order: Literal["xyz", "zyx"] = "xyz"
+    offset: _array(Number, 3) = Field((0.0, 0.0, 0.0), description="m")
+    shape: Literal[SHAPES] = "cube"
+    size: _array(NonNegative, 3) = Field((1.0, 1.0, 1.0), description="m")
+    color: _array(UnitInterval, 4) = Field((0.6, 0.6, 0.6, 1.0), description="RGBA, each in 0..1")
+
+
+class FoxgloveTable(Table):
+    bodies: List[BodyTable] = Field(default_factory=list)
+
+
+class ScenarioFile(Table):
+    """A whole scenario file; cross-references between tables are checked here."""
+
+    simulation: SimulationTable = Field(default_factory=SimulationTable)
+    units: Annotated[List[UnitTable], Field(min_length=1)]
+    connections: List[ConnectionEntry] = Field(default_factory=list)
+    inputs: List[InputEntry] = Field(default_factory=list)
+    faults: List[FaultTable] = Field(default_factory=list)
+    log: LogTable = Field(default_factory=LogTable)
+    description: str = ""
+    title: str = ""
+    foxglove: Optional[FoxgloveTable] = None
+
+    @model_validator(mode="after")
+    def _references(self) -> "ScenarioFile":
+        sim = self.simulation
+        if sim.stop is not None and sim.stop <= sim.start:
+            raise ValueError(f"simulation.stop = {sim.stop:g} s must be after simulation.start = {sim.start:g} s")
+        names: List[str] = []
+        for i, u in enumerate(self.units):
+            if u.name in names:
+                raise ValueError(f"units[{i}].name: duplicate unit instance name {u.name!r}")
+            names.append(u.name)
+
+        def known(ref: str, where: str) -> Tuple[str, str]:
+            unit, var = (s.strip() for s in ref.split(".", 1))
+            if unit not in names:
+                raise ValueError(f"{where}: unknown unit {unit!r} in {ref!r}{did_you_mean(unit, names)}")
+            return unit, var
+
+        fed: Dict[Tuple[str, str], str] = {}
+        for i, c in enumerate(self.connections):
+            src, dst = (c.split("->", 1) if isinstance(c, str) else (c.src, c.dst))
+            known(src, f"connections[{i}]")
+            target = known(dst, f"connections[{i}]")
+            if target in fed:
+                raise ValueError(f"connections[{i}]: input {'.'.join(target)} is already connected ({fed[target]})")
+            fed[target] = f"connections[{i}]"
+        for i, s in enumerate(self.inputs):
+            target = known(s.target, f"inputs[{i}].target")
+            if target in fed:
+                raise ValueError(f"inputs[{i}].target: {'.'.join(target)} is already driven by {fed[target]}")
+            fed[target] = f"inputs[{i}]"
+        for i, f in enumerate(self.faults):
+            known(f.target, f"faults[{i}].target")
+        for i, b in enumerate(self.foxglove.bodies if self.foxglove else []):
+            for key in ("position", "euler"):
+                for j, r in enumerate(getattr(b, key)):
+                    if isinstance(r, str):
+                        known(r, f"foxglove.bodies[{i}].{key}[{j}]")
+        return self
+
+
+# -- sweep files ---------------------------------------------------------------------------
+class MetricTable(Table):
+    """A metric reduced from logged samples (``summary.csv`` column)."""
+
+    signal: Annotated[str, AfterValidator(_ref)] = Field(description="pattern over unit.variable")
+    reduce: Literal[REDUCE_NAMES] = "max"
+    after: Seconds = Field(None, description="only samples at t >= after (s) count")
+
+
+class PlotTable(Table):
+    x: Union[str, List[str]]
+    y: Union[str, List[str]]
+    hue: Optional[Union[str, List[str]]] = None
+    logx: bool = False
+    logy: bool = False
+    name: str = ""
+
+
+class VariantTable(Table):
+    """``[[variants]]``: a name and override keys (``unit.param``, ``simulation.<key>``, ...)."""
+
+    model_config = ConfigDict(strict=True, extra="allow", frozen=True)
+    name: Optional[Text] = None
+
+    @model_validator(mode="after")
+    def _single_values(self) -> "VariantTable":
+        for key, value in (self.model_extra or {}).items():
+            if not isinstance(value, (bool, int, float, str)):
+                raise ValueError(f"key {key!r}: expected a single value, got {value!r}")
+        return self
+
+
+def _metric_kind(x: Any) -> str:
+    return "<builtin>" if isinstance(x, str) else "<table>"
+
+
+MetricEntry = Annotated[Union[Annotated[str, Tag("<builtin>")], Annotated[MetricTable, Tag("<table>")]],
+                        Discriminator(_metric_kind)]
+PlotEntry = Annotated[Union[Annotated[PlotTable, Tag("<table>")], Annotated[List[PlotTable], Tag("<array>")]],
+                      Discriminator(lambda x: "<array>" if isinstance(x, list) else "<table>")]
+
+
+class SweepFile(Table):
+    scenario: Text = Field(description="scenario file, relative to the sweep file")
+    grid: Dict[str, Annotated[List[Scalar], Field(min_length=1)]] = Field(default_factory=dict)
+    variants: List[VariantTable] = Field(default_factory=list)
+    metrics: Dict[str, MetricEntry] = Field(default_factory=dict)
+    plot: Optional[PlotEntry] = None
+    description: str = ""
+    title: str = ""
+
+
+# -- reading and reporting -----------------------------------------------------------------
+def read_toml(path: Path, what: str) -> Tuple[Dict[str, Any], str]:
+    """Read a TOML file (data, text): every way it can be unreadable is one :class:`ScenarioError`."""
+    if not path.exists():
+        raise ScenarioError(f"{what} {path} does not exist")
+    if path.is_dir():
+        raise ScenarioError(f"{path}: is a folder, not a {what}")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{path}: not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
+    try:
+        return tomllib.loads(text), text
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: invalid TOML: {exc}") from None
+
+
+def key_path(loc: Tuple[Any, ...]) -> str:
+    """``('units', 2, 'parameters', 'M')`` -> ``units[2].parameters.M`` (union tags dropped)."""
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif isinstance(part, str) and part.startswith("<") and part.endswith(">"):
+            continue
+        elif re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", str(part)):
+            out += f".{part}" if out else str(part)
+        else:
+            out += f"[{str(part)!r}]"
+    return out
+
+
+def _show(x: Any) -> str:
+    text = repr(x)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _message(err: Dict[str, Any]) -> str:
+    kind, msg = err["type"], err["msg"]
+    if kind == "value_error":
+        return msg.removeprefix("Value error, ")
+    if kind == "missing":
+        return "missing (required)"
+    if kind == "union_tag_not_found":
+        return f"expected a table, got {_show(err['input'])}"
+    if kind == "union_tag_invalid":
+        ctx = err.get("ctx", {})
+        return f"kind {str(ctx.get('tag')).strip('<>')!r} is not one of {', '.join(INPUT_KINDS)}"
+    if kind == "literal_error":
+        return f"{_show(err['input'])} is not one of {err['ctx']['expected'].replace(' or ', ', ').replace(chr(39), '')}"
+    if kind in ("bool_type", "string_type", "list_type", "dict_type", "tuple_type", "model_type", "model_attributes_type"):
+        want = {"bool_type": "true or false", "string_type": "a string", "list_type": "an array",
+                "tuple_type": "an array", "dict_type": "a table", "model_type": "a table",
+                "model_attributes_type": "a table"}[kind]
+        return f"expected {want}, got {_show(err['input'])}"
+    if kind == "too_short":
+        n = err['ctx']['min_length']
+        return f"must have at least {n} entries, got {_show(err['input'])}" if n > 1 else "must not be empty"
+    if kind == "too_long":
+        return f"must have at most {err['ctx']['max_length']} entries, got {_show(err['input'])}"
+    if err.get("ctx") is not None or kind in ("number", "finite", "range", "ref", "name", "process", "scalar",
+                                                "table", "unknown_key", "time", "arrow", "empty"):
+        return msg
+    return f"{msg.replace('Input should be', 'must be')}, got {_show(err['input'])}"
+
+
+def validate(model: type, data: Dict[str, Any], path: Path, origins: Optional[Dict[tuple, str]] = None):
+    """Validate ``data`` against ``model``; the first violation as a :class:`ScenarioError`
+    ``<file>: <key path>: <reason>`` (``origins``: key paths set by an override, named too)."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors(include_url=False)[0]
+        loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p.startswith("<") and p.endswith(">")))
+        where = key_path(loc)
+        for n in range(len(loc), 0, -1):
+            if loc[:n] in (origins or {}):
+                where += f" (set by override {origins[loc[:n]]!r})"
+                break
+        msg = _message(err)
+        raise ScenarioError(f"{path}: {where}: {msg}" if where else f"{path}: {msg}") from None
+
+
+def check_value(value: Any, fmi_type: str, bounds: Tuple[Optional[int], Optional[int]] = (None, None),
+                non_finite: bool = False) -> Optional[str]:
+    """Why ``value`` cannot be set into a variable of FMI type ``fmi_type`` (None: it can).
+
+    Boolean takes true/false, an integer type an integer in the type's range (and in the
+    variable's ``min``/``max``), Real a number (finite unless ``non_finite``: a fault injecting
+    NaN/inf into a Real input), String a string.
+    """
+    if fmi_type in ("Real", "Float64", "Float32"):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"{fmi_type} takes a number, got {_show(value)}"
+        try:
+            f = float(value)
+        except OverflowError:
+            return f"{_show(value)} is too large for {fmi_type}"
+        if not non_finite and not math.isfinite(f):
+            return f"{fmi_type} value must be finite, got {_show(value)}"
+        return None
+    if fmi_type == "Boolean":
+        return None if isinstance(value, bool) else f"Boolean takes true or false, got {_show(value)}"
+    if fmi_type == "String":
+        return None if isinstance(value, str) else f"String takes a string, got {_show(value)}"
+    if fmi_type in INT_RANGES or fmi_type == "Enumeration":
+        if isinstance(value, bool) or not isinstance(value, int):
+            return f"{fmi_type} takes an integer, got {_show(value)}"
+        lo, hi = INT_RANGES.get(fmi_type, INT_RANGES["Integer"])
+        lo = max(lo, bounds[0]) if bounds[0] is not None else lo
+        hi = min(hi, bounds[1]) if bounds[1] is not None else hi
+        if not lo <= value <= hi:
+            return f"{value} is outside the range {lo}..{hi} of this {fmi_type} variable"
+        return None
+    return None
