@@ -2,6 +2,8 @@
 
 ``models/`` installs as ``immersim.models``, ``orchestrator/`` as ``immersim.orchestrator``
 and ``fmus/`` as ``immersim.fmus`` so that a user never gets a generic ``import models``.
+``api/`` is the package ``immersim`` itself: the public Python API (``immersim.run``,
+``immersim.read_log``).
 """
 from pathlib import Path
 
@@ -10,7 +12,7 @@ from setuptools import setup
 TOP = ("models", "orchestrator", "fmus")
 HERE = Path(__file__).parent
 
-packages = []
+packages = ["immersim"]
 for top in TOP:
     for init in sorted((HERE / top).rglob("__init__.py")):
         rel = init.parent.relative_to(HERE)
@@ -18,7 +20,7 @@ for top in TOP:
 
 setup(
     packages=packages,
-    package_dir={f"immersim.{t}": t for t in TOP},
+    package_dir={"immersim": "api", **{f"immersim.{t}": t for t in TOP}},
     package_data={f"immersim.{t}": ["**/*.md", "**/*.json", "**/*.csv", "**/*.toml", "**/*.txt"] for t in TOP},
     include_package_data=True,
 )

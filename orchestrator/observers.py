@@ -200,9 +200,28 @@ def _fast_writer_class():
             Writer._Writer__finalize_chunk(self)
             if self.journal is not None:
                 self.journal.committed()
+        #: a :class:`~immersim.orchestrator.live.LiveServer` handed every schema, channel and
+        #: message written, so a live client gets the log's own bytes (None: no live view)
+        tee = None
+
+        def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+            sid = super().register_schema(name, encoding, data)
+            if self.tee is not None:
+                self.tee.schema(sid, name, encoding, data)
+            return sid
+
+        def register_channel(self, topic: str, message_encoding: str, schema_id: int,
+                             metadata: Optional[Dict[str, str]] = None) -> int:
+            cid = super().register_channel(topic, message_encoding, schema_id, metadata or {})
+            if self.tee is not None:
+                self.tee.channel(cid, topic, message_encoding, schema_id, metadata)
+            return cid
+
         def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
                         sequence: int = 0) -> None:
             if publish_time != log_time:  # not ours: the library's method
+                if self.tee is not None:
+                    self.tee.step(log_time, ((channel_id, data),))
                 return super().add_message(channel_id, log_time, data, publish_time, sequence)
             self.add_step(log_time, sequence, ((channel_id, data),))  # a one-message step
 
@@ -211,6 +230,8 @@ def _fast_writer_class():
             written straight into the chunk buffer; the chunk is finished, when full, after the
             whole step, so a step is never split across chunks. With one channel the bytes equal
             the library's."""
+            if self.tee is not None:
+                self.tee.step(log_time, items)
             try:
                 stats = self._Writer__statistics
                 cb = self._Writer__chunk_builder

@@ -74,6 +74,18 @@ def write_summary(spec: SweepSpec, rows: Sequence[RunRow], path: Path) -> Path:
     return path
 
 
+def write_info(spec: SweepSpec, path: Path) -> Path:
+    """Write ``sweep.json``: the sweep file, scenario, override keys and metric definitions
+    (what ``immersim report`` needs beside ``summary.csv`` to give each metric its unit)."""
+    import json
+
+    metrics = {m.name: {"builtin": m.builtin, "signal": m.signal, "reduce": m.reduce,
+                        "after": m.after if math.isfinite(m.after) else None} for m in spec.metrics}
+    path.write_text(json.dumps({"sweep": str(spec.file), "scenario": str(spec.scenario), "keys": list(spec.keys),
+                                "metrics": metrics}, indent=1) + "\n")
+    return path
+
+
 def _csv_value(value: Any) -> str:
     if isinstance(value, float):
         return "" if math.isnan(value) else repr(value)
