@@ -121,6 +121,8 @@ class LogWriter:
     sources : sequence, optional
         Objects whose ``cur`` holds each slot's current values when a step is written (the
         master's slots: :meth:`write`); None: the values come with each :meth:`step`.
+    tee : LiveServer, optional
+        See :class:`~immersim.orchestrator.observers.McapObserver`.
     """
 
     def __init__(self, plan: LogPlan, flush_seconds: float = 1.0, sources: Optional[Sequence[Any]] = None) -> None:

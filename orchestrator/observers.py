@@ -288,6 +288,8 @@ class McapObserver:
     flush_seconds : float
         Wall-clock interval at which the current chunk is flushed to disk, so even a killed
         process keeps almost every completed step.
+    tee : LiveServer, optional
+        Also handed every schema, channel and message written (the live view).
     """
 
     CHUNK_BYTES = 256 * 1024
@@ -295,7 +297,8 @@ class McapObserver:
     #: (results/orchestrator/README.md compares); both are standard MCAP
     COMPRESSION = "lz4"
 
-    def __init__(self, path: Path | str, flush_seconds: float = 1.0, encoding: str = "json") -> None:
+    def __init__(self, path: Path | str, flush_seconds: float = 1.0, encoding: str = "json",
+                 tee: Any = None) -> None:
         if encoding not in ("json", "ros1"):
             raise ValueError(f"log encoding {encoding!r} is not json or ros1")
         self.encoding = encoding
@@ -307,6 +310,7 @@ class McapObserver:
 
             self.writer = _fast_writer_class()(self._fh, chunk_size=self.CHUNK_BYTES,
                                                compression=CompressionType[self.COMPRESSION.upper()])
+            self.writer.tee = tee
             self.writer.start(profile="", library="immersim")
             from . import supervisor
 
