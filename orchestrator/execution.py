@@ -20,7 +20,9 @@ from .fmu import forget_python_code
 from . import supervisor
 from .errors import FmuLoadError, ImmersimError, LogWriteError, ScenarioError
 from .master import Master, Slot
+from .live import attach_live_inputs
 from .logwriter import LogPlan, LogProcess, LogWriter
+from .pacing import Pacer
 from .scenario import Scenario, load_scenario
 from .system import System, check_system, fmu_hashes
 
@@ -133,6 +135,8 @@ class RunResult:
     timing: Dict[str, float] = field(default_factory=dict)
     #: units that ran in worker processes (``process`` >= 1)
     remote_units: List[str] = field(default_factory=list)
+    #: a paced run (``realtime``): late steps, worst and p99 lateness, as one line
+    pacing: str = ""
 
     def timing_summary(self) -> str:
         """One line: wall time of the loop, real-time factor, share of each unit and of logging."""
@@ -162,11 +166,21 @@ class Execution:
         MCAP file; no log when None.
     progress : bool
         Show a tqdm progress bar on stderr.
+    realtime : float, optional
+        Pace the run: simulated time follows wall time times this factor (:mod:`.pacing`).
+    live : LiveServer, optional
+        Serve every logged channel live (:mod:`.live`); the log is then written in this process.
+    replay : path, optional
+        An MCAP log whose recorded live inputs drive the scenario's ``[[live_inputs]]``.
     """
 
     def __init__(self, scenario: Scenario | Path | str, output: Optional[Path | str] = None,
-                 progress: bool = False, overrides: Optional[Dict[str, Any]] = None) -> None:
+                 progress: bool = False, overrides: Optional[Dict[str, Any]] = None,
+                 realtime: Optional[float] = None, live: Any = None, replay: Optional[Path | str] = None) -> None:
         self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario, overrides)
+        self.pacer = None if realtime is None else Pacer(realtime, self.scenario.start_ns)
+        self.live = live
+        self.live_inputs = attach_live_inputs(self.scenario, live, replay)
         self.output = Path(output) if output else None
         self.progress = progress
         self.system: System = check_system(self.scenario)
@@ -261,11 +275,11 @@ class Execution:
             for ref in {r for b in sc.foxglove for r in b.refs()}:
                 unit, var = ref.split(".", 1)
                 plan.refs[ref] = (rank[unit], master.slots[unit].index(var))
-        if sc.log.process:
+        if sc.log.process and self.live is None:   # a live view is fed by the writer in this process
             proc = self.observer = LogProcess(plan)
             self._log_step = lambda k, t_ns: proc.step(k, t_ns, [slot.cur for slot in slots])
         else:   # reads the slots' values itself
-            self.observer = LogWriter(plan, sources=slots)
+            self.observer = LogWriter(plan, sources=slots, tee=self.live)
             self._log_step = self.observer.write
 
     def _observe(self, master: Master, k: int, t_ns: int) -> None:
@@ -277,6 +291,8 @@ class Execution:
         for fn in self.observers:
             fn(k, t_ns)
         self._observe_ns += time.perf_counter_ns() - t_start
+        if self.pacer is not None:   # waits for the wall clock (not counted as logging)
+            self.pacer(k, t_ns)
 
     # -- the loop ------------------------------------------------------------------------
     def run(self) -> RunResult:
@@ -380,8 +396,13 @@ class Execution:
         obs = self.observer
         if obs is None or obs.closed:
             return
-        obs.close({"status": result.status, "steps_done": result.steps_done, "steps_total": result.steps_total,
-                   "t_ns": result.t_ns, "reason": result.reason})
+        run = {"status": result.status, "steps_done": result.steps_done, "steps_total": result.steps_total,
+               "t_ns": result.t_ns, "reason": result.reason}
+        if self.pacer is not None:
+            run.update({f"realtime_{k}": v for k, v in self.pacer.summary().items()})
+        if self.live_inputs is not None:   # what people sent, to replay the run exactly
+            run["live_inputs"] = self.live_inputs.record()["values"]
+        obs.close(run)
 
     def _finish(self, result: RunResult) -> None:
         try:
@@ -419,6 +440,11 @@ def _lazy_capable(inst, scenario: Scenario) -> bool:
 
 
 def run_scenario(scenario: Scenario | Path | str, output: Optional[Path | str] = None,
-                 progress: bool = False, overrides: Optional[Dict[str, Any]] = None) -> RunResult:
-    """Load, check and run a scenario; see :class:`Execution`."""
-    return Execution(scenario, output, progress, overrides).run()
+                 progress: bool = False, overrides: Optional[Dict[str, Any]] = None,
+                 **options: Any) -> RunResult:
+    """Load, check and run a scenario; see :class:`Execution` (``options``: realtime, live, replay)."""
+    ex = Execution(scenario, output, progress, overrides, **options)
+    result = ex.run()
+    if ex.pacer is not None:
+        result.pacing = ex.pacer.line()
+    return result

@@ -76,7 +76,10 @@ def continuous_system(w: WashoutParams):
     The jolt column drives the surge and (scaled by ``jolt_heave``) the heave translation blocks
     only, not the tilt low-pass. Returns (A (19,19), B (19,7), C_pos (3,19), C_ang (3,19), C_lp (2,19)).
     """
-    tr_den = np.polymul([1, 2 * w.zeta_t * w.omega_t, w.omega_t**2], [1, w.omega_b])
+    a1, a0 = 2 * w.zeta_t * w.omega_t, w.omega_t**2
+    # (s^2 + a1 s + a0)(s + omega_b), written out so that the C port of the FMU's native build
+    # (fmus/platform/native/washout.c) performs the same floating-point operations
+    tr_den = [1.0, a1 + w.omega_b, a0 + a1 * w.omega_b, a0 * w.omega_b]
     At, Bt, Ct = _companion(tr_den, [w.k_t, 0.0])
     Ar, Br, Cr = _companion([1, 2 * w.zeta_r * w.omega_r, w.omega_r**2], [w.k_r, 0.0])
     Al, Bl, Cl = _companion([1, 2 * w.omega_tc, w.omega_tc**2], [w.omega_tc**2])
@@ -102,23 +105,38 @@ def continuous_system(w: WashoutParams):
     return A, B, C_pos, C_ang, C_lp
 
 
+def _matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` with each entry summed in order k = 0, 1, ... (a fixed operation order, unlike BLAS)."""
+    out = A[:, :1] * B[:1, :]
+    for k in range(1, A.shape[1]):
+        out = out + A[:, k:k + 1] * B[k:k + 1, :]
+    return out
+
+
 def expm_small(M: np.ndarray) -> np.ndarray:
     """Matrix exponential of a small square matrix by scaling and squaring of its Taylor series.
 
     Numpy only (no scipy.linalg, whose OpenBLAS worker threads would spin for a while after
     every call on this shared machine); the scaled matrix has 1-norm <= 1/2 and 20 Taylor
-    terms, so the truncation error is below 1e-25 relative before the squarings.
+    terms, so the truncation error is below 1e-25 relative before the squarings. Every sum
+    runs in a fixed order (:func:`_matmul`, row by row for the norm) and the scaling is found by
+    exact halvings, so the C port of the native FMU build (``fmus/platform/native/washout.c``)
+    gives the same bits.
     """
-    norm = float(np.abs(M).sum(axis=0).max())
-    s = max(0, int(np.ceil(np.log2(norm / 0.5)))) if norm > 0.5 else 0
+    colsum = np.abs(M[0])
+    for row in M[1:]:
+        colsum = colsum + np.abs(row)
+    norm, s = float(colsum.max()), 0
+    while norm > 0.5:  # s = ceil(log2(norm / 0.5)), by exact halvings
+        norm, s = norm / 2.0, s + 1
     X = M / 2.0 ** s
     E = np.eye(M.shape[0])
     term = np.eye(M.shape[0])
     for k in range(1, 21):
-        term = term @ X / k
+        term = _matmul(term, X) / k
         E = E + term
     for _ in range(s):
-        E = E @ E
+        E = _matmul(E, E)
     return E
 
 
