@@ -176,12 +176,24 @@ def _check_archive(fmu: Path, unit: str, package: str, script_name: str) -> None
             raise BuildError(f"unit {unit}: built FMU lacks {needed}")
 
 
+#: built-in units compiled to native code (no Python at run time), see :mod:`.native_build`
+NATIVE_UNITS = ("platform-native",)
+
+
+def builtin_names() -> List[str]:
+    """Every built-in unit name a scenario may use: the unit folders and :data:`NATIVE_UNITS`."""
+    return unit_names() + list(NATIVE_UNITS)
+
+
 def build_all(units: Optional[Iterable[str]] = None, dest_dir: Path | str | None = None,
               force: bool = False) -> List[Path]:
-    """Build the named built-in units (all by default)."""
-    names = list(units) if units else unit_names()
-    known = unit_names()
+    """Build the named built-in units (all by default, the native ones included)."""
+    from .native_build import build_native
+
+    names = list(units) if units else builtin_names()
+    known = builtin_names()
     for name in names:
         if name not in known:
             raise BuildError(f"unknown unit {name!r}; built-in units are {', '.join(known) or 'none'}")
-    return [build_unit(_fmus_dir() / name, dest_dir, force) for name in names]
+    return [build_native(dest_dir, force) if name in NATIVE_UNITS else build_unit(_fmus_dir() / name, dest_dir, force)
+            for name in names]

@@ -21,7 +21,8 @@ EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
 def _cmd_build(args: argparse.Namespace) -> int:
     from .build import build_all
 
-    for path in build_all(args.units or None, args.dest, force=args.force):
+    units = [f"{u}-native" for u in args.units or ["platform"]] if args.native else args.units or None
+    for path in build_all(units, args.dest, force=args.force):
         log.info("%s", path)
         sys.stdout.write(f"{path}\n")
     return 0
@@ -129,6 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("units", nargs="*", help="units to build (default: all)")
     b.add_argument("-d", "--dest", default=None, help="output folder (default: build/fmus)")
     b.add_argument("--force", action="store_true", help="rebuild even when up to date")
+    b.add_argument("--native", action="store_true",
+                   help="build the native (C, no Python at run time) FMU of the units (platform): <unit>-native.fmu")
     b.set_defaults(fn=_cmd_build)
 
     r = sub.add_parser("run", help="run a scenario file and log every signal to MCAP")

@@ -180,7 +180,7 @@ class Execution:
         self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario, overrides)
         self.pacer = None if realtime is None else Pacer(realtime, self.scenario.start_ns)
         self.live = live
-        self.live_inputs = attach_live_inputs(self.scenario, live, replay)
+        self.scenario, self.live_inputs = attach_live_inputs(self.scenario, live, replay)
         self.output = Path(output) if output else None
         self.progress = progress
         self.system: System = check_system(self.scenario)

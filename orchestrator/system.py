@@ -22,15 +22,15 @@ log = logging.getLogger(__name__)
 
 def resolve_fmu(spec: str, scenario_file: Path, unit: str) -> Path:
     """A built-in unit name (built on demand, incrementally) or a path relative to the scenario."""
-    from .build import build_all, unit_names
+    from .build import build_all, builtin_names
 
     p = Path(spec)
-    if p.suffix != ".fmu" and "/" not in spec and spec in unit_names():
+    if p.suffix != ".fmu" and "/" not in spec and spec in builtin_names():
         return build_all([spec])[0]
     if not p.is_absolute():
         p = (scenario_file.parent / p).resolve()
     if not p.exists():
-        known = ", ".join(unit_names())
+        known = ", ".join(builtin_names())
         raise FmuLoadError(f"unit {unit}: FMU {spec!r} not found (looked for {p}; built-in units: {known})")
     return p
 

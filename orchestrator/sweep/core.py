@@ -18,10 +18,10 @@ from .summary import SweepResult, plot_comparison, plot_file_name, write_info, w
 # -- the sweep ---------------------------------------------------------------------------
 def _prebuild(spec: SweepSpec) -> None:
     """Build the built-in units the variants use once, before workers start (no build races)."""
-    from ..build import build_all, unit_names
+    from ..build import build_all, builtin_names
     from ..scenario import load_scenario
 
-    builtin = set(unit_names())
+    builtin = set(builtin_names())
     used = {u.fmu for v in spec.variants for u in load_scenario(spec.scenario, v.resolved).units}
     names = sorted(used & builtin)
     if names:
