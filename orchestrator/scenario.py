@@ -143,6 +143,8 @@ class Scenario:
     #: the [simulation] keys the file (or an override) gives; the others may come from the FMUs'
     #: DefaultExperiment (system.apply_default_experiment). None: take none from the FMUs
     given: Optional[frozenset] = None
+    #: inputs driven by live clients (``[[live_inputs]]``, :class:`~immersim.orchestrator.live.LiveInput`)
+    live_inputs: List[Any] = field(default_factory=list)
 
     @property
     def n_steps(self) -> int:
@@ -258,9 +260,12 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     lg = model.log
     logspec = LogSpec(list(lg.include), list(lg.exclude), lg.parameters, lg.encoding, lg.process)
     from .foxglove import Body
+    from .live import LiveInput
 
     bodies = [Body(b.name, b.parent, tuple(b.position), tuple(b.euler), b.order, tuple(b.offset), b.shape,
                    tuple(b.size), tuple(b.color)) for b in (model.foxglove.bodies if model.foxglove else [])]
     return Scenario(path, text, units, connections, inputs, faults, logspec, start_ns, stop_ns, step_ns,
                     sim.algorithm, sim.extrapolation, sim.tolerance, sim.lazy, bodies,
-                    given=frozenset(sim.model_fields_set))
+                    given=frozenset(sim.model_fields_set),
+                    live_inputs=[LiveInput(s.topic, s.field, s.target.strip(), s.scale, s.offset, s.initial)
+                                 for s in model.live_inputs])

@@ -321,6 +321,17 @@ class BodyTable(Table):
     color: _array(UnitInterval, 4) = Field((0.6, 0.6, 0.6, 1.0), description="RGBA, each in 0..1")
 
 
+class LiveInputTable(Table):
+    """``[[live_inputs]]``: a Real input driven by what a live client publishes (``--live``)."""
+
+    topic: Text = Field(description="the topic a client publishes JSON messages on, e.g. '/cmd_vel'")
+    field: str = Field("", description="dotted path into the message, list items by index: 'linear.x', 'axes.1'")
+    target: Ref = Field(description="the Real input driven, 'unit.variable'")
+    scale: Number = 1.0
+    offset: Number = 0.0
+    initial: Number = Field(0.0, description="value until the first message arrives (and without --live)")
+
+
 class FoxgloveTable(Table):
     bodies: List[BodyTable] = Field(default_factory=list)
 
@@ -337,6 +348,7 @@ class ScenarioFile(Table):
     description: str = ""
     title: str = ""
     foxglove: Optional[FoxgloveTable] = None
+    live_inputs: List[LiveInputTable] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _references(self) -> "ScenarioFile":
@@ -368,6 +380,11 @@ class ScenarioFile(Table):
             if target in fed:
                 raise ValueError(f"inputs[{i}].target: {'.'.join(target)} is already driven by {fed[target]}")
             fed[target] = f"inputs[{i}]"
+        for i, s in enumerate(self.live_inputs):
+            target = known(s.target, f"live_inputs[{i}].target")
+            if target in fed:
+                raise ValueError(f"live_inputs[{i}].target: {'.'.join(target)} is already driven by {fed[target]}")
+            fed[target] = f"live_inputs[{i}]"
         for i, f in enumerate(self.faults):
             known(f.target, f"faults[{i}].target")
         for i, b in enumerate(self.foxglove.bodies if self.foxglove else []):
