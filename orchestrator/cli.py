@@ -48,6 +48,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
                          f"all {res.steps_done} steps\n")
         return 128 + (late.signum or 2)
     sys.stdout.write(f"{res.scenario}: {res.steps_done} steps to t = {res.t_ns / 1e9:.6g} s -> {out}\n")
+    if res.status == "ended":   # a unit asked to end the simulation (its step is logged)
+        sys.stdout.write(f"{res.reason}\n")
     summary = res.timing_summary()
     if summary:
         sys.stdout.write(summary + "\n")

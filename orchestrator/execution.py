@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional
 
-from .fmu import forget_python_code
+from .fmu import ENDED, forget_python_code
 from . import supervisor
 from .errors import FmuLoadError, ImmersimError, LogWriteError, ScenarioError
 from .master import Master, Slot
@@ -310,6 +310,7 @@ class Execution:
         sigint = DeferredSigint()
         try:
             with sigint:
+                ENDED.clear()
                 master = self.master = self._setup()
                 result.delayed_connections = ([str(c) for c in master.delayed]
                                               if sc.algorithm == "gauss-seidel" else [])
@@ -342,8 +343,13 @@ class Execution:
                         crumb[STEPS] = k + 1
                     if bar is not None:
                         bar.update(1)
+                    if ENDED:   # a unit asked to end the simulation: this step is the last
+                        break
                 master.finish()
                 result.status, result.reason = "completed", ""
+                if ENDED:
+                    result.status, result.reason = "ended", "; ".join(
+                        f"unit {u} asked to end the simulation at t = {t / 1e9:.9g} s" for u, t in ENDED)
                 if self.observer is not None:
                     self._close_log(result)
         except KeyboardInterrupt:

@@ -42,7 +42,7 @@ _FAMILY = {
     "Real": "float", "Float64": "float", "Float32": "float",
     "Integer": "int", "Enumeration": "int", "Int8": "int", "UInt8": "int", "Int16": "int",
     "UInt16": "int", "Int32": "int", "UInt32": "int", "Int64": "int", "UInt64": "int",
-    "Boolean": "bool", "String": "string",
+    "Boolean": "bool", "String": "string", "Binary": "binary",
 }
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 #: the unit called last and the time of the call, for a supervising parent (two int64 stores
@@ -68,6 +68,9 @@ class VarInfo:
     unit: str
     start: Any
     description: str
+    initial: str = ""       # "exact", "approx", "calculated" or "" (the standard's default)
+    shape: tuple = ()       # FMI 3.0 array element: the array's shape (fmi3.variables)
+    index: int = -1         # FMI 3.0 array element: its flat (row-major) position, else -1
 
     @property
     def family(self) -> str:
@@ -82,6 +85,10 @@ def ns_to_s(t_ns: int) -> float:
     """
     return t_ns / 1e9
 
+
+#: (unit, time in ns) of every unit that asked to end the simulation (FMI 2.0 fmi2Terminated,
+#: FMI 3.0 terminateSimulation) since the execution cleared it; the step it ends is complete
+ENDED: List[tuple] = []
 
 #: parsed model descriptions by (path, mtime, size): a scenario reads each FMU at check time
 #: and again when it instantiates it, often several instances of one FMU
@@ -195,15 +202,26 @@ def _read_model(path: Path, unit: str):
         raise FmuLoadError(f"unit {unit}: {path}: invalid modelDescription.xml: {exc}") from exc
     except Exception as exc:
         raise FmuLoadError(f"unit {unit}: {path}: cannot read modelDescription.xml: {exc}") from exc
+    if md.fmiVersion.startswith("3"):
+        from . import fmi3
+
+        fmi3.check_supported(md, path, unit)
     if md.coSimulation is None:
         raise FmuLoadError(f"unit {unit}: {path} is not a co-simulation FMU")
+    if md.fmiVersion.startswith("3"):
+        return md, fmi3.variables(md)
     variables = {}
     for v in md.modelVariables:
-        declared = getattr(v, "declaredType", None)
-        unit_str = v.unit or (getattr(declared, "unit", None) if declared is not None else None) or ""
         variables[v.name] = VarInfo(v.name, v.valueReference, v.type, v.causality or "local",
-                                    v.variability or "", unit_str, v.start, v.description or "")
+                                    v.variability or "", _unit_of(v), v.start, v.description or "",
+                                    initial=v.initial or "")
     return md, variables
+
+
+def _unit_of(v: Any) -> str:
+    """A model variable's unit, or its declared type's."""
+    declared = getattr(v, "declaredType", None)
+    return v.unit or (getattr(declared, "unit", None) if declared is not None else None) or ""
 
 
 #: extracted FMUs by (FMU path, mtime, size, parent of the unzip folder): see FmuInstance._extract
@@ -265,6 +283,9 @@ class FmuInstance:
         self.path = Path(path)
         self.t_ns = 0
         self.fatal = False
+        self.failed = False   # an FMI call returned error: the standard allows only free (or reset)
+        self.initialized = False   # out of initialization mode: terminate is allowed (else free only)
+        self.error_logged = False   # the FMU logged a message with status error or fatal
         self.messages: Deque[str] = deque(maxlen=20)
         if not self.path.exists():
             raise FmuLoadError(f"unit {name}: FMU file {self.path} does not exist")
@@ -343,6 +364,8 @@ class FmuInstance:
     def _record(self, status: int, message: bytes) -> None:
         text = message.decode("utf-8", "replace") if message else ""
         self.messages.append(text)
+        if status >= 3:
+            self.error_logged = True
         level = logging.DEBUG if status == 0 else logging.WARNING if status == 1 else logging.ERROR
         log.log(level, "unit %s [%s]: %s", self.name, _STATUS[status] if status < 6 else status, text)
 
@@ -359,6 +382,13 @@ class FmuInstance:
             self._c_true = ctypes.c_int(1)  # noSetFMUStatePriorToCurrentPoint
             self._do_step = self._fast_function("fmi2DoStep")
             self._set_real = self._fast_function("fmi2SetReal")
+        else:
+            from .fmi3 import StepResult
+
+            self._c_component = ctypes.c_void_p(self._component)
+            self._c_true = ctypes.c_bool(True)  # noSetFMUStatePriorToCurrentPoint
+            self._do_step = self._fast_function("fmi3DoStep")
+            self._step3_flags = StepResult()
 
     def _fast_function(self, name: str):
         """A ctypes function for the FMI 2.0 function ``name`` (one of ``_FAST_FUNCTIONS``),
@@ -370,7 +400,7 @@ class FmuInstance:
         call. Any other FMU is called with the GIL released (``CFUNCTYPE``), as FMPy does, so
         its own threads may call back into Python.
         """
-        if name not in _FAST_FUNCTIONS:
+        if name not in _FAST_FUNCTIONS and not name.startswith("fmi3"):
             raise ValueError(f"{name} has no fast prototype")
         factory = ctypes.PYFUNCTYPE if self.in_process_python else ctypes.CFUNCTYPE
         address = ctypes.cast(getattr(self.fmu.dll, name), ctypes.c_void_p).value
@@ -384,6 +414,7 @@ class FmuInstance:
             return thunk()
         except FMICallException as exc:
             self.fatal = self.fatal or exc.status == 4
+            self.failed = self.failed or exc.status == 3
             raise FmuCallError(self.name, function, self.t_ns, exc.status, self._last_message()) from None
         except Exception as exc:
             if isinstance(exc, FmuCallError):
@@ -402,6 +433,7 @@ class FmuInstance:
     def _check(self, function: str, status: int) -> None:
         if status > 1:
             self.fatal = self.fatal or status == 4
+            self.failed = self.failed or status == 3
             raise FmuCallError(self.name, function, self.t_ns, status, self._last_message())
 
     # -- life cycle --------------------------------------------------------------------
@@ -418,11 +450,13 @@ class FmuInstance:
             self.set_values(parameters)
             self._guard("fmi2EnterInitializationMode", self.fmu.enterInitializationMode)
             self._guard("fmi2ExitInitializationMode", self.fmu.exitInitializationMode)
+            self.initialized = True
         else:
             self.set_values(parameters)
             self._guard("fmi3EnterInitializationMode",
                         lambda: self.fmu.enterInitializationMode(tolerance=tolerance, startTime=t0, stopTime=t1))
             self._guard("fmi3ExitInitializationMode", self.fmu.exitInitializationMode)
+            self.initialized = True
 
     def do_step(self, t_ns: int, h_ns: int) -> None:
         """Advance from ``t_ns`` by ``h_ns`` (integer nanoseconds)."""
@@ -438,24 +472,46 @@ class FmuInstance:
                 status = self._do_step(self._c_component, self._c_t, self._c_h, self._c_true)
             except Exception as exc:
                 raise self._raised("fmi2DoStep", exc) from None
-            if status > 1:
+            if status > 1 and not (status == 2 and self._fmi2_terminated(t_ns + h_ns)):
                 self._check("fmi2DoStep", status)
         else:
-            out = self._guard("fmi3DoStep", lambda: self.fmu.doStep(ns_to_s(t_ns), ns_to_s(h_ns)))
-            if out[1]:
-                raise FmuCallError(self.name, "fmi3DoStep", t_ns, 2, "FMU requested termination")
+            from .fmi3 import do_step
+
+            ended = do_step(self, t_ns, h_ns)
+            if ended is not None:
+                ENDED.append((self.name, ended))
         self.t_ns = t_ns + h_ns
+
+    def _fmi2_terminated(self, end_ns: int) -> bool:
+        """After a discarded ``fmi2DoStep``: did the FMU ask to end the simulation
+        (``fmi2Terminated``, FMI 2.0 §4.2.3)? Then the end is recorded in :data:`ENDED` (at
+        ``fmi2LastSuccessfulTime``) and the step counts as done. Not after the FMU logged an
+        error: pythonfmu reports every refused step as terminated too."""
+        from fmpy.fmi2 import fmi2LastSuccessfulTime, fmi2Terminated
+
+        if self.error_logged:
+            return False
+        try:
+            if not self.fmu.getBooleanStatus(fmi2Terminated):
+                return False
+            last = self.fmu.getRealStatus(fmi2LastSuccessfulTime)
+        except Exception:   # the FMU does not report it: a plain discard
+            return False
+        ENDED.append((self.name, min(int(round(last * 1e9)), end_ns)))
+        return True
 
     def terminate(self) -> None:
         """Terminate and free the instance; errors here are logged, not raised.
 
         After ``fmi2Fatal`` the FMI standard allows no further call on the instance (and the
-        pythonfmu binary crashes on one), so a fatal instance is left alone.
+        pythonfmu binary crashes on one), so a fatal instance is left alone; after an error (or
+        before initialization ended) only free is allowed (FMI 2.0 §4.3.3, FMI 3.0 §4.2.3).
         """
         if self.fatal:
-            log.warning("unit %s: not terminated after a fatal error", self.name)
+            log.debug("unit %s: not terminated after a fatal error", self.name)
             return
-        for fn, call in (("terminate", self.fmu.terminate), ("freeInstance", self.fmu.freeInstance)):
+        calls = (("terminate", self.fmu.terminate), ("freeInstance", self.fmu.freeInstance))
+        for fn, call in calls if self.initialized and not self.failed else calls[1:]:  # else free only
             try:
                 call()
             except Exception as exc:  # a failed unit may refuse to terminate
@@ -470,6 +526,10 @@ class FmuInstance:
 
     def set_values(self, values: Dict[str, Any]) -> None:
         """Set any typed values by name (parameters, inputs); slow path, used at set-up."""
+        if not self.fmi_version.startswith("2"):
+            from .fmi3 import set_values
+
+            return set_values(self, values)
         for name, value in values.items():
             v = self.var(name)
             fam = v.family
@@ -489,6 +549,10 @@ class FmuInstance:
 
     def get_values(self, names: Sequence[str]) -> List[Any]:
         """Read typed values by name (slow path)."""
+        if not self.fmi_version.startswith("2"):
+            from .fmi3 import get_values
+
+            return get_values(self, names)
         out = []
         for name in names:
             v = self.var(name)
@@ -506,13 +570,26 @@ class FmuInstance:
         return out
 
     def reader(self, names: Sequence[str], check_finite: bool = False) -> "ValueReader":
-        """A fast reader of a fixed list of variables (one FMI call per type family)."""
+        """A fast reader of a fixed list of variables (one FMI call per type family; FMI 3.0:
+        per type, :class:`.fmi3.Reader`)."""
+        if not self._fmi2:
+            from .fmi3 import Reader
+
+            return Reader(self, list(names), check_finite)
         return ValueReader(self, list(names), check_finite)
 
     def real_setter(self, names: Sequence[str]) -> "RealSetter":
+        if not self._fmi2:
+            from .fmi3 import Setter
+
+            return Setter(self, list(names))
         return RealSetter(self, list(names))
 
     def discrete_setter(self, names: Sequence[str]) -> "DiscreteSetter":
+        if not self._fmi2:
+            from .fmi3 import Setter
+
+            return Setter(self, list(names))
         return DiscreteSetter(self, list(names))
 
 

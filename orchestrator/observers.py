@@ -18,6 +18,7 @@ write of the step's records into the current chunk (:meth:`McapObserver.write_st
 """
 from __future__ import annotations
 
+import base64
 import json
 import logging
 import math
@@ -45,7 +46,9 @@ def _json_value(value: Any) -> str:
         return repr(value) if math.isfinite(value) else "null"
     if isinstance(value, int):
         return str(value)
-    return json.dumps(value if not isinstance(value, bytes) else value.decode())
+    if isinstance(value, bytes):   # an FMI 3.0 Binary: base64 text (the schema says contentEncoding)
+        return json.dumps(base64.b64encode(value).decode("ascii"))
+    return json.dumps(value)
 
 
 def json_schema(unit: str, infos: Sequence[VarInfo]) -> Dict[str, Any]:
@@ -57,6 +60,10 @@ def json_schema(unit: str, infos: Sequence[VarInfo]) -> Dict[str, Any]:
         if v.unit:
             p["unit"] = v.unit
         p["causality"] = v.causality
+        if v.type in _ROS1_FMI3:   # an FMI 3.0 type with no FMI 2.0 twin: its exact width
+            p["fmiType"] = v.type
+        if v.family == "binary":
+            p["contentEncoding"] = "base64"
         props[v.name] = p
     return {"type": "object", "title": unit, "properties": props}
 
@@ -131,6 +138,14 @@ class Ros1Encoder:
 #: ROS 1 field type and ``struct`` code of each JSON schema type ("ros1" encoding); a
 #: variable of another type (a String) has no fixed-size field: its channel is written as JSON
 _ROS1 = {"number": ("float64", "d"), "integer": ("int32", "i"), "boolean": ("bool", "?")}
+#: FMI 3.0 types of other widths (their JSON schema property says ``fmiType``)
+_ROS1_FMI3 = {"Float32": ("float32", "f"), "Int8": ("int8", "b"), "UInt8": ("uint8", "B"),
+              "Int16": ("int16", "h"), "UInt16": ("uint16", "H"), "UInt32": ("uint32", "I"),
+              "Int64": ("int64", "q"), "UInt64": ("uint64", "Q")}
+
+
+def _ros1_kind(prop: Dict[str, Any]) -> Optional[Tuple[str, str]]:
+    return _ROS1_FMI3.get(prop.get("fmiType")) or _ROS1.get(prop["type"])
 
 
 def ros1_struct(schema: Dict[str, Any]) -> Optional[struct.Struct]:
@@ -139,7 +154,7 @@ def ros1_struct(schema: Dict[str, Any]) -> Optional[struct.Struct]:
     fixed-size fields. None when some variable has no fixed-size ROS 1 type."""
     codes = []
     for prop in schema["properties"].values():
-        kind = _ROS1.get(prop["type"])
+        kind = _ros1_kind(prop)
         if kind is None:
             return None
         codes.append(kind[1])
@@ -162,7 +177,7 @@ def ros1_definition(schema: Dict[str, Any]) -> str:
         note = name + (f" [{prop['unit']}]" if prop.get("unit") else "")
         if prop.get("description"):
             note += ": " + " ".join(str(prop["description"]).split())
-        lines.append(f"{_ROS1[prop['type']][0]} {fld}  # {note}")
+        lines.append(f"{_ros1_kind(prop)[0]} {fld}  # {note}")
     return "\n".join(lines) + "\n"
 
 
@@ -200,6 +215,7 @@ def _fast_writer_class():
             Writer._Writer__finalize_chunk(self)
             if self.journal is not None:
                 self.journal.committed()
+
         #: a :class:`~immersim.orchestrator.live.LiveServer` handed every schema, channel and
         #: message written, so a live client gets the log's own bytes (None: no live view)
         tee = None

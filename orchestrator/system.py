@@ -35,9 +35,62 @@ def resolve_fmu(spec: str, scenario_file: Path, unit: str) -> Path:
     return p
 
 
-def read_variables(path: Path, unit: str) -> Dict[str, VarInfo]:
-    """Variables of an FMU from its model description, without instantiating it."""
-    return read_model(path, unit)[1]
+def read_variables(path: Path, unit: str, parameters: Optional[Dict[str, Any]] = None) -> Dict[str, VarInfo]:
+    """Variables of an FMU from its model description, without instantiating it (FMI 3.0
+    arrays sized by the structural parameters among ``parameters``)."""
+    md, variables = read_model(path, unit)
+    if parameters and md.fmiVersion.startswith("3"):
+        from .fmi3 import has_arrays, variables as fmi3_variables
+
+        if has_arrays(md):
+            return fmi3_variables(md, parameters)
+    return variables
+
+
+#: what a scenario may set before initialization besides parameters and inputs: a variable
+#: with initial = exact or approx (FMI 2.0 §2.2.7, FMI 3.0 §2.4.7.5), e.g. a state's start
+_SETTABLE = ("parameter", "structuralParameter", "input")
+
+
+def settable(v: VarInfo) -> bool:
+    return v.causality in _SETTABLE or (v.initial in ("exact", "approx") and v.variability != "constant"
+                                        and v.causality != "independent")
+
+
+def apply_default_experiment(scenario: Scenario, paths: Dict[str, Path]) -> None:
+    """Fill the [simulation] settings the scenario leaves out (start, stop, step, tolerance)
+    from the ``DefaultExperiment`` of its units' FMUs: the first unit, in scenario order, whose
+    FMU gives the value. Without one: start 0, step 33 ms, stop 10 steps after start, no tolerance."""
+    given = scenario.given
+    if given is None:
+        return
+    found = {}
+    for key, attr in (("start", "startTime"), ("stop", "stopTime"), ("step", "stepSize"), ("tolerance", "tolerance")):
+        for u in scenario.units:
+            de = read_model(paths[u.name], u.name)[0].defaultExperiment
+            value = getattr(de, attr, None) if de is not None else None
+            if key not in given and value not in (None, ""):
+                found[key] = float(value)
+                break
+    if not found:
+        return
+    f = scenario.file
+    if "start" in found:
+        scenario.start_ns = int(round(found["start"] * 1e9))
+    if "step" in found:
+        scenario.step_ns = int(round(found["step"] * 1e9))
+        if scenario.step_ns <= 0:
+            raise ScenarioError(f"{f}: the DefaultExperiment's stepSize {found['step']!r} s must be > 0")
+    if "stop" in found:
+        scenario.stop_ns = int(round(found["stop"] * 1e9))
+    elif "stop" not in given:
+        scenario.stop_ns = scenario.start_ns + 10 * scenario.step_ns
+    if "tolerance" in found:
+        scenario.tolerance = found["tolerance"]
+    if scenario.stop_ns <= scenario.start_ns:
+        raise ScenarioError(f"{f}: stop {scenario.stop_ns / 1e9:g} s (from the DefaultExperiment) must be "
+                            f"after start {scenario.start_ns / 1e9:g} s")
+    log.info("from the FMUs' DefaultExperiment: %s", ", ".join(f"{k} = {v:g}" for k, v in found.items()))
 
 
 def sha256(path: Path) -> str:
@@ -94,6 +147,7 @@ class System:
         for name in self.needed:
             if not where[name]:
                 self.instances[name] = FmuInstance(name, self.paths[name], unzip_root / name if unzip_root else None)
+                self.instances[name].variables = self.variables[name]   # (FMI 3.0 arrays sized as checked)
         for name in self.needed:
             if where[name]:
                 self.instances[name].finish_loading()
@@ -116,7 +170,11 @@ def check_system(scenario: Scenario) -> System:
     variables: Dict[str, Dict[str, VarInfo]] = {}
     for u in scenario.units:
         paths[u.name] = resolve_fmu(u.fmu, f, u.name)
-        variables[u.name] = read_variables(paths[u.name], u.name)
+        variables[u.name] = read_variables(paths[u.name], u.name, u.parameters)
+    apply_default_experiment(scenario, paths)
+    from .fmi3 import expand_arrays
+
+    expand_arrays(scenario, variables)   # whole FMI 3.0 arrays -> their elements
 
     def lookup(unit: str, var: str, where: str) -> VarInfo:
         try:
@@ -129,11 +187,12 @@ def check_system(scenario: Scenario) -> System:
     for u in scenario.units:
         for pname, value in u.parameters.items():
             v = lookup(u.name, pname, f"parameter {u.name}.{pname}")
-            if v.causality not in ("parameter", "structuralParameter", "input"):
+            if not settable(v):
                 raise ScenarioError(f"{f}: parameter {u.name}.{pname}: variable has causality {v.causality}, "
-                                    f"not parameter or input")
+                                    f"not parameter or input, and no initial = exact/approx start value")
             fam = _family_of_value(value)
-            if fam != v.family and not (fam == "int" and v.family == "float"):
+            if fam != v.family and not (fam == "int" and v.family == "float") and not (
+                    fam == "string" and v.family == "binary"):   # a Binary as hex text, as in the XML
                 raise ScenarioError(f"{f}: parameter {u.name}.{pname}: type mismatch, the FMU declares "
                                     f"{v.type} but the scenario gives {type(value).__name__} {value!r}")
     for c in scenario.connections:
@@ -162,6 +221,9 @@ def check_system(scenario: Scenario) -> System:
         v = lookup(s.unit, s.var, f"fault {s.unit}.{s.var}")
         if v.causality not in ("input", "parameter"):
             raise ScenarioError(f"{f}: fault {s.unit}.{s.var}: only inputs can be forced, causality is {v.causality}")
+    from .values import check_values
+
+    check_values(scenario, variables, paths)   # parameter and fault values against the FMI types
 
     for b in scenario.foxglove:
         for ref in b.refs():
