@@ -251,7 +251,7 @@ class Execution:
         plan = LogPlan(str(self.output), sc.log.encoding)
         plan.metadata += [
             ("scenario", {"file": str(sc.file), "text": sc.text}),
-            ("fmus", {u: f"{system.paths[u]} sha256={h}" for u, h in fmu_hashes(system).items()}),
+            ("fmus", {u: f"{system.origin(u)} sha256={h}" for u, h in fmu_hashes(system).items()}),
             ("immersim", {
                 "version": _version(), "algorithm": sc.algorithm, "extrapolation": sc.extrapolation,
                 "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),

@@ -125,6 +125,13 @@ class System:
     hashes: Dict[str, str] = field(default_factory=dict)
     workers: Dict[int, Any] = field(default_factory=dict)   # process number -> remote.WorkerProcess
 
+    def origin(self, unit: str) -> str:
+        """The FMU file of ``unit`` as the log names it: the resolved file, or for a unit given
+        a local copy (``UnitSpec.path``: a sweep's FMU shipped to a worker) its ``fmu``, the file
+        the copy was made from."""
+        spec = self.scenario.unit(unit)
+        return spec.fmu if spec.path else str(self.paths[unit])
+
     def connections(self) -> List[Connection]:
         return [c for c in self.scenario.connections if c.dst_unit in self.needed]
 
@@ -169,7 +176,7 @@ def check_system(scenario: Scenario) -> System:
     paths: Dict[str, Path] = {}
     variables: Dict[str, Dict[str, VarInfo]] = {}
     for u in scenario.units:
-        paths[u.name] = resolve_fmu(u.fmu, f, u.name)
+        paths[u.name] = Path(u.path) if u.path else resolve_fmu(u.fmu, f, u.name)  # path: a local copy
         variables[u.name] = read_variables(paths[u.name], u.name, u.parameters)
     apply_default_experiment(scenario, paths)
     from .fmi3 import expand_arrays
