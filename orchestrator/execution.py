@@ -18,7 +18,7 @@ from typing import Any, Callable, Dict, List, Optional
 
 from .fmu import ENDED, forget_python_code
 from . import supervisor
-from .errors import FmuLoadError, ImmersimError, LogWriteError, ScenarioError
+from .errors import FmuCallError, FmuLoadError, ImmersimError, LogWriteError, ScenarioError
 from .master import Master, Slot
 from .live import attach_live_inputs
 from .logwriter import LogPlan, LogProcess, LogWriter
@@ -242,7 +242,12 @@ class Execution:
                     src = slots[c.src_unit]
                     y = src.cur[src.index(c.src_var)]
                     values[c.dst_var] = c.gain * y + c.offset if c.scaled else y
-            slots[name].inst.initialize(sc.start_ns, sc.stop_ns, values, sc.tolerance)
+            try:
+                slots[name].inst.initialize(sc.start_ns, sc.stop_ns, values, sc.tolerance)
+            except FmuCallError as exc:   # the unit refused its parameters: a bad scenario (exit 2)
+                from .values import refused_at_initialization
+
+                raise refused_at_initialization(sc, name, exc) from None
             slots[name].read()
             done.add(name)
 

@@ -367,7 +367,9 @@ class FmuInstance:
         self.messages.append(text)
         if status >= 3:
             self.error_logged = True
-        level = logging.DEBUG if status == 0 else logging.WARNING if status == 1 else logging.ERROR
+        # an error (status >= 2) comes back as the FmuCallError of the call, which carries the
+        # message: reported once, by whoever handles that error
+        level = logging.WARNING if status == 1 else logging.DEBUG
         log.log(level, "unit %s [%s]: %s", self.name, _STATUS[status] if status < 6 else status, text)
 
     def _setup_fast_path(self) -> None:

@@ -8,8 +8,8 @@ first violation into a :class:`~immersim.orchestrator.errors.ScenarioError` that
 and the key path (``units[2].parameters.M``, ``inputs[4].times``). The loaders
 (:mod:`~immersim.orchestrator.scenario`, :mod:`~immersim.orchestrator.sweep.spec`) convert the
 validated models into their dataclasses; what depends on the FMUs (a variable's FMI type and
-range, causality, variability) is checked by :func:`check_value` once the model descriptions
-are read (:mod:`~immersim.orchestrator.system`).
+range, causality, variability) is checked by :mod:`~immersim.orchestrator.values` once the
+model descriptions are read.
 """
 from __future__ import annotations
 
@@ -43,17 +43,6 @@ LOG_ENCODINGS = ("json", "ros1")
 SHAPES = ("cube", "sphere", "cylinder")
 REDUCE_NAMES = ("max", "min", "mean", "rms", "absmax", "final")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_\-]*$")
-
-#: range of each FMI integer type (FMI 2.0 ``Integer`` and ``Enumeration`` are 32-bit; FMI 3.0
-#: ``Enumeration`` is Int64)
-INT_RANGES: Dict[str, Tuple[int, int]] = {
-    "Integer": (-2 ** 31, 2 ** 31 - 1),
-    "Int8": (-2 ** 7, 2 ** 7 - 1), "UInt8": (0, 2 ** 8 - 1),
-    "Int16": (-2 ** 15, 2 ** 15 - 1), "UInt16": (0, 2 ** 16 - 1),
-    "Int32": (-2 ** 31, 2 ** 31 - 1), "UInt32": (0, 2 ** 32 - 1),
-    "Int64": (-2 ** 63, 2 ** 63 - 1), "UInt64": (0, 2 ** 64 - 1),
-}
-
 
 # -- value types ---------------------------------------------------------------------------
 def _fail(kind: str, message: str, **ctx: Any) -> PydanticCustomError:
@@ -532,37 +521,3 @@ def validate(model: type, data: Dict[str, Any], path: Path, origins: Optional[Di
                 break
         msg = _message(err)
         raise ScenarioError(f"{path}: {where}: {msg}" if where else f"{path}: {msg}") from None
-
-
-def check_value(value: Any, fmi_type: str, bounds: Tuple[Optional[int], Optional[int]] = (None, None),
-                non_finite: bool = False) -> Optional[str]:
-    """Why ``value`` cannot be set into a variable of FMI type ``fmi_type`` (None: it can).
-
-    Boolean takes true/false, an integer type an integer in the type's range (and in the
-    variable's ``min``/``max``), Real a number (finite unless ``non_finite``: a fault injecting
-    NaN/inf into a Real input), String a string.
-    """
-    if fmi_type in ("Real", "Float64", "Float32"):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return f"{fmi_type} takes a number, got {_show(value)}"
-        try:
-            f = float(value)
-        except OverflowError:
-            return f"{_show(value)} is too large for {fmi_type}"
-        if not non_finite and not math.isfinite(f):
-            return f"{fmi_type} value must be finite, got {_show(value)}"
-        return None
-    if fmi_type == "Boolean":
-        return None if isinstance(value, bool) else f"Boolean takes true or false, got {_show(value)}"
-    if fmi_type == "String":
-        return None if isinstance(value, str) else f"String takes a string, got {_show(value)}"
-    if fmi_type in INT_RANGES or fmi_type == "Enumeration":
-        if isinstance(value, bool) or not isinstance(value, int):
-            return f"{fmi_type} takes an integer, got {_show(value)}"
-        lo, hi = INT_RANGES.get(fmi_type, INT_RANGES["Integer"])
-        lo = max(lo, bounds[0]) if bounds[0] is not None else lo
-        hi = min(hi, bounds[1]) if bounds[1] is not None else hi
-        if not lo <= value <= hi:
-            return f"{value} is outside the range {lo}..{hi} of this {fmi_type} variable"
-        return None
-    return None

@@ -57,6 +57,10 @@ def _player_vars():
     return tuple(out)
 
 
+#: the largest scene side (m): 1000 km, far beyond a VR scene; squared distances stay finite
+MAX_SCENE_SIZE = 1e6
+
+
 class network(TableSlave):
     modelName = "network"
     description = "hybrid-P2P distributed VR network: supernode, render groups, ownership, dead reckoning, cached rendering"
@@ -111,6 +115,8 @@ class network(TableSlave):
         for name in ("latency_ms", "jitter_ms", "scene_size"):
             if v[name] < 0 or (name == "scene_size" and v[name] == 0):
                 raise self._param_error(name, "must be positive")
+        if v["scene_size"] > MAX_SCENE_SIZE:   # squared distances of larger scenes overflow
+            raise self._param_error("scene_size", f"must be at most {MAX_SCENE_SIZE:g} m")
         if not 0 <= v["loss"] < 1:
             raise self._param_error("loss", "must be in [0, 1)")
         wan = LinkClass(v["latency_ms"], v["jitter_ms"], v["loss"], v["bandwidth_mbps"])

@@ -1,0 +1,166 @@
+"""Scenario values against the FMI types of the variables they are set into.
+
+The schema (:mod:`~immersim.orchestrator.schema`) checks a scenario's shape; once the units'
+model descriptions are read, every value the master will set before or during a run (unit
+parameters and start values, fault values) is checked against its variable here: a Boolean
+takes true/false, an integer type an integer inside the type's range and the variable's
+``min``/``max`` (never wrapped), a Real a finite number (NaN/inf only as a fault forced into a
+Real input, the deliberate way to provoke a unit's error), a String a string. A fault may force
+an input or a tunable parameter only.
+"""
+from __future__ import annotations
+
+import ast
+import math
+import re
+from pathlib import Path
+from typing import Any, Dict, Optional, Tuple
+
+from .errors import ScenarioError
+
+#: range of each FMI integer type (FMI 2.0 ``Integer`` and ``Enumeration`` are 32-bit)
+INT_RANGES: Dict[str, Tuple[int, int]] = {
+    "Integer": (-2 ** 31, 2 ** 31 - 1), "Enumeration": (-2 ** 31, 2 ** 31 - 1),
+    "Int8": (-2 ** 7, 2 ** 7 - 1), "UInt8": (0, 2 ** 8 - 1),
+    "Int16": (-2 ** 15, 2 ** 15 - 1), "UInt16": (0, 2 ** 16 - 1),
+    "Int32": (-2 ** 31, 2 ** 31 - 1), "UInt32": (0, 2 ** 32 - 1),
+    "Int64": (-2 ** 63, 2 ** 63 - 1), "UInt64": (0, 2 ** 64 - 1),
+}
+REAL_TYPES = ("Real", "Float64", "Float32")
+Bounds = Tuple[Optional[int], Optional[int]]
+
+
+def _show(x: Any) -> str:
+    text = repr(x)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def check_value(value: Any, fmi_type: str, bounds: Bounds = (None, None), non_finite: bool = False) -> Optional[str]:
+    """Why ``value`` cannot be set into a variable of FMI type ``fmi_type``; None if it can.
+
+    Parameters
+    ----------
+    value : bool, int, float or str
+        As the scenario gives it (TOML).
+    fmi_type : str
+        ``Real``, ``Integer``, ``Boolean``, ``String`` (FMI 2.0) or an FMI 3.0 type name.
+    bounds : (int or None, int or None)
+        The variable's declared ``min`` and ``max`` (integer types).
+    non_finite : bool
+        Accept NaN/inf for a Real (a fault forced into a Real input).
+    """
+    if fmi_type in REAL_TYPES:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"{fmi_type} takes a number, got {_show(value)}"
+        try:
+            number = float(value)
+        except OverflowError:
+            return f"{_show(value)} is too large for {fmi_type}"
+        if not non_finite and not math.isfinite(number):
+            return f"{fmi_type} value must be finite, got {_show(value)}"
+        return None
+    if fmi_type == "Boolean":
+        return None if isinstance(value, bool) else f"Boolean takes true or false, got {_show(value)}"
+    if fmi_type == "String":
+        return None if isinstance(value, str) else f"String takes a string, got {_show(value)}"
+    if fmi_type in INT_RANGES:
+        if isinstance(value, bool) or not isinstance(value, int):
+            return f"{fmi_type} takes an integer, got {_show(value)}"
+        lo, hi = INT_RANGES[fmi_type]
+        lo = lo if bounds[0] is None else max(lo, bounds[0])
+        hi = hi if bounds[1] is None else min(hi, bounds[1])
+        if not lo <= value <= hi:
+            return f"{value} is outside the range {lo}..{hi} of this {fmi_type} variable"
+    return None
+
+
+def _int(text: Any) -> Optional[int]:
+    try:
+        return int(text) if text is not None else None
+    except (TypeError, ValueError):
+        return None
+
+
+def declared_bounds(path: Path, unit: str) -> Dict[str, Bounds]:
+    """``name -> (min, max)`` of the integer variables of an FMU that declare them (its own or
+    its declared type's)."""
+    from .fmu import read_model
+
+    out: Dict[str, Bounds] = {}
+    for v in read_model(path, unit)[0].modelVariables:
+        if v.type not in INT_RANGES:
+            continue
+        declared = getattr(v, "declaredType", None)
+        lo = _int(getattr(v, "min", None)) if getattr(v, "min", None) is not None else _int(getattr(declared, "min", None))
+        hi = _int(getattr(v, "max", None)) if getattr(v, "max", None) is not None else _int(getattr(declared, "max", None))
+        if lo is not None or hi is not None:
+            out[v.name] = (lo, hi)
+    return out
+
+
+def check_values(scenario, variables: Dict[str, Dict[str, Any]], paths: Dict[str, Path]) -> None:
+    """Check every parameter and fault value of ``scenario`` against its variable's FMI type.
+
+    ``variables``: unit -> name -> :class:`~immersim.orchestrator.fmu.VarInfo` (every name the
+    scenario uses exists: checked before). Raises :class:`ScenarioError` ``<file>: <key path>:
+    <reason>``.
+    """
+    from .schema import key_path
+
+    f = scenario.file
+    bounds = {name: declared_bounds(p, name) for name, p in paths.items()}
+    for i, u in enumerate(scenario.units):
+        for pname, value in u.parameters.items():
+            v = variables[u.name].get(pname)
+            why = v is not None and check_value(value, v.type, bounds[u.name].get(pname, (None, None)))
+            if why:
+                raise ScenarioError(f"{f}: {key_path(('units', i, 'parameters', pname))}: {u.name}.{pname}: {why}")
+    for i, s in enumerate(scenario.faults):
+        v = variables[s.unit].get(s.var)
+        if v is None:
+            continue
+        if v.causality in ("parameter", "structuralParameter") and v.variability != "tunable":
+            raise ScenarioError(f"{f}: faults[{i}].target: {s.unit}.{s.var} is a {v.variability or 'fixed'} "
+                                f"parameter; a fault forces an input or a tunable parameter")
+        why = check_value(s.value, v.type, bounds[s.unit].get(s.var, (None, None)),
+                          non_finite=v.causality == "input")
+        if why:
+            raise ScenarioError(f"{f}: faults[{i}].value: {s.unit}.{s.var}: {why}")
+
+
+_RAISED = re.compile(r"^\s*(\w+)\((['\"])(.*)\2\)\s*$", re.S)
+
+
+def unit_reason(message: str, unit: str) -> str:
+    """The reason a unit gave, out of an FMI call's error text: the Python exception a
+    pythonfmu unit raised (``ValueError('plat: bad parameter: ...')``) unwrapped from the
+    binary's ``Fatal py exception`` preamble, without the instance name and ``(t = 0 s)``."""
+    text = message.split(" s: ", 1)[1] if re.match(r"unit \S+: \w+ returned \w+ at t = ", message) else message
+    last = text.strip().splitlines()[-1] if text.strip() else text
+    raised = _RAISED.match(last)
+    if raised:
+        try:
+            text = ast.literal_eval(raised.group(2) + raised.group(3) + raised.group(2))
+        except (ValueError, SyntaxError):
+            text = raised.group(3)
+    text = " ".join(text.split())
+    for prefix in (f"{unit}: ", "bad parameter: ", "parameters: "):
+        text = text.removeprefix(prefix)
+    return re.sub(r"\s*\(t = [^)]*\)$", "", text)
+
+
+def refused_at_initialization(scenario, unit: str, error: Exception) -> ScenarioError:
+    """The error of a unit that refused its parameters when initialized, as one line naming
+    the scenario file, the key of the parameter the unit's reason names (its value) and the
+    reason: ``<file>: units[1].parameters.M = -240.0: unit plat refused it: M = -240.0 must be > 0``."""
+    from .schema import key_path
+
+    reason = unit_reason(str(error), unit)
+    i, spec = next((i, u) for i, u in enumerate(scenario.units) if u.name == unit)
+    named = [p for p in spec.parameters if re.search(rf"(?<![\w\[]){re.escape(p)}(?![\w\[\]])", reason)]
+    if named:
+        p = max(named, key=len)
+        where = f"{key_path(('units', i, 'parameters', p))} = {spec.parameters[p]!r}"
+        return ScenarioError(f"{scenario.file}: {where}: unit {unit} refused it at initialization: {reason}")
+    return ScenarioError(f"{scenario.file}: units[{i}] ({unit}): the unit refused its parameters at "
+                         f"initialization: {reason}")
