@@ -1,4 +1,4 @@
-"""``immersim`` command line: build, run, info, plot, sweep.
+"""``immersim`` command line: build, run, info, plot, sweep, examples.
 
 User errors print one line ``immersim: error: ...`` and exit with status 2 (bad input) or 1
 (a run that failed); SIGINT exits with 130. No traceback for user errors (``--debug`` shows it).
@@ -122,6 +122,19 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_examples(args: argparse.Namespace) -> int:
+    from .examples import copy_examples, list_examples
+
+    if args.copy:
+        for path in copy_examples(args.copy, args.names):
+            sys.stdout.write(f"{path}\n")
+        return 0
+    shown = [e for e in list_examples() if not args.names or {e.name, e.name[:-5]} & set(args.names)]
+    width = max((len(e.name) for e in shown), default=0)
+    sys.stdout.write("".join(f"{e.name.ljust(width)}  {e.title}".rstrip() + "\n" for e in shown))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="immersim", description=__doc__.splitlines()[0])
     p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
@@ -163,6 +176,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:port)")
     s.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     s.set_defaults(fn=_cmd_sweep)
+
+    e = sub.add_parser("examples", help="list the shipped example scenarios, or copy them to a folder")
+    e.add_argument("names", nargs="*", help="scenarios to copy (default: all), e.g. demo sweeps/platform_ablation")
+    e.add_argument("--copy", metavar="DEST", default=None, help="copy them into DEST (never overwrites)")
+    e.set_defaults(fn=_cmd_examples)
     return p
 
 
