@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import List, Optional
 
@@ -12,6 +13,9 @@ from .executors import _run_dask, _run_local
 from .runs import RunRow, RunTask
 from .spec import SweepOptions, SweepSpec, load_sweep
 from .summary import SweepResult, plot_comparison, plot_file_name, write_info, write_summary
+
+#: a Dask scheduler address: an optional protocol, a host name or address, a port
+_SCHEDULER = re.compile(r"^(?:(?:tcp|tls|ws|wss|ucx)://)?(?:[A-Za-z0-9_.\-]+|\[[0-9A-Fa-f:.]+\]):\d{1,5}$")
 
 
 # -- the sweep ---------------------------------------------------------------------------
@@ -116,6 +120,9 @@ def run_sweep(sweepfile: Path | str, output_dir: Path | str | None = None, worke
     spec = load_sweep(sweepfile)
     if workers is not None and workers < 1:
         raise ScenarioError(f"--workers must be >= 1, got {workers}")
+    if scheduler is not None and not _SCHEDULER.match(scheduler):
+        raise ScenarioError(f"--scheduler {scheduler!r} is not a Dask scheduler address "
+                            "([tcp|tls|ws|wss|ucx]://host:port)")
     opts = SweepOptions(Path(output_dir) if output_dir else default_output_dir(sweepfile), workers, scheduler,
                         check, progress)
     result = execute(spec, opts)
