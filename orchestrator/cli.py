@@ -29,13 +29,12 @@ def _cmd_build(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .execution import RunFailed, RunInterrupted, run_scenario
+    from .api import execute
+    from .execution import RunFailed, RunInterrupted
 
-    scenario = Path(args.scenario)
-    out = Path(args.output) if args.output else Path("results") / "runs" / f"{scenario.stem}.mcap"
     overrides = _parse_sets(args.set)
     try:
-        res = run_scenario(scenario, out, progress=not args.quiet, overrides=overrides)
+        res = execute(args.scenario, overrides, args.output, progress=not args.quiet)
     except RunInterrupted as exc:
         sys.stderr.write(f"immersim: {exc}\n")
         return 128 + exc.signum
@@ -44,10 +43,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return EXIT_FAILED
     late = args.late_sigint
     if late.requested:  # the signal came after the last step, while the run closed
-        sys.stderr.write(f"immersim: interrupted by {late.name} after the run completed; the log {out} holds "
+        sys.stderr.write(f"immersim: interrupted by {late.name} after the run completed; the log {res.output} holds "
                          f"all {res.steps_done} steps\n")
         return 128 + (late.signum or 2)
-    sys.stdout.write(f"{res.scenario}: {res.steps_done} steps to t = {res.t_ns / 1e9:.6g} s -> {out}\n")
+    sys.stdout.write(f"{res.scenario}: {res.steps_done} steps to t = {res.t_ns / 1e9:.6g} s -> {res.output}\n")
     if res.status == "ended":   # a unit asked to end the simulation (its step is logged)
         sys.stdout.write(f"{res.reason}\n")
     summary = res.timing_summary()
@@ -101,10 +100,35 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
+    from .analysis.runs import split_sources
     from .plotting import plot_signals
 
-    out = plot_signals(args.file, args.patterns, args.output)
+    sources, patterns = split_sources(args.inputs)
+    pages = plot_signals(sources, patterns, args.output, color_by=args.color_by, max_signals=args.max_signals)
+    sys.stdout.write("".join(f"{p}\n" for p in pages))
+    return 0
+
+
+def _cmd_diff(args: argparse.Namespace) -> int:
+    from .analysis.diff import diff_logs
+
+    result = diff_logs(args.a, args.b, args.patterns or ["*"], rtol=args.rtol, atol=args.atol)
+    sys.stdout.write(f"{result}\n")
+    return 0 if result.equal else EXIT_FAILED
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .analysis.report import write_report
+
+    out = write_report(args.sources, args.output, signals=args.signals, color_by=args.color_by)
     sys.stdout.write(f"{out}\n")
+    return 0
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from .analysis.convert import convert_log
+
+    sys.stdout.write(f"{convert_log(args.file, args.output, args.patterns or ['*'])}\n")
     return 0
 
 
@@ -163,11 +187,36 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--signals", action="store_true", help="list every signal of every channel")
     i.set_defaults(fn=_cmd_info)
 
-    pl = sub.add_parser("plot", help="plot signals of an MCAP log into a PNG")
-    pl.add_argument("file")
-    pl.add_argument("patterns", nargs="+", help="glob patterns over unit.variable, e.g. 'platform.stroke*'")
-    pl.add_argument("-o", "--output", required=True, help="PNG file")
+    pl = sub.add_parser("plot", help="plot signals of MCAP logs or a sweep's runs, overlaid, into a PNG")
+    pl.add_argument("inputs", nargs="+", metavar="LOG|SWEEP_DIR ... PATTERN",
+                    help="MCAP files and sweep output folders, then glob patterns over unit.variable "
+                         "(e.g. 'plat.stroke*')")
+    pl.add_argument("-o", "--output", required=True, help="PNG file (more pages: <name>-2.png, ...)")
+    pl.add_argument("--color-by", default=None, metavar="KEY", help="grid key colouring a sweep's runs")
+    pl.add_argument("--max-signals", type=int, default=120, help="error when more signals match (default 120)")
     pl.set_defaults(fn=_cmd_plot)
+
+    d = sub.add_parser("diff", help="compare two MCAP logs signal by signal (exit 0 equal, 1 different)")
+    d.add_argument("a")
+    d.add_argument("b")
+    d.add_argument("patterns", nargs="*", help="glob patterns over unit.variable (default: every signal)")
+    d.add_argument("--rtol", type=float, default=0.0, help="relative tolerance (default 0)")
+    d.add_argument("--atol", type=float, default=0.0, help="absolute tolerance (default 0: bit-identical)")
+    d.set_defaults(fn=_cmd_diff)
+
+    rp = sub.add_parser("report", help="one self-contained HTML page comparing a sweep's runs or logs")
+    rp.add_argument("sources", nargs="+", metavar="SWEEP_DIR|LOG", help="sweep output folders and MCAP files")
+    rp.add_argument("-o", "--output", required=True, help="HTML file")
+    rp.add_argument("--signals", nargs="+", default=None, metavar="PATTERN",
+                    help="signals to overlay (default: those the sweep's metrics use)")
+    rp.add_argument("--color-by", default=None, metavar="KEY", help="grid key colouring a sweep's runs")
+    rp.set_defaults(fn=_cmd_report)
+
+    cv = sub.add_parser("convert", help="write an MCAP log's signals as CSV or Parquet")
+    cv.add_argument("file")
+    cv.add_argument("patterns", nargs="*", help="glob patterns over unit.variable (default: every signal)")
+    cv.add_argument("-o", "--output", required=True, help="run.csv or run.parquet")
+    cv.set_defaults(fn=_cmd_convert)
 
     s = sub.add_parser("sweep", help="run a grid of scenario variants (ablation) in parallel")
     s.add_argument("sweepfile", help="sweep TOML file")
