@@ -146,6 +146,19 @@ def test_tilt_coordination_sign_reproduces_the_sustained_force_with_gravity(f):
     np.testing.assert_allclose(seat[:2], [fx, fy], atol=2e-3)
 
 
+def test_platform_tilt_from_the_native_washout_has_the_same_sign_as_gravity_requires():
+    """The same law through the simulator's native macro step (its own washout expression): the
+    platform's pose after 40 s of a sustained (0.5, -0.3) m/s^2 gives A^T (0, 0, g) with those x, y."""
+    sim = PlatformSim(SimConfig())
+    f = np.array([0.5, -0.3, 0.0])
+    for k in range(int(40 / H)):
+        out = sim.step(StepInputs(f=f), H, k * H)
+    pose = out.pose
+    assert np.abs(pose[:3]).max() < 2e-3
+    seat = _rotation(pose[3], pose[4], pose[5]).T @ np.array([0.0, 0.0, WashoutParams().g])
+    np.testing.assert_allclose(seat[:2], f[:2], atol=3e-3)
+
+
 def test_jolt_goes_to_surge_and_its_share_to_heave_never_to_sway_or_tilt():
     """An 8 m/s^2 jolt for one step: heave = jolt_heave * surge at every step, sway and the tilt
     low-pass stay exactly zero, and the surge is the translational channel's response to f_x."""
