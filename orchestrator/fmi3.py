@@ -17,10 +17,12 @@ Binary values are Python ``bytes`` (logged as base64 text in JSON).
 from __future__ import annotations
 
 import ctypes
+import functools
 import itertools
 import math
+import operator
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from .errors import FmuLoadError, ScenarioError
 
@@ -216,13 +218,33 @@ class _Group:
 
     def values(self) -> List[Any]:
         """The buffer's values as Python values, in the order of the requested variables."""
+        return self.converter()()
+
+    def converter(self) -> Callable[[], List[Any]]:
+        """A function returning :meth:`values` (made once: no branch on the type per call)."""
+        buf, sizes, positions = self.buf, self.sizes, self.positions
         if self.type == "String":
-            raw = [b.decode("utf-8", "replace") if b is not None else "" for b in self.buf]
+            def raw():
+                return [b.decode("utf-8", "replace") if b is not None else "" for b in buf]
         elif self.type == "Binary":
-            raw = [ctypes.string_at(p, n) if p else b"" for p, n in zip(self.buf, self.sizes)]
+            string_at = ctypes.string_at
+
+            def raw():
+                return [string_at(p, n) if p else b"" for p, n in zip(buf, sizes)]
         else:
-            raw = self.buf[:]
-        return raw if self.identity else [raw[p] for p in self.positions]
+            raw = functools.partial(operator.getitem, buf, slice(None))   # buf[:]: a list
+        if self.identity:
+            return raw
+        pick = operator.itemgetter(*positions)
+        if len(positions) == 1:
+            return lambda: [pick(raw())]
+        return lambda: list(pick(raw()))
+
+    def arguments(self, inst: "FmuInstance") -> tuple:
+        """The arguments of the call, pre-built."""
+        if self.sizes is None:
+            return (inst._c_component, self.vrs, self.nvr, self.buf, self.n)
+        return (inst._c_component, self.vrs, self.nvr, self.sizes, self.buf, self.n)
 
     def call(self, inst: "FmuInstance") -> None:
         try:
@@ -257,11 +279,38 @@ class Reader:
         self.nonfinite = ValueReader.nonfinite.__get__(self)
         self._raise_nonfinite = ValueReader._raise_nonfinite.__get__(self)
 
+        #: (function, its arguments, the converter of its buffer, function name) per type
+        self._calls = [(g.fn, g.arguments(inst), g.converter(), g.function) for g in self._groups]
+        if len(self._calls) == 1:   # one type (e.g. Float64 only): straight-line code
+            self.read = self._read_one()
+
+    def _read_one(self) -> Callable[[], List[Any]]:
+        (fn, args, convert, name), = self._calls
+        inst, check, n_real, isfinite = self.inst, self.check_finite, self.n_real, math.isfinite
+
+        def read() -> List[Any]:
+            try:
+                status = fn(*args)
+            except Exception as exc:
+                raise inst._raised(name, exc) from None
+            if status > 1:
+                inst._check(name, status)
+            out = convert()
+            if check and n_real and not isfinite(sum(out)):
+                self._raise_nonfinite(out)
+            return out
+        return read
+
     def read(self) -> List[Any]:
         inst, out = self.inst, []
-        for g in self._groups:
-            g.call(inst)
-            out += g.values()
+        for fn, args, convert, name in self._calls:
+            try:
+                status = fn(*args)
+            except Exception as exc:
+                raise inst._raised(name, exc) from None
+            if status > 1:
+                inst._check(name, status)
+            out += convert()
         if self.check_finite and self.n_real and not math.isfinite(sum(out[:self.n_real])):
             self._raise_nonfinite(out)
         return out
@@ -306,34 +355,32 @@ def get_values(inst: "FmuInstance", names: Sequence[str]) -> List[Any]:
     return [got[n] for n in names]
 
 
-class StepResult:
-    """The flags of the last ``fmi3DoStep`` (pre-built ctypes outputs)."""
+def stepper(inst: "FmuInstance") -> Callable[[int, int], Optional[int]]:
+    """The function ``(t_ns, h_ns) -> end`` that calls ``fmi3DoStep`` from ``t_ns`` over ``h_ns``
+    with pre-built ctypes arguments. An early return (the FMU stopped short of the step's end
+    without asking to terminate) is continued from where it stopped. Returns the time (ns) at
+    which the FMU asked to end the simulation, or None."""
+    fn, comp, no_set = inst._do_step, inst._c_component, inst._c_true
+    event, terminate, early, last = ctypes.c_bool(), ctypes.c_bool(), ctypes.c_bool(), ctypes.c_double()
+    refs = (ctypes.byref(event), ctypes.byref(terminate), ctypes.byref(early), ctypes.byref(last))
+    c_t, c_h = ctypes.c_double(), ctypes.c_double()
 
-    def __init__(self) -> None:
-        self.event, self.terminate, self.early = ctypes.c_bool(), ctypes.c_bool(), ctypes.c_bool()
-        self.last = ctypes.c_double()
-        self.refs = (ctypes.byref(self.event), ctypes.byref(self.terminate), ctypes.byref(self.early),
-                     ctypes.byref(self.last))
-
-
-def do_step(inst: "FmuInstance", t_ns: int, h_ns: int) -> Optional[int]:
-    """``fmi3DoStep`` from ``t_ns`` over ``h_ns``. An early return (the FMU stopped short of the
-    step's end without asking to terminate) is continued from where it stopped. Returns the time
-    (ns) at which the FMU asked to end the simulation, or None."""
-    flags = inst._step3_flags
-    end = t_ns + h_ns
-    t = t_ns
-    while True:
-        try:
-            status = inst._do_step(inst._c_component, ctypes.c_double(t / 1e9), ctypes.c_double((end - t) / 1e9),
-                                   inst._c_true, *flags.refs)
-        except Exception as exc:
-            raise inst._raised("fmi3DoStep", exc) from None
-        if status > 1:
-            inst._check("fmi3DoStep", status)
-        reached = int(round(flags.last.value * 1e9)) if flags.early.value else end
-        if flags.terminate.value:
-            return min(reached, end)
-        if reached >= end or reached <= t:
-            return None
-        t = reached
+    def do_step(t_ns: int, h_ns: int) -> Optional[int]:
+        end = t_ns + h_ns
+        c_t.value, c_h.value = t_ns / 1e9, h_ns / 1e9
+        while True:
+            try:
+                status = fn(comp, c_t, c_h, no_set, *refs)
+            except Exception as exc:
+                raise inst._raised("fmi3DoStep", exc) from None
+            if status > 1:
+                inst._check("fmi3DoStep", status)
+            if not (early.value or terminate.value):
+                return None
+            reached = int(round(last.value * 1e9)) if early.value else end
+            if terminate.value:
+                return min(reached, end)
+            if reached >= end or reached * 1e-9 <= c_t.value:
+                return None
+            c_t.value, c_h.value = reached / 1e9, (end - reached) / 1e9
+    return do_step

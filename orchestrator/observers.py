@@ -19,6 +19,7 @@ write of the step's records into the current chunk (:meth:`McapObserver.write_st
 from __future__ import annotations
 
 import base64
+import functools
 import json
 import logging
 import math
@@ -51,6 +52,16 @@ def _json_value(value: Any) -> str:
     return json.dumps(value)
 
 
+def _base64(value: Any) -> str:
+    if isinstance(value, bytes):
+        return base64.b64encode(value).decode("ascii")
+    raise TypeError
+
+
+#: orjson.dumps with FMI 3.0 Binary values (bytes) as base64 text (as :func:`_json_value`)
+_dumps_binary = functools.partial(_dumps, default=_base64)
+
+
 def json_schema(unit: str, infos: Sequence[VarInfo]) -> Dict[str, Any]:
     props = {}
     for v in infos:
@@ -81,11 +92,13 @@ class ChannelEncoder:
         self.infos = list(infos)
         self.names = [v.name for v in self.infos]
         self._template = "{" + ",".join(f"{json.dumps(n)}:%s" for n in self.names) + "}"
+        #: orjson, with base64 text for the bytes of FMI 3.0 Binary variables when there are some
+        self._dumps = _dumps_binary if any(v.family == "binary" for v in self.infos) else _dumps
 
     def encode(self, values: Sequence[Any]) -> bytes:
         """JSON bytes of one message; ``values`` in the order of ``infos``."""
         try:
-            return _dumps(dict(zip(self.names, values)))
+            return self._dumps(dict(zip(self.names, values)))
         except TypeError:  # orjson.JSONEncodeError subclasses TypeError
             return (self._template % tuple(_json_value(v) for v in values)).encode()
 
@@ -95,7 +108,7 @@ class ChannelEncoder:
         :class:`~immersim.orchestrator.codegen.Generated`): orjson on a dict display, or on
         ``dict(zip(...))`` for a long channel (the faster from a few tens of values); the same bytes. It
         raises ``TypeError`` where :meth:`encode` falls back to its template."""
-        dumps = gen.const(_dumps)
+        dumps = gen.const(self._dumps)
         if len(positions) <= _DISPLAY_MAX:
             return f"{dumps}({{{', '.join(f'{n!r}: {values}[{i}]' for n, i in zip(self.names, positions))}}})"
         return f"{dumps}(dict(zip({gen.const(self.names)}, {_picked(gen, values, positions)})))"
@@ -342,7 +355,11 @@ class McapObserver:
         self.messages = 0
 
     def add_metadata(self, name: str, data: Dict[str, str]) -> None:
-        self.writer.add_metadata(name, {k: str(v) for k, v in data.items()})
+        """One metadata record (written to the file at once); raises LogWriteError."""
+        try:
+            self.writer.add_metadata(name, {k: str(v) for k, v in data.items()})
+        except OSError as exc:
+            raise LogWriteError(f"cannot write the log {self.path}: {exc.strerror or exc}") from None
 
     def add_channel(self, topic: str, infos: Sequence[VarInfo]) -> Tuple[int, Any]:
         """Register a channel with its JSON schema.
