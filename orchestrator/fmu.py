@@ -208,6 +208,7 @@ def _read_model(path: Path, unit: str):
         fmi3.check_supported(md, path, unit)
     if md.coSimulation is None:
         raise FmuLoadError(f"unit {unit}: {path} is not a co-simulation FMU")
+    check_archive(path, md, unit)
     if md.fmiVersion.startswith("3"):
         return md, fmi3.variables(md)
     variables = {}
@@ -366,7 +367,9 @@ class FmuInstance:
         self.messages.append(text)
         if status >= 3:
             self.error_logged = True
-        level = logging.DEBUG if status == 0 else logging.WARNING if status == 1 else logging.ERROR
+        # an error (status >= 2) comes back as the FmuCallError of the call, which carries the
+        # message: reported once, by whoever handles that error
+        level = logging.WARNING if status == 1 else logging.DEBUG
         log.log(level, "unit %s [%s]: %s", self.name, _STATUS[status] if status < 6 else status, text)
 
     def _setup_fast_path(self) -> None:
@@ -814,3 +817,34 @@ class DiscreteSetter:
 
 def is_finite(value: Any) -> bool:
     return not isinstance(value, float) or math.isfinite(value)
+
+
+def check_archive(path: Path, md: Any, unit: str) -> None:
+    """Refuse at load an FMU whose archive cannot run here: no binary of its
+    ``modelIdentifier`` for this platform (FMI 2.0 ``binaries/linux64/<id>.so``, FMI 3.0
+    ``binaries/x86_64-linux/<id>.so``), or, for a pythonfmu FMU, a ``resources/slavemodule.txt``
+    that is missing, empty or names a module the archive lacks (pythonfmu's binary crashes the
+    process on those). Raises :class:`~immersim.orchestrator.errors.FmuLoadError`."""
+    import fmpy
+
+    with zipfile.ZipFile(path) as z:
+        names = set(z.namelist())
+        mid = md.coSimulation.modelIdentifier
+        folder = fmpy.platform if md.fmiVersion.startswith("2") else fmpy.platform_tuple
+        binary = f"binaries/{folder}/{mid}{fmpy.sharedLibraryExtension}"
+        if binary not in names:
+            have = sorted({n.split("/")[1] for n in names if n.startswith("binaries/") and n.count("/") >= 2})
+            others = sorted(n for n in names if n.startswith(f"binaries/{folder}/") and not n.endswith("/"))
+            raise FmuLoadError(
+                f"unit {unit}: FMU {path} has no binary for {folder}: "
+                f"{binary} (modelIdentifier {mid!r}) is not in the archive"
+                + (f"; it has {', '.join(others)}" if others else f"; platforms: {', '.join(have) or 'none'}"))
+        if (getattr(md, "generationTool", None) or "").startswith("PythonFMU"):
+            where = f"unit {unit}: pythonfmu FMU {path}"
+            if "resources/slavemodule.txt" not in names:
+                raise FmuLoadError(f"{where}: resources/slavemodule.txt is missing (it names the slave's module)")
+            module = z.read("resources/slavemodule.txt").decode("utf-8", "replace").strip()
+            if not module:
+                raise FmuLoadError(f"{where}: resources/slavemodule.txt names no module")
+            if f"resources/{module}.py" not in names:
+                raise FmuLoadError(f"{where}: resources/{module}.py is missing (named by resources/slavemodule.txt)")
