@@ -19,7 +19,7 @@ import logging
 import math
 import threading
 from dataclasses import dataclass
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 log = logging.getLogger(__name__)
 
@@ -103,12 +103,16 @@ class LiveInputs:
                     self._latest[spec.target] = v
                     self.received += 1
 
-    def signal(self, target: str):
+    def signal(self, target: str, source: Optional[Callable[[float], float]] = None):
         """The signal function of ``target`` for the master: called at each step's start with
-        the step's time in seconds, returns the value latched for that step."""
+        the step's time in seconds, returns the value latched for that step (the last one a
+        client sent, or ``source(t)`` for a replay) and records it when it changed."""
         def value(t: float) -> float:
-            with self._lock:
-                v = self._latest[target]
+            if source is not None:
+                v = source(t)
+            else:
+                with self._lock:
+                    v = self._latest[target]
             if self._used.get(target) != v or target not in self._used:
                 self._used[target] = v
                 self.latched.append((round(t * 1e9), target, v))
@@ -172,8 +176,7 @@ def attach_live_inputs(scenario: Any, live: Optional["LiveServer"], replay: Any 
     extra = []
     for spec in specs:
         unit, var = spec.target.split(".", 1)
-        fn = (held(recorded.get(spec.target, []), spec.initial) if recorded is not None
-              else inputs.signal(spec.target))
+        fn = inputs.signal(spec.target, None if recorded is None else held(recorded.get(spec.target, []), spec.initial))
         extra.append(InputSpec(unit, var, "live", {"signal": fn}))
     if live is not None:
         live.listen(inputs)
