@@ -104,9 +104,39 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     from .plotting import plot_signals
 
     sources, patterns = split_sources(args.inputs)
-    pages = plot_signals(sources, patterns, args.output, color_by=args.color_by, max_signals=args.max_signals)
+    pages = _write_checked(Path(args.output), lambda out: plot_signals(
+        sources, patterns, out, color_by=args.color_by, max_signals=args.max_signals))
     sys.stdout.write("".join(f"{p}\n" for p in pages))
     return 0
+
+
+def _write_checked(output: Path, render) -> List[Path]:
+    """``render(path)`` (returning the files it wrote) into a temporary folder, then each file
+    copied to ``output``'s folder with every write checked: an unknown image format, a full
+    disk or an unwritable place is one error naming the file (matplotlib's PNG writer ignores
+    a failed close)."""
+    import shutil
+    import tempfile
+
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if output.suffix and output.suffix[1:].lower() not in formats:   # (none: PNG)
+        raise ImmersimError(f"plot -o {output}: unknown image format {output.suffix!r}; "
+                            f"use one of {', '.join('.' + f for f in sorted(formats))}")
+    with tempfile.TemporaryDirectory(prefix="immersim_plot_") as tmp:
+        written = []
+        bare = not output.suffix   # matplotlib writes PNG to "<name>.png" then
+        for page in render(Path(tmp) / (output.name + (".png" if bare else ""))):
+            dest = output.with_name(page.stem if bare else page.name)
+            try:
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                with open(page, "rb") as src, open(dest, "wb") as dst:
+                    shutil.copyfileobj(src, dst)
+            except OSError as exc:
+                raise ImmersimError(f"cannot write the plot {dest}: {exc.strerror or exc}") from None
+            written.append(dest)
+    return written
 
 
 def _cmd_diff(args: argparse.Namespace) -> int:

@@ -420,7 +420,8 @@ class Execution:
             try:
                 self._close_log(result)
             except LogWriteError as exc:  # a failure is already being reported; keep it, note this one
-                log.error("%s", exc)
+                # (at debug level when it is the log's own failure: the one line says it already)
+                log.log(logging.DEBUG if result.reason.startswith("cannot ") else logging.ERROR, "%s", exc)
         finally:
             self.close()
 

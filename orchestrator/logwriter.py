@@ -230,7 +230,8 @@ def _serve(conn) -> None:  # pragma: no cover - runs in the writer process
                 try:
                     writer.close({"status": "aborted", "reason": "the master process ended without closing the log"})
                 except LogWriteError as exc:
-                    log.error("%s", exc)
+                except LogWriteError as exc:   # (already reported to the master after a failed step)
+                    log.log(logging.DEBUG if failed else logging.ERROR, "%s", exc)
             return
         op = msg[0]
         if op == "steps":

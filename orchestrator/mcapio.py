@@ -46,8 +46,16 @@ class LogInfo:
 
 
 def _check_exists(path: Path) -> None:
+    """Refuse what cannot be a log: a missing file, a folder, a file this user cannot read."""
     if not path.exists():
         raise LogReadError(f"log file {path} does not exist")
+    if path.is_dir():
+        raise LogReadError(f"{path} is a folder, not an MCAP log file")
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as exc:
+        raise LogReadError(f"cannot read the log {path}: {exc.strerror or exc}") from None
 
 
 def _salvage(path: Path, topics: Optional[List[str]] = None) -> Tuple[List[Tuple], Dict[str, Dict[str, str]]]:

@@ -342,10 +342,17 @@ def _shared_file(label: str, nbytes: int, attach: Callable[[str], None]) -> bool
         return False
     import tempfile
 
-    fd, path = tempfile.mkstemp(prefix=f"immersim_{os.getpid()}_{label}_", dir="/dev/shm")
-    with os.fdopen(fd, "wb") as fh:
-        fh.truncate(nbytes)
     try:
+        fd, path = tempfile.mkstemp(prefix=f"immersim_{os.getpid()}_{label}_", dir="/dev/shm")
+    except OSError:   # /dev/shm full or not ours: the socket it is
+        return False
+    try:
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.truncate(nbytes)
+        except OSError as exc:   # EFBIG under a file-size limit (ulimit -f), ENOSPC: the socket it is
+            log.info("shared memory %s not used: %s", path, exc)
+            return False
         attach(path)
     finally:
         os.unlink(path)
