@@ -1,0 +1,152 @@
+"""Real-time pacing and the live view on campus_drive.
+
+1. campus_drive paced at ``--realtime 1`` (20 s of wall time): late steps, worst and p99
+   lateness of a step's end against its wall-clock deadline; steps skipped (always 0 by
+   design: the log is checked to hold every step).
+2. The live view's cost: campus_drive unpaced, with ``live`` and one client subscribed to every
+   channel (a separate process speaking the Foxglove WebSocket protocol) against the same run
+   without it, interleaved, each in a fresh process; median loop wall time. The logs of both
+   are compared message by message.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_live.py [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ROOT, median, stamp  # noqa: E402
+
+CAMPUS = ROOT / "scenarios" / "campus_drive.toml"
+OUT = ROOT / "results" / "live"
+COMMAND = ".venv/bin/python benchmarks/bench_live.py"
+
+CLIENT = r'''
+import json, struct, sys, time
+from websockets.sync.client import connect
+url = sys.argv[1]
+n = 0
+with connect(url, subprotocols=["foxglove.sdk.v1"], open_timeout=20) as ws:
+    sub = 0
+    end = time.monotonic() + 120
+    while time.monotonic() < end:
+        try:
+            m = ws.recv(timeout=1.0)
+        except TimeoutError:
+            continue
+        except Exception:
+            break
+        if isinstance(m, str):
+            msg = json.loads(m)
+            if msg["op"] == "advertise":
+                subs = []
+                for ch in msg["channels"]:
+                    sub += 1
+                    subs.append({"id": sub, "channelId": ch["id"]})
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+        else:
+            n += 1
+print(n)
+'''
+
+
+def one_run(spec: dict) -> dict:
+    """One campus_drive run in this process (``--child``)."""
+    from immersim.orchestrator.execution import Execution
+    from immersim.orchestrator.live import LiveServer
+
+    server = client = None
+    if spec.get("live"):
+        server = LiveServer(port=0)
+        client = subprocess.Popen([sys.executable, "-c", CLIENT, server.url], stdout=subprocess.PIPE, text=True)
+        time.sleep(1.0)   # the client connects before the run starts
+    ex = Execution(CAMPUS, spec["out"], live=server, realtime=spec.get("realtime"))
+    res = ex.run()
+    out = {"loop": res.timing["loop"], "steps": res.steps_done}
+    if ex.pacer is not None:
+        out.update(ex.pacer.summary())
+    if server is not None:
+        time.sleep(0.5)
+        server.stop()
+        received, _ = client.communicate(timeout=30)
+        out["received"] = int(received.strip() or 0)
+        out["sent"] = server.messages
+    return out
+
+
+def child(spec: dict) -> dict:
+    r = subprocess.run([sys.executable, __file__, "--child", json.dumps(spec)], capture_output=True, text=True,
+                       cwd=ROOT)
+    if r.returncode != 0:
+        raise RuntimeError(r.stderr[-2000:])
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def messages(path: Path) -> list:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="2 repeats instead of 5")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        print(json.dumps(one_run(json.loads(args.child))))
+        return
+    repeats = 2 if args.quick else 5
+    OUT.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix="bench_live_"))
+    lines = ["# Real-time pacing and the live view (campus_drive)", "",
+             stamp(COMMAND + (" --quick" if args.quick else "")), ""]
+
+    paced = child({"out": str(tmp / "paced.mcap"), "realtime": 1.0})
+    free = tmp / "free.mcap"
+    child({"out": str(free)})
+    same = messages(tmp / "paced.mcap") == messages(free)
+    lines += ["## 1. campus_drive at `--realtime 1`", "",
+              "One run, 20 s of simulated time paced to 20 s of wall time; a step is late when it ends "
+              "after its deadline (start + t / factor); late steps are caught up, never skipped.", "",
+              "| steps | late steps | worst lateness [ms] | p99 lateness [ms] | steps skipped | log = unpaced log |",
+              "|---|---|---|---|---|---|",
+              f"| {paced['steps']} | {paced['late_steps']} | {paced['worst_ms']:.3f} | {paced['p99_ms']:.3f} | "
+              f"{607 - paced['steps']} | {'yes' if same else 'NO'} |", "",
+              f"Target p99 lateness < 2 ms, 0 steps skipped: **{'met' if paced['p99_ms'] < 2.0 and paced['steps'] == 607 else 'NOT met'}**.", ""]
+
+    loops = {"without live view": [], "live view, 1 client": []}
+    received = []
+    for r in range(repeats):
+        loops["without live view"].append(child({"out": str(tmp / f"a{r}.mcap")})["loop"])
+        res = child({"out": str(tmp / f"b{r}.mcap"), "live": True})
+        loops["live view, 1 client"].append(res["loop"])
+        received.append((res["received"], res["sent"]))
+    same_live = messages(tmp / "a0.mcap") == messages(tmp / "b0.mcap")
+    a, b = median(loops["without live view"]), median(loops["live view, 1 client"])
+    cost = b / a - 1
+    lines += ["## 2. The live view's cost", "",
+              f"campus_drive unpaced, {repeats} interleaved runs each in a fresh process; loop wall time "
+              "(set-up excluded). The client (another process) subscribes to every channel as it is advertised.", "",
+              "| configuration | loop s (median) | runs |", "|---|---|---|"]
+    lines += [f"| {k} | {median(v):.4f} | {', '.join(f'{x:.4f}' for x in v)} |" for k, v in loops.items()]
+    lines += ["", f"Messages the client received / messages served per run: "
+                  f"{', '.join(f'{r}/{s}' for r, s in received)}. Log with the live view = log without: "
+                  f"{'yes' if same_live else 'NO'}.", "",
+              f"Cost of the live view with one client: **{cost * 100:+.1f} %** of the loop time (target <= 10 %: "
+              f"**{'met' if cost <= 0.10 else 'NOT met'}**).", ""]
+    (OUT / "README.md").write_text("\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
