@@ -253,7 +253,8 @@ class Execution:
 
     def _open_log(self, master: Master) -> None:
         sc, system = self.scenario, self.system
-        plan = LogPlan(str(self.output), sc.log.encoding)
+        plan = LogPlan(str(self.output), sc.log.encoding, time_offset_ns=max(0, -sc.start_ns),
+                       steps_total=sc.n_steps)
         plan.metadata += [
             ("scenario", {"file": str(sc.file), "text": sc.text}),
             ("fmus", {u: f"{system.origin(u)} sha256={h}" for u, h in fmu_hashes(system).items()}),
@@ -261,7 +262,8 @@ class Execution:
                 "version": _version(), "algorithm": sc.algorithm, "extrapolation": sc.extrapolation,
                 "step_ns": str(sc.step_ns), "start_ns": str(sc.start_ns), "stop_ns": str(sc.stop_ns),
                 "skipped_units": ",".join(system.skipped),
-                "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel")})]
+                "delayed_connections": "; ".join(str(c) for c in master.delayed if sc.algorithm == "gauss-seidel"),
+                **({"log_time_offset_ns": str(plan.time_offset_ns)} if plan.time_offset_ns else {})})]
         slots = list(master.slots.values())
         for s, slot in enumerate(slots):
             logged = system.logged[slot.name]

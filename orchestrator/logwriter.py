@@ -64,6 +64,10 @@ class LogPlan:
         The 3D view (``[[foxglove.bodies]]``); empty: none.
     refs : dict of str -> (slot, position)
         Where each signal the bodies refer to (``"unit.var"``) is in ``values``.
+    time_offset_ns : int
+        Added to every message's time (a run that starts before t = 0; see ``McapObserver``).
+    steps_total : int, optional
+        The run's steps (the ``run`` record of a writer whose master died names them).
     """
 
     path: str
@@ -73,6 +77,10 @@ class LogPlan:
     parameters: List[tuple] = field(default_factory=list)
     bodies: List[Any] = field(default_factory=list)
     refs: Dict[str, Tuple[int, int]] = field(default_factory=dict)
+    #: added to every message's time (a run from t < 0; see McapObserver)
+    time_offset_ns: int = 0
+    #: the run's steps, for the ``run`` record a writer left alone writes (its master died)
+    steps_total: Optional[int] = None
 
 
 def _picker(idx: Optional[List[int]]) -> Optional[Callable[[Sequence[Any]], tuple]]:
@@ -127,7 +135,9 @@ class LogWriter:
 
     def __init__(self, plan: LogPlan, flush_seconds: float = 1.0, sources: Optional[Sequence[Any]] = None) -> None:
         self.path = plan.path
-        obs = self.mcap = McapObserver(plan.path, flush_seconds=flush_seconds, encoding=plan.encoding)
+        self.steps_total = plan.steps_total if plan.steps_total is not None else "unknown"
+        obs = self.mcap = McapObserver(plan.path, flush_seconds=flush_seconds, encoding=plan.encoding,
+                                       time_offset_ns=plan.time_offset_ns)
         for name, data in plan.metadata:
             obs.add_metadata(name, data)
         if sources is None:
@@ -222,14 +232,16 @@ def _serve(conn) -> None:  # pragma: no cover - runs in the writer process
     writer: Optional[LogWriter] = None
     failed = False
     opened = 0.0
+    last = (0, 0)   # the last step written: (k, t_ns)
     while True:
         try:
             msg = loads(conn.recv_bytes())
         except (EOFError, OSError):
             if writer is not None and not writer.closed:
                 try:
-                    writer.close({"status": "aborted", "reason": "the master process ended without closing the log"})
                 except LogWriteError as exc:
+                    writer.close({"status": "aborted", "steps_done": last[0], "steps_total": writer.steps_total,
+                                  "t_ns": last[1], "reason": "the master process ended without closing the log"})
                 except LogWriteError as exc:   # (already reported to the master after a failed step)
                     log.log(logging.DEBUG if failed else logging.ERROR, "%s", exc)
             return
@@ -240,6 +252,7 @@ def _serve(conn) -> None:  # pragma: no cover - runs in the writer process
             try:
                 for k, t_ns, values in msg[1]:
                     writer.step(k, t_ns, values)
+                    last = (k, t_ns)
             except LogWriteError as exc:
                 failed = True
                 conn.send_bytes(dumps(("error", str(exc)), 5))

@@ -91,7 +91,9 @@ def _salvage(path: Path, topics: Optional[List[str]] = None) -> Tuple[List[Tuple
 
 
 def _messages(path: Path, topics: Optional[List[str]] = None):
-    """``(messages, metadata, truncated)``; messages as (schema, channel, message) tuples."""
+    """``(messages, metadata, truncated)``; messages as (schema, channel, message) tuples, their
+    times the simulation times (a log shifted by ``log_time_offset_ns``, a run from t < 0, is
+    shifted back)."""
     from mcap.reader import make_reader
 
     _check_exists(path)
@@ -100,10 +102,16 @@ def _messages(path: Path, topics: Optional[List[str]] = None):
             reader = make_reader(fh)
             msgs = list(reader.iter_messages(topics=topics))
             metadata = {md.name: dict(md.metadata) for md in reader.iter_metadata()}
-        return msgs, metadata, False
+        truncated = False
     except Exception:
-        msgs, metadata = _salvage(path, topics)
-        return msgs, metadata, True
+        (msgs, metadata), truncated = _salvage(path, topics), True
+    offset = int(metadata.get("immersim", {}).get("log_time_offset_ns", 0) or 0)
+    if offset:
+        from dataclasses import replace
+
+        msgs = [(s, c, replace(m, log_time=m.log_time - offset, publish_time=m.publish_time - offset))
+                for s, c, m in msgs]
+    return msgs, metadata, truncated
 
 
 def channel_schema(schema, channel) -> Tuple[Dict, Callable[[bytes], Dict]]:

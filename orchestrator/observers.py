@@ -223,6 +223,8 @@ def _fast_writer_class():
     class FastWriter(Writer):
         #: a supervisor.Journal: each step's records are copied there until their chunk is on disk
         journal = None
+        #: ns added to every message's log and publish time (McapObserver's ``time_offset_ns``)
+        time_offset = 0
 
         def _Writer__finalize_chunk(self) -> None:   # the library's, then the journal is emptied
             Writer._Writer__finalize_chunk(self)
@@ -261,6 +263,7 @@ def _fast_writer_class():
             the library's."""
             if self.tee is not None:
                 self.tee.step(log_time, items)
+            log_time += self.time_offset   # MCAP times are unsigned: a run from t < 0 is shifted
             try:
                 stats = self._Writer__statistics
                 cb = self._Writer__chunk_builder
@@ -319,6 +322,10 @@ class McapObserver:
         process keeps almost every completed step.
     tee : LiveServer, optional
         Also handed every schema, channel and message written (the live view).
+    time_offset_ns : int
+        Added to every message's time (ns): MCAP times are unsigned, a run that starts before
+        t = 0 is logged shifted by ``-start`` (metadata ``immersim`` says ``log_time_offset_ns``;
+        :mod:`.mcapio` reads the times back unshifted).
     """
 
     CHUNK_BYTES = 256 * 1024
@@ -327,7 +334,7 @@ class McapObserver:
     COMPRESSION = "lz4"
 
     def __init__(self, path: Path | str, flush_seconds: float = 1.0, encoding: str = "json",
-                 tee: Any = None) -> None:
+                 tee: Any = None, time_offset_ns: int = 0) -> None:
         if encoding not in ("json", "ros1"):
             raise ValueError(f"log encoding {encoding!r} is not json or ros1")
         self.encoding = encoding
@@ -341,6 +348,7 @@ class McapObserver:
                                                compression=CompressionType[self.COMPRESSION.upper()])
             self.writer.tee = tee
             self.writer.start(profile="", library="immersim")
+            self.writer.time_offset = time_offset_ns
             from . import supervisor
 
             if supervisor.supervised():   # a crash of the process keeps the chunk in progress too
