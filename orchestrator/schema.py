@@ -179,7 +179,7 @@ class SimulationTable(Table):
 
     start: Seconds = Field(0.0, description="start time, s")
     stop: Optional[Seconds] = Field(None, description="stop time, s (default: start + 10 steps)")
-    step: Positive = Field(0.033, description="macro step, s")
+    step: Annotated[Any, AfterValidator(_seconds), AfterValidator(_above(0.0))] = Field(0.033, description="macro step, s")
     algorithm: Literal[ALGORITHMS] = "gauss-seidel"
     extrapolation: Literal[EXTRAPOLATIONS] = "linear"
     tolerance: Optional[Positive] = Field(None, description="relative tolerance handed to the units")

@@ -158,6 +158,7 @@ def refused_at_initialization(scenario, unit: str, error: Exception) -> Scenario
     reason = unit_reason(str(error), unit)
     i, spec = next((i, u) for i, u in enumerate(scenario.units) if u.name == unit)
     named = [p for p in spec.parameters if re.search(rf"(?<![\w\[]){re.escape(p)}(?![\w\[\]])", reason)]
+    named = named or [p for p, v in spec.parameters.items() if isinstance(v, str) and repr(v) in reason]
     if named:
         p = max(named, key=len)
         where = f"{key_path(('units', i, 'parameters', p))} = {spec.parameters[p]!r}"
