@@ -13,9 +13,12 @@ def default_output(scenario: Path | str) -> Path:
 
 
 def execute(scenario: Path | str, overrides: Optional[Dict[str, Any]] = None, output: Path | str | None = None,
-            progress: bool = False) -> RunResult:
+            progress: bool = False, **options: Any) -> RunResult:
     """Run ``scenario`` and return its :class:`~immersim.orchestrator.execution.RunResult`
     (steps done, timings, ``output``: the log); :func:`run` returns only the log's path.
+    ``options``: ``realtime`` (factor), ``live`` (a :class:`~immersim.orchestrator.live.LiveServer`),
+    ``replay`` (a log whose recorded live inputs drive the run); see
+    :class:`~immersim.orchestrator.execution.Execution`.
 
     Raises
     ------
@@ -26,7 +29,7 @@ def execute(scenario: Path | str, overrides: Optional[Dict[str, Any]] = None, ou
         and ``exc.result`` tells how far it got.
     """
     out = Path(output) if output is not None else default_output(scenario)
-    return run_scenario(Path(scenario), out, progress=progress, overrides=dict(overrides or {}))
+    return run_scenario(Path(scenario), out, progress=progress, overrides=dict(overrides or {}), **options)
 
 
 def run(scenario: Path | str, overrides: Optional[Dict[str, Any]] = None, output: Path | str | None = None,

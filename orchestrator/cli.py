@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 from pathlib import Path
 from typing import List, Optional
@@ -33,14 +34,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .execution import RunFailed, RunInterrupted
 
     overrides = _parse_sets(args.set)
+    if args.realtime is not None and not (math.isfinite(args.realtime) and args.realtime > 0):
+        from .errors import ScenarioError
+
+        raise ScenarioError(f"--realtime {args.realtime:g}: the factor must be a finite number > 0")
+    live = _live_server(args.live)
     try:
-        res = execute(args.scenario, overrides, args.output, progress=not args.quiet)
+        res = execute(args.scenario, overrides, args.output, progress=not args.quiet,
+                      realtime=args.realtime, live=live, replay=args.replay)
     except RunInterrupted as exc:
         sys.stderr.write(f"immersim: {exc}\n")
         return 128 + exc.signum
     except RunFailed as exc:
         sys.stderr.write(f"immersim: error: {exc}\n")
         return EXIT_FAILED
+    finally:
+        if live is not None:
+            live.stop()
     late = args.late_sigint
     if late.requested:  # the signal came after the last step, while the run closed
         sys.stderr.write(f"immersim: interrupted by {late.name} after the run completed; the log {res.output} holds "
@@ -52,9 +62,28 @@ def _cmd_run(args: argparse.Namespace) -> int:
     summary = res.timing_summary()
     if summary:
         sys.stdout.write(summary + "\n")
+    if res.pacing:
+        sys.stdout.write(res.pacing + "\n")
     if res.skipped_units:
         sys.stdout.write(f"not loaded (nothing uses their outputs): {', '.join(res.skipped_units)}\n")
     return 0
+
+
+def _live_server(address: Optional[str]):
+    """The live view's server for ``--live [HOST:PORT]`` (None without the flag); its address
+    goes to stderr before the run starts."""
+    if address is None:
+        return None
+    from .errors import ScenarioError
+    from .live import LiveServer, parse_address
+
+    try:
+        server = LiveServer(*parse_address(address or None))
+    except (ValueError, OSError) as exc:
+        raise ScenarioError(str(exc)) from None
+    sys.stderr.write(f"immersim: live view at {server.url} (Foxglove: Open connection, Foxglove WebSocket)\n")
+    sys.stderr.flush()
+    return server
 
 
 def _parse_sets(items: Optional[List[str]]):
@@ -210,6 +239,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a parameter (unit.param), simulation.stop/step/algorithm/extrapolation/lazy, "
                         "log.encoding/include/exclude, or run a unit in worker process N (unit:process=N); TOML value")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--realtime", nargs="?", const=1.0, default=None, type=float, metavar="FACTOR",
+                   help="pace the run: simulated time follows wall time x FACTOR (default 1.0)")
+    r.add_argument("--live", nargs="?", const="", default=None, metavar="HOST:PORT",
+                   help="serve every logged channel live over the Foxglove WebSocket protocol "
+                        "(default localhost, a free port, printed at start); clients may drive [[live_inputs]]")
+    r.add_argument("--replay", default=None, metavar="LOG",
+                   help="drive [[live_inputs]] with the values recorded in an earlier run's MCAP log")
     r.set_defaults(fn=_cmd_run)
 
     i = sub.add_parser("info", help="show what an MCAP log holds")

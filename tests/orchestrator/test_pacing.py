@@ -103,3 +103,16 @@ def test_a_paced_run_logs_the_same_messages_and_its_lateness(tmp_path, test_fmus
     assert int(run["realtime_steps"]) == res.steps_done == 30
     assert float(run["realtime_factor"]) == 20.0
     assert int(run["realtime_late_steps"]) <= 30 and float(run["realtime_worst_ms"]) >= 0.0
+
+
+def test_cli_realtime_reports_lateness_and_refuses_bad_factors(tmp_path, test_fmus, capsys):
+    from immersim.orchestrator.cli import main
+
+    scen = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.01, stop=0.2)
+    assert main(["run", str(scen), "-o", str(tmp_path / "rt.mcap"), "-q", "--realtime", "40"]) == 0
+    out = capsys.readouterr().out
+    assert "real time x40: " in out and "of 20 steps late" in out and "none skipped" in out
+    for bad in ("0", "-1", "nan", "inf"):
+        assert main(["run", str(scen), "-o", str(tmp_path / "bad.mcap"), "-q", "--realtime", bad]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "the factor must be a finite number > 0" in err
