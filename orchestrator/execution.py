@@ -331,7 +331,8 @@ class Execution:
                 self._observe(master, 0, sc.start_ns)
                 if self.progress:
                     from tqdm import tqdm
-                    bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None)
+                    # on a terminal only (disable=None), and only for a run still going after 2 s
+                    bar = tqdm(total=n, unit="step", desc=sc.file.stem, leave=False, disable=None, delay=2.0)
                 t0, h, stop = sc.start_ns, sc.step_ns, sc.stop_ns
                 master.schedule = (t0, stop, h)
                 pipelined = master.pipelined
