@@ -65,6 +65,9 @@ MAX_TANKS = 5040
 #: the thesis's tank models (§5.7.1 / table 5-1; 10113 is odd, a closed mesh needs an even count)
 TANK_TRIS = {"5.4k": 5442, "8.7k": 8676, "10.1k": 10114, "26.4k": 26432}
 POSE_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
+#: bound on every scene coordinate, m: a body's position plus its mesh's extent (FCL's
+#: broad phase squares coordinates; 1e200 overflows to inf and crashes it)
+MAX_COORD = 1e6
 
 
 class SceneError(ValueError):
@@ -143,8 +146,14 @@ class Scene:
         return int(sum(len(self.mesh(i).faces) for i in range(len(self.bodies))))
 
     def add(self, body: Body, mesh: trimesh.Trimesh) -> None:
+        """Add a body; raises SceneError for a name used twice or a body reaching beyond
+        :data:`MAX_COORD` (m) from the origin."""
         if body.name in self._names:
             raise SceneError(f"scene {self.source!r}: body name {body.name!r} used twice")
+        reach = float(np.max(np.abs(body.pose[:3]))) + float(np.max(np.abs(mesh.bounds))) if len(mesh.vertices) else 0.0
+        if not reach <= MAX_COORD:   # (also NaN)
+            raise SceneError(f"scene {self.source!r}: body {body.name!r} at ({', '.join(f'{c:g}' for c in body.pose[:3])}) "
+                             f"m reaches {reach:g} m from the origin, beyond {MAX_COORD:g} m")
         self._names.add(body.name)
         self.meshes.setdefault(body.mesh_key, mesh)
         self.bodies.append(body)
