@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 import os
 import platform as _platform
 import shutil
@@ -78,7 +79,10 @@ def _c_str(s: str) -> str:
 
 
 def _c_double(x: float) -> str:
-    return repr(float(x)) if x == x and abs(x) != float("inf") else ("NAN" if x != x else ("INFINITY" if x > 0 else "-INFINITY"))
+    """A C literal of ``x`` that reads back as the same double (start values are finite)."""
+    if not math.isfinite(x):
+        raise BuildError(f"unit {NAME}: start value {x} is not finite")
+    return repr(float(x))
 
 
 def macros() -> List[Tuple[str, tuple, tuple, str]]:
@@ -240,7 +244,10 @@ def _inputs_digest() -> str:
 
     from .build import _fmus_dir, _models_dir, _py_files
 
-    h = hashlib.sha256(f"casadi {casadi.__version__}\n{' '.join(CFLAGS + EXTRA_CFLAGS)}\n".encode())
+    import pythonfmu
+
+    versions = f"casadi {casadi.__version__} pythonfmu {pythonfmu.__version__}"
+    h = hashlib.sha256(f"{versions}\n{' '.join(CFLAGS + EXTRA_CFLAGS)}\n".encode())
     paths = list(_py_files(_models_dir() / UNIT)) + list(_py_files(_fmus_dir() / "common"))
     paths += [_fmus_dir() / UNIT / f"{UNIT}_fmu.py", Path(__file__)] + sorted(native_dir().glob("*.[ch]"))
     for p in paths:

@@ -6,7 +6,6 @@ binary runs in FMPy, OSP libcosim and a C host process that has no libpython.
 """
 from __future__ import annotations
 
-import ctypes
 import re
 import subprocess
 import xml.etree.ElementTree as ET
@@ -19,7 +18,6 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException, calloc, free
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-from fmpy.logging import addLoggerProxy
 from fmpy.validation import validate_fmu
 
 from immersim.fmus.platform.platform_fmu import FLAG_OUTPUTS, PACKED_INPUTS, PACKED_REAL_OUTPUTS
@@ -47,11 +45,12 @@ class Runner:
         md = read_model_description(str(path))
         self.vr = {v.name: v.valueReference for v in md.modelVariables}
         self.messages = []
+        # the logger is called directly, not through FMPy's proxy: the proxy keeps the last registered
+        # callback in a global, which later FMUs of the session would call after this runner is gone
         self.cb = cb = fmi2CallbackFunctions()
         cb.logger = fmi2CallbackLoggerTYPE(lambda env, inst, status, cat, msg: self.messages.append(msg.decode()))
         cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        addLoggerProxy(ctypes.byref(cb))
         self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
                              modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         self.fmu.instantiate(callbacks=cb, loggingOn=True)
