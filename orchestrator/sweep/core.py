@@ -1,12 +1,13 @@
 """Run a sweep: build once, execute the runs, write the summary and plots."""
 from __future__ import annotations
 
+import errno
 import os
 import re
 from pathlib import Path
 from typing import List, Optional
 
-from ..errors import ScenarioError
+from ..errors import LogWriteError, ScenarioError
 
 from .common import log, SweepFailed
 from .executors import _run_dask, _run_local
@@ -46,9 +47,14 @@ def execute(spec: SweepSpec, options: SweepOptions) -> SweepResult:
     readable table of the runs done.
     """
     out = Path(options.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
     summary = out / "summary.csv"
-    write_info(spec, out / "sweep.json")
+    try:
+        if out.exists() and not out.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "a file is there, not a folder")
+        out.mkdir(parents=True, exist_ok=True)
+        write_info(spec, out / "sweep.json")
+    except OSError as exc:
+        raise LogWriteError(f"sweep -o {out}: cannot write the sweep's folder: {exc.strerror or exc}") from None
     tasks = make_tasks(spec, out)
     rows: List[RunRow] = []
 
