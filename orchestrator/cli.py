@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
 import sys
 from pathlib import Path
 from typing import List, Optional
@@ -315,6 +316,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         from . import supervisor   # the run in a child process: a unit that crashes it is reported
 
         if supervisor.available():
+        if supervisor.available() and os.environ.get("IMMERSIM_SUPERVISE", "1") != "0":
             code = supervisor.supervise()
             if code is not None:
                 return code
