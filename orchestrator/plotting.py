@@ -57,6 +57,53 @@ def page_paths(output: Path, pages: int) -> List[Path]:
     return [output] + [output.with_name(f"{output.stem}-{k}{output.suffix}") for k in range(2, pages + 1)]
 
 
+def overlay_figures(sources: Sequence[Path | str] | Path | str, patterns: List[str], color_by: Optional[str] = None,
+                    per_page: int = 12, max_signals: int = 120) -> list:
+    """The pages of :func:`plot_signals` as matplotlib figures (the caller closes them)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = collect_runs([sources] if isinstance(sources, (str, Path)) else sources)
+    groups = runs.colour_groups(color_by)
+    series = _series(runs, patterns)
+    names = list(series)
+    if len(names) > max_signals:
+        raise TooManySignals(f"{len(names)} signals match {' '.join(patterns)}: more than {max_signals} "
+                             f"(--max-signals); narrow the patterns")
+    colours = plt.get_cmap("tab10").colors
+    seen: Dict[int, int] = {}
+    styles = []
+    for g in groups:  # runs sharing a colour get other line styles
+        styles.append(dict(color=colours[g % len(colours)], ls=_STYLES[seen.get(g, 0) % len(_STYLES)], lw=1.0))
+        seen[g] = seen.get(g, 0) + 1
+    pages = [names[i:i + per_page] for i in range(0, len(names), per_page)]
+    title = runs.sources[0].name if len(runs.sources) == 1 else f"{len(runs.runs)} runs"
+    figures = []
+    for k, page in enumerate(pages, 1):
+        fig, axes = plt.subplots(len(page), 1, figsize=(8, 1.8 * len(page) + 1.0), sharex=True, squeeze=False)
+        for ax, name in zip(axes[:, 0], page):
+            per_run = series[name]
+            levels = _levels(per_run)
+            for run, s, style in zip(runs.runs, per_run, styles):
+                if s is not None:
+                    _draw(ax, s[0], s[1], s[3], levels, label=run.label, **style)
+            unit = next(s[2] for s in per_run if s is not None)
+            if levels is not None:
+                ax.set_yticks(range(len(levels)), [lv[:16] for lv in levels], fontsize=7)
+            ax.set_ylabel(f"[{unit}]" if unit else "", fontsize=8)
+            ax.set_title(name, fontsize=9, loc="left")
+            ax.grid(True, alpha=0.3)
+        axes[-1, 0].set_xlabel("simulation time [s]")
+        if len(runs.runs) > 1:
+            fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="upper right", fontsize=7)
+        fig.suptitle(title + (f" ({k}/{len(pages)})" if len(pages) > 1 else ""), fontsize=10, x=0.02, ha="left")
+        fig.tight_layout(rect=(0, 0, 0.78 if len(runs.runs) > 1 else 1, 1))
+        figures.append(fig)
+    return figures
+
+
 def plot_signals(sources: Sequence[Path | str] | Path | str, patterns: List[str], output: Path | str,
                  color_by: Optional[str] = None, per_page: int = 12, max_signals: int = 120) -> List[Path]:
     """Overlay every ``unit.variable`` matching ``patterns`` of the runs in ``sources``.
@@ -79,49 +126,13 @@ def plot_signals(sources: Sequence[Path | str] | Path | str, patterns: List[str]
     list of Path
         The pages written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    runs = collect_runs([sources] if isinstance(sources, (str, Path)) else sources)
-    groups = runs.colour_groups(color_by)
-    series = _series(runs, patterns)
-    names = list(series)
-    if len(names) > max_signals:
-        raise TooManySignals(f"{len(names)} signals match {' '.join(patterns)}: more than {max_signals} "
-                             f"(--max-signals); narrow the patterns")
-    colours = plt.get_cmap("tab10").colors
-    seen: Dict[int, int] = {}
-    styles = []
-    for g in groups:  # runs sharing a colour get other line styles
-        styles.append(dict(color=colours[g % len(colours)], ls=_STYLES[seen.get(g, 0) % len(_STYLES)], lw=1.0))
-        seen[g] = seen.get(g, 0) + 1
-    pages = [names[i:i + per_page] for i in range(0, len(names), per_page)]
+    figures = overlay_figures(sources, patterns, color_by, per_page, max_signals)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    title = runs.sources[0].name if len(runs.sources) == 1 else f"{len(runs.runs)} runs"
-    written = []
-    for k, (page, path) in enumerate(zip(pages, page_paths(output, len(pages))), 1):
-        fig, axes = plt.subplots(len(page), 1, figsize=(8, 1.8 * len(page) + 1.0), sharex=True, squeeze=False)
-        for ax, name in zip(axes[:, 0], page):
-            per_run = series[name]
-            levels = _levels(per_run)
-            for run, s, style in zip(runs.runs, per_run, styles):
-                if s is not None:
-                    _draw(ax, s[0], s[1], s[3], levels, label=run.label, **style)
-            unit = next(s[2] for s in per_run if s is not None)
-            if levels is not None:
-                ax.set_yticks(range(len(levels)), [lv[:16] for lv in levels], fontsize=7)
-            ax.set_ylabel(f"[{unit}]" if unit else "", fontsize=8)
-            ax.set_title(name, fontsize=9, loc="left")
-            ax.grid(True, alpha=0.3)
-        axes[-1, 0].set_xlabel("simulation time [s]")
-        if len(runs.runs) > 1:
-            fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="upper right", fontsize=7)
-        fig.suptitle(title + (f" ({k}/{len(pages)})" if len(pages) > 1 else ""), fontsize=10, x=0.02, ha="left")
-        fig.tight_layout(rect=(0, 0, 0.78 if len(runs.runs) > 1 else 1, 1))
+    written = page_paths(output, len(figures))
+    for fig, path in zip(figures, written):
         fig.savefig(path, dpi=110)
         plt.close(fig)
-        written.append(path)
     return written

@@ -158,7 +158,7 @@ def read_log(path: Path | str, patterns: Iterable[str] = ("*",), frame: bool = T
         units.update({f"{topic}.{v}": u for v, u in ch.units.items()})
         types.update({f"{topic}.{v}": k for v, k in ch.types.items()})
     same = all(len(p.index) == len(parts[0].index) and np.array_equal(p.index, parts[0].index) for p in parts)
-    df = pd.concat(parts, axis=1, copy=False) if same else pd.concat(parts, axis=1, join="outer", sort=True)
+    df = pd.concat(parts, axis=1) if same else pd.concat(parts, axis=1, join="outer", sort=True)
     t_ns = df.index.to_numpy(dtype=np.int64)
     df.index = pd.Index(t_ns / 1e9, name="t")
     df.attrs.update(units=units, types=types, t_ns=t_ns, path=str(path))
