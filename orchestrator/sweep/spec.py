@@ -268,11 +268,18 @@ def _make_variants(grid: Dict[str, List[Any]], explicit: List[Tuple[str, Dict[st
 
 
 def _check_variants(variants: Sequence[Variant], scenario: Path, path: Path) -> None:
+    """Each variant's scenario is checked as a run would check it at load (schema, then the
+    FMUs' variables, types and ranges), so a bad value fails the sweep before any run. A
+    variant whose FMU file does not exist is left to fail alone, with its reason, as its run."""
+    from ..errors import FmuLoadError
     from ..scenario import load_scenario
+    from ..system import check_system
 
     for v in variants:
         try:
-            load_scenario(scenario, v.resolved)
+            check_system(load_scenario(scenario, v.resolved))
+        except FmuLoadError:
+            continue
         except ScenarioError as exc:
             raise _err(path, f"variant {v.id} {v.overrides}: {exc}") from None
 
