@@ -281,6 +281,8 @@ class LogProcess:
     per ``send`` of one step, ~10 us per step in batches of 8). The pending steps are sent
     before the log is closed, whatever ends the run; only a master killed outright loses
     them (at most ``BATCH`` - 1 steps; the in-process log loses its unfinished chunk then).
+    Under ``immersim run``'s supervising parent (:mod:`.supervisor`) each step is sent at
+    once, so a master that crashes loses none.
 
     Parameters
     ----------
@@ -311,6 +313,8 @@ class LogProcess:
         from . import supervisor
 
         supervisor.CRUMB[supervisor.WRITER_PID] = self.proc.pid   # a supervising parent waits for it
+        if supervisor.supervised():   # a crash of the master then loses no step (each is sent at once)
+            self.BATCH = 1
         self._poller = select.poll()
         self._poller.register(self.conn.fileno(), select.POLLIN)
         self._send, self._poll = self.conn.send_bytes, self._poller.poll
