@@ -329,11 +329,17 @@ int main(int argc, char** argv) {
 
 
 def test_c_host_without_python_steps_two_instances(fmus, tmp_path):
-    """A C program (no Python anywhere in the process) loads the .so and reproduces FMPy's numbers."""
+    """A C program (no Python anywhere in the process) loads the .so and reproduces the Python build's
+    numbers; so does a library compiled from the FMU's sources/ alone (plain gcc, no immersim flags)."""
     folder = Path(extract(str(fmus["native"]), unzipdir=str(tmp_path / "fmu")))
     so = folder / "binaries" / "linux64" / "platform_native.so"
     ldd = subprocess.run(["ldd", str(so)], capture_output=True, text=True).stdout
     assert "python" not in ldd.lower()
+    md_root = ET.parse(folder / "modelDescription.xml").getroot()
+    listed = [str(folder / "sources" / f.get("name")) for f in md_root.find("CoSimulation/SourceFiles")]
+    rebuilt = tmp_path / "from_sources.so"
+    subprocess.run(["gcc", "-O0", "-shared", "-fPIC", f"-I{folder / 'sources'}", *listed, "-o", str(rebuilt), "-lm"],
+                   check=True)
     (tmp_path / "host.c").write_text(HOST_C)
     exe = tmp_path / "host"
     subprocess.run(["gcc", "-O1", f"-I{fmi_headers()}", str(tmp_path / "host.c"), "-o", str(exe), "-ldl"], check=True)
@@ -347,6 +353,8 @@ def test_c_host_without_python_steps_two_instances(fmus, tmp_path):
     assert proc.returncode == 0, proc.stdout[-500:] + proc.stderr[-2000:]
     lines = proc.stdout.splitlines()
     assert lines[-1] == "no libpython"
+    args[1] = str(rebuilt)
+    assert subprocess.run(args, capture_output=True, text=True, env={"PATH": "/usr/bin:/bin"}).stdout == proc.stdout
     host = np.array([[float(x) for x in ln.split()] for ln in lines[:-1]])
     n = len(PACKED_REAL_OUTPUTS)
     for inst, scale in ((0, 1.0), (1, 0.5)):
