@@ -5,7 +5,9 @@ invalid or stale mutant) and ``results/mutation/mutants.csv`` (one row per mutan
 is never modified: see :mod:`benchmarks.mutation.runner`.
 
 Usage: ``python benchmarks/bench_mutation.py [--quick] [--named] [--only ID ...] [--tests FILE ...]
-[--timeout S] [--no-write]``. ``--named`` checks that each mutant of the first block fails the
+[--prefix PATH] [--timeout S] [--no-write]``. A run of some mutants (``--only``, ``--prefix``,
+``--quick``) replaces their rows in the last results and keeps the others, each row naming the
+commit it was measured on. ``--named`` checks that each mutant of the first block fails the
 test named for it, alone. ``--quick`` runs the mutants of the first block (the changes the
 suite once missed) only; ``--tests`` replaces every mutant's test files (to check that one
 test file alone kills a mutant).
@@ -22,7 +24,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "mutation"))
-from common import ROOT, commit, machine  # noqa: E402
+from common import ROOT, machine  # noqa: E402
 import runner  # noqa: E402
 
 OUT = ROOT / "results" / "mutation"
@@ -30,8 +32,11 @@ TARGET_SCORE, TARGET_COUNT = 0.95, 150
 SCORED = ("killed", "timeout", "error", "survived")
 
 
-def score(outcomes):
-    c = Counter(o.status for o in outcomes)
+FIELDS = ["id", "file", "status", "seconds", "detail", "commit", "original", "replacement", "why"]
+
+
+def score(rows):
+    c = Counter(r["status"] for r in rows)
     n = sum(c[s] for s in SCORED)
     dead = c["killed"] + c["timeout"] + c["error"]
     return dead, n, (dead / n if n else float("nan")), c
@@ -41,22 +46,46 @@ def module_of(path: str) -> str:
     return path[:-3] if path.endswith(".py") else path
 
 
-def write(outcomes, baselines, command: str, wall: float, quick: bool) -> None:
+def rows_of(outcomes, rev: str):
+    return [dict(id=o.mutant.id, file=o.mutant.file, status=o.status, seconds=f"{o.seconds:.1f}", detail=o.detail,
+                 commit=rev, original=o.mutant.original, replacement=o.mutant.replacement, why=o.mutant.why)
+            for o in outcomes]
+
+
+def merged(new_rows, mutants):
+    """The rows of the last results (``mutants.csv``) with ``new_rows`` replacing theirs, in list
+    order; mutants no longer declared are dropped, declared ones never run are left out."""
+    old = {}
+    if (OUT / "mutants.csv").exists():
+        with open(OUT / "mutants.csv", newline="") as fh:
+            old = {r["id"]: r for r in csv.DictReader(fh)}
+    new = {r["id"]: r for r in new_rows}
+    out = []
+    for m in mutants:
+        r = new.get(m.id) or old.get(m.id)
+        if r is not None and (r["original"], r["replacement"], r["file"]) == (m.original, m.replacement, m.file):
+            out.append(r)
+    return out
+
+
+def write(rows, command: str, wall: float) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     with open(OUT / "mutants.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["id", "file", "status", "seconds", "detail", "original", "replacement", "why"])
-        for o in outcomes:
-            m = o.mutant
-            w.writerow([m.id, m.file, o.status, f"{o.seconds:.1f}", o.detail, m.original, m.replacement, m.why])
-    dead, n, s, c = score(outcomes)
+        w = csv.DictWriter(fh, FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+    dead, n, s, c = score(rows)
     per = defaultdict(Counter)
-    for o in outcomes:
-        per[module_of(o.mutant.file)][o.status] += 1
+    for r in rows:
+        per[module_of(r["file"])][r["status"]] += 1
     modules = sorted(per)
+    commits = Counter(r["commit"] for r in rows)
     lines = ["# Mutation testing", "",
-             f"Command: `{command}` (part of `make bench`)  ", f"Commit: `{commit()}`  ", f"Machine: {machine()}  ",
-             f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; wall time {wall / 60:.0f} min", "",
+             f"Command: `{command}` (part of `make bench`)  ",
+             f"Commit of the tree under test: {', '.join(f'`{k}` ({v} mutants)' for k, v in commits.items())}  ",
+             f"Machine: {machine()}  ",
+             f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; wall time of the last invocation {wall / 60:.0f} min",
+             "",
              "Each declared mutant (`benchmarks/mutation/mutants.toml`: file, original line, replacement, why)",
              "is applied to a private copy of the committed tree and its declared test files run with",
              "`pytest -x` and a timeout. Killed = a test failed (or errored, or timed out); survived = every",
@@ -65,37 +94,33 @@ def write(outcomes, baselines, command: str, wall: float, quick: bool) -> None:
              "| target | measured | met |", "|---|---|---|",
              f"| mutation score >= {TARGET_SCORE:.0%} | {s:.1%} ({dead} of {n} killed) | "
              f"{'met' if s >= TARGET_SCORE else 'NOT met'} |",
-             f"| >= {TARGET_COUNT} scored mutants | {n} | {'met' if n >= TARGET_COUNT else 'NOT met'}"
-             f"{' (quick run: first block only)' if quick else ''} |",
+             f"| >= {TARGET_COUNT} scored mutants | {n} | {'met' if n >= TARGET_COUNT else 'NOT met'} |",
              f"| every module of models/ and orchestrator/ mutated | {len(modules)} modules | see below |", "",
              "Outcomes: " + ", ".join(f"{k} {c[k]}" for k in ("killed", "timeout", "error", "survived", "invalid", "stale")
                                      if c[k]), "",
-             "## Per module", "", "| module | mutants | killed | survived | other |", "|---|---|---|---|---|"]
+             "## Per module", "", "| module | mutants | killed | survived | not scored |", "|---|---|---|---|---|"]
     for mod in modules:
         k = per[mod]
         lines.append(f"| `{mod}` | {sum(k.values())} | {k['killed'] + k['timeout'] + k['error']} | {k['survived']} | "
                      f"{k['invalid'] + k['stale']} |")
-    rest = [o for o in outcomes if o.status not in ("killed",)]
+    rest = [r for r in rows if r["status"] != "killed"]
     lines += ["", "## Surviving, timed-out, erroring, invalid and stale mutants", ""]
     if not rest:
         lines.append("None.")
     else:
         lines += ["| id | file | status | change | why | detail |", "|---|---|---|---|---|---|"]
-        for o in rest:
-            m = o.mutant
-            lines.append(f"| {m.id} | `{m.file}` | {o.status} | `{m.original}` -> `{m.replacement}` | {m.why} | "
-                         f"{o.detail.replace('|', '/')} |".replace("`` ", "` ` "))
-    lines += ["", "## Test sets (unmutated baseline)", "", "| tests | baseline | seconds |", "|---|---|---|"]
-    for key, (res, dt, detail) in baselines.items():
-        lines.append(f"| {' '.join(k.replace('tests/', '') for k in key)} | {res} {detail} | {dt:.0f} |")
-    lines += ["", "Per-mutant outcomes: `mutants.csv` (id, file, status, seconds, first failing test, change, why)."]
+        for r in rest:
+            lines.append(f"| {r['id']} | `{r['file']}` | {r['status']} | `{r['original']}` -> `{r['replacement']}` | "
+                         f"{r['why']} | {r['detail'].replace('|', '/')} |")
+    lines += ["", "Per-mutant outcomes: `mutants.csv` (id, file, status, seconds, first failing test, commit, change, why)."]
     (OUT / "README.md").write_text("\n".join(lines) + "\n")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="only the first block (tag 'missed')")
-    ap.add_argument("--only", nargs="*", default=None, help="mutant ids")
+    ap.add_argument("--only", nargs="*", default=None, help="mutant ids (results merged into the last ones)")
+    ap.add_argument("--prefix", default=None, help="only mutants of files under this path (results merged)")
     ap.add_argument("--tests", nargs="*", default=None, help="test files replacing each mutant's own")
     ap.add_argument("--named", action="store_true",
                     help="each mutant of the first block against its named test alone (nothing written)")
@@ -106,8 +131,11 @@ def main(argv=None) -> int:
     mutants, _ = runner.load(args.list)
     if args.quick:
         mutants = [m for m in mutants if "missed" in m.tags]
+    declared = list(mutants)
     if args.only:
         mutants = [m for m in mutants if m.id in args.only]
+    if args.prefix:
+        mutants = [m for m in mutants if m.file.startswith(args.prefix)]
     if args.tests:
         for m in mutants:
             m.tests = list(args.tests)
@@ -115,17 +143,22 @@ def main(argv=None) -> int:
         mutants = [m for m in mutants if m.named]
         for m in mutants:
             m.tests = [m.named]
+    import subprocess
+    rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    print(f"mutants: {len(mutants)}, tree: {rev}", flush=True)
     t0 = time.perf_counter()
-    outcomes, baselines = runner.run(mutants, timeout=args.timeout, log=lambda s: print(s, flush=True))
+    outcomes, baselines = runner.run(mutants, timeout=args.timeout, log=lambda s: print(s, flush=True), rev=rev)
     wall = time.perf_counter() - t0
-    dead, n, s, c = score(outcomes)
+    rows = rows_of(outcomes, rev)
+    dead, n, s, c = score(rows)
     print(f"mutation score {s:.1%}: {dead} of {n} killed; {dict(c)}; {wall / 60:.1f} min")
     if args.named:
         for o in outcomes:
             print(f"{o.mutant.id}: {o.status} by {o.mutant.named}")
-    if not args.no_write and not args.only and not args.tests and not args.named:
+    if not args.no_write and not args.tests and not args.named:
         cmd = "python benchmarks/bench_mutation.py" + (" --quick" if args.quick else "")
-        write(outcomes, baselines, cmd, wall, args.quick)
+        write(merged(rows, declared), cmd, wall)
         print(f"wrote {OUT / 'README.md'}")
     return 0
 
