@@ -551,9 +551,78 @@ def test_bad_scheduler_address(sweep_dir, address, capsys, caplog):
 
 def test_corpus_size():
     """The issue asks for at least 250 bad scenario, sweep and --set cases here."""
-    n = (len(SCENARIO_CASES) + len(SET_CASES) + len(FILE_CASES) + len(SWEEP_CASES) + len(SWEEP_FILE_CASES) + 5)
+    n = (len(SCENARIO_CASES) + len(SET_CASES) + len(FILE_CASES) + len(SWEEP_CASES) + len(SWEEP_FILE_CASES) + 5
+         + len(FEEDTHROUGH_CASES))
     assert n >= 250, n
     assert len({c[0] for c in SCENARIO_CASES}) == len(SCENARIO_CASES)
+
+
+# -- FMI 3.0 and FMI 2.0 integer widths: the Reference FMUs' Feedthrough ---------------------
+REFERENCE = Path(__file__).resolve().parents[1] / "conformance" / "reference-fmus"
+
+
+def feedthrough(version: str, parameters: dict, faults: list) -> dict:
+    return {"simulation": {"stop": 0.1, "step": 0.01},
+            "units": [{"name": "ft", "fmu": str(REFERENCE / version / "Feedthrough.fmu"), "parameters": parameters}],
+            "faults": [{"target": f"ft.{var}", "at": 0.05, "value": value} for var, value in faults]}
+
+
+_RANGE = r"units\[0\]\.parameters\.{v}: ft\.{v}: {x} is outside the range {lo}\.\.{hi} of this {t} variable"
+FEEDTHROUGH_CASES = [
+    *[(f"fmi3.start.{t}.{x}", "fmi3", {f"{t}_input": x}, [],
+       _RANGE.format(v=f"{t}_input", x=x, lo=INT_RANGES[t][0], hi=INT_RANGES[t][1], t=t))
+      for t, x in [("Int8", 300), ("Int8", -129), ("UInt8", -1), ("UInt8", 256), ("Int16", 40000), ("UInt16", 65536),
+                   ("Int32", 2 ** 31), ("UInt32", -1), ("UInt32", 2 ** 32), ("UInt64", -1)]],
+    ("fmi3.start.Int8.float", "fmi3", {"Int8_input": 1.5}, [], r"parameter ft\.Int8_input: type mismatch, the FMU declares Int8"),
+    ("fmi3.fault.Int8", "fmi3", {}, [("Int8_input", 300)], r"faults\[0\]\.value: ft\.Int8_input: 300 is outside the range -128\.\.127"),
+    ("fmi3.fault.UInt16", "fmi3", {}, [("UInt16_input", -5)], r"faults\[0\]\.value: ft\.UInt16_input: -5 is outside the range 0\.\.65535"),
+    ("fmi3.fault.Int64_float", "fmi3", {}, [("Int64_input", 2.0)], r"faults\[0\]\.value: ft\.Int64_input: Int64 takes an integer, got 2\.0"),
+    ("fmi3.fault.Boolean_nan", "fmi3", {}, [("Boolean_input", NAN)], r"faults\[0\]\.value: ft\.Boolean_input: Boolean takes true or false, got nan"),
+    ("fmi3.fault.String_number", "fmi3", {}, [("String_input", 5)], r"faults\[0\]\.value: ft\.String_input: String takes a string, got 5"),
+    ("fmi3.fault.Float32_string", "fmi3", {}, [("Float32_continuous_input", "x")], r"ft\.Float32_continuous_input: Float32 takes a number, got 'x'"),
+    ("fmi3.fault.fixed_parameter", "fmi3", {}, [("Float64_fixed_parameter", 2.0)],
+     r"faults\[0\]\.target: ft\.Float64_fixed_parameter is a fixed parameter"),
+    ("fmi3.fault.tunable_nan", "fmi3", {}, [("Float64_tunable_parameter", NAN)],
+     r"faults\[0\]\.value: ft\.Float64_tunable_parameter: Float64 value must be finite, got nan"),
+    ("fmi2.start.Int32", "fmi2", {"Int32_input": 3_000_000_000}, [],
+     r"units\[0\]\.parameters\.Int32_input: ft\.Int32_input: 3000000000 is outside the range -2147483648\.\.2147483647 of this Integer"),
+    ("fmi2.start.Enumeration", "fmi2", {"Enumeration_input": -2 ** 31 - 1}, [], r"ft\.Enumeration_input: -2147483649 is outside the range"),
+    ("fmi2.fault.Int32", "fmi2", {}, [("Int32_input", -3_000_000_000)], r"faults\[0\]\.value: ft\.Int32_input: -3000000000 is outside"),
+    ("fmi2.fault.Boolean", "fmi2", {}, [("Boolean_input", "maybe")], r"ft\.Boolean_input: Boolean takes true or false, got 'maybe'"),
+    ("fmi2.fault.fixed_parameter", "fmi2", {}, [("Float64_fixed_parameter", 1.0)], r"ft\.Float64_fixed_parameter is a fixed parameter"),
+]
+
+
+@pytest.mark.parametrize("version,parameters,faults,pattern", [c[1:] for c in FEEDTHROUGH_CASES],
+                         ids=[c[0] for c in FEEDTHROUGH_CASES])
+def test_bad_integer_width_or_type(tmp_path, version, parameters, faults, pattern, capsys, caplog):
+    path = tmp_path / "ft.toml"
+    path.write_text(dump_toml(feedthrough(version, parameters, faults)))
+    rc, lines = _run(["run", path, "-o", tmp_path / "ft.mcap", "-q"], capsys, caplog)
+    _assert_one_line(rc, lines, pattern, where=f"{path}: ")
+
+
+def test_integers_at_the_bounds_of_their_type_pass_through_unchanged(tmp_path, capsys, caplog):
+    """Feedthrough copies each input to its output: the extreme values of each FMI 3.0 integer
+    type (the start values, then faults from 0.05 s) reach the log exactly, and a fault into a
+    tunable parameter is accepted."""
+    from immersim.orchestrator.mcapio import read_series
+
+    start = {"Int8_input": 127, "UInt8_input": 255, "Int16_input": -32768, "UInt32_input": 2 ** 32 - 1,
+             "Int64_input": 2 ** 63 - 1}
+    faults = [("Int8_input", -128), ("UInt8_input", 0), ("Int16_input", 32767), ("Int64_input", -2 ** 63),
+              ("Float64_tunable_parameter", 7.5)]
+    path = tmp_path / "ft.toml"
+    path.write_text(dump_toml(feedthrough("fmi3", start, faults)))
+    rc, lines = _run(["run", path, "-o", tmp_path / "ft.mcap", "-q"], capsys, caplog)
+    assert rc == 0 and lines == []
+    after = dict(faults)
+    series = read_series(tmp_path / "ft.mcap", [f"ft.{n.replace('input', 'output')}" for n in start])
+    for name, first in start.items():
+        t, y, _ = series[f"ft.{name.replace('input', 'output')}"]
+        assert len(t) == 11
+        assert list(y[:6]) == [float(first)] * 6        # read back as float64
+        assert list(y[6:]) == [float(after.get(name, first))] * 5
 
 
 # -- the FMI type table and the checks the corpus cannot reach with the shipped units -------
