@@ -315,7 +315,6 @@ def main(argv: Optional[List[str]] = None) -> int:
     if args.fn is _cmd_run and argv is None and not args.debug:
         from . import supervisor   # the run in a child process: a unit that crashes it is reported
 
-        if supervisor.available():
         if supervisor.available() and os.environ.get("IMMERSIM_SUPERVISE", "1") != "0":
             code = supervisor.supervise()
             if code is not None:
