@@ -21,7 +21,6 @@ REDUCERS: Dict[str, Callable[[np.ndarray], float]] = {
     "final": lambda y: float(y[-1]),
 }
 BUILTIN_METRICS = ("wall_time", "loop_time", "realtime_factor", "steps", "status", "unit_time:<unit>")
-SIM_KEYS = ("start", "stop", "step", "algorithm", "extrapolation", "tolerance", "lazy")
 FIXED_COLUMNS = ("run", "id", "status", "steps", "t_end_s", "wall_time_s", "loop_time_s")
 TAIL_COLUMNS = ("reason", "mcap")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.+\-]+")

@@ -11,7 +11,7 @@ from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 from .. import schema
 from ..errors import ScenarioError
 
-from .common import BUILTIN_METRICS, FIXED_COLUMNS, SIM_KEYS, TAIL_COLUMNS, _EDGE, _UNSAFE
+from .common import BUILTIN_METRICS, FIXED_COLUMNS, TAIL_COLUMNS, _EDGE, _UNSAFE
 
 
 # -- the sweep file ----------------------------------------------------------------------
@@ -161,9 +161,10 @@ def _check_override_key(key: str, where: str, path: Path) -> None:
             raise _err(path, f"{where}: {key!r} names no unit (expected 'unit:fmu')")
         return
     if key.startswith("simulation."):
-        if key.split(".", 1)[1] not in SIM_KEYS:
+        sim_keys = tuple(schema.SimulationTable.model_fields)
+        if key.split(".", 1)[1] not in sim_keys:
             raise _err(path, f"{where}: unknown simulation setting {key!r} "
-                             f"(expected simulation.{'|'.join(SIM_KEYS)})")
+                             f"(expected simulation.{'|'.join(sim_keys)})")
         return
     unit, _, var = key.partition(".")
     if not unit or not var:

@@ -673,9 +673,14 @@ def test_a_fault_may_force_a_tunable_parameter_only(monkeypatch):
 
 
 def test_schema_models_are_the_only_keys():
-    """The schema is the documentation of the keys: every table refuses keys it does not declare."""
+    """The schema is the documentation of the keys: every table refuses keys it does not declare,
+    and its lists of names are those the code uses."""
+    from immersim.orchestrator.schema import REDUCE_NAMES
+    from immersim.orchestrator.sweep.common import REDUCERS
+
     assert set(ScenarioFile.model_fields) >= {"simulation", "units", "connections", "inputs", "faults", "log", "foxglove"}
     assert set(SweepFile.model_fields) >= {"scenario", "grid", "variants", "metrics", "plot"}
+    assert REDUCE_NAMES == tuple(REDUCERS)
 
 
 # -- a few through a real process: the whole stderr is one line --------------------------
