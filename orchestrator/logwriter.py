@@ -239,7 +239,6 @@ def _serve(conn) -> None:  # pragma: no cover - runs in the writer process
         except (EOFError, OSError):
             if writer is not None and not writer.closed:
                 try:
-                except LogWriteError as exc:
                     writer.close({"status": "aborted", "steps_done": last[0], "steps_total": writer.steps_total,
                                   "t_ns": last[1], "reason": "the master process ended without closing the log"})
                 except LogWriteError as exc:   # (already reported to the master after a failed step)
