@@ -670,6 +670,10 @@ class CollisionBackend(ABC):
         if (res.in_contact and prev is not None and prev.partner == res.partner
                 and prev.normal.any()):
             n = prev.normal.tolist()  # last separating direction, or the one the contact began with
+        if pair.horizontal and res.in_contact:   # the shortest way out in the ground plane (.exit)
+            out = self._horizontal_exit(pair)
+            if out is not None:
+                res.depth, n = out[0], [float(out[1][0]), float(out[1][1]), 0.0]
         if pair.horizontal and n[2] != 0.0:
             n[2] = 0.0
             if math.hypot(n[0], n[1]) < 1e-9 and res.partner >= 0:  # (nearly) vertical: centre to centre
@@ -680,6 +684,18 @@ class CollisionBackend(ABC):
                     n = [0.0, 0.0, 0.0]
         norm = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
         res.normal = np.array([n[0] / norm, n[1] / norm, n[2] / norm]) if norm > 0 else np.zeros(3)
+
+    def _horizontal_exit(self, pair: PairSpec):
+        """Depth (m) and unit normal (2,) of the shortest ground-plane exit of ``pair.a`` from
+        the members whose AABB overlaps its own (:mod:`.exit`), or None without overlap."""
+        from .exit import Footprints
+
+        if getattr(self, "_footprints", None) is None:
+            self._footprints = Footprints(self.scene)
+        a = pair.a
+        near = pair.members[self.aabb_gap(a, pair.members) <= 0.0].tolist()
+        members = [(b, np.array(self._rows(b)), not self._is_dyn_list[b]) for b in near]
+        return self._footprints.exit(a, np.array(self._rows(a)), members) if members else None
 
     def _closing_speed(self, a: int, res: PairResult, dt: float) -> float:
         if res.partner < 0 or dt <= 0:

@@ -1,0 +1,143 @@
+"""Horizontal exit of a deep contact: depth and normal out of the nearest face (2-D SAT).
+
+fcl's mesh-mesh contacts are triangle-pair contacts: the depth of the deepest one is the
+penetration of two *triangles* (bounded by the triangle size: 0.157 m on a 5.4k-triangle
+tank's grid, whatever the bodies' overlap) and its normal is a triangle's. An avatar box
+1.25 m deep in a tank's side, turned by 0.3 rad, gets depth 0.157 m and normal (0, 0, 1)
+(the box's cap cutting the tank's deck); a ``(horizontal)`` pair then fell back to the
+centre-to-centre direction (-0.38, 0.92, 0) against the side face's (0, 1, 0), and a contact
+that began from a contact-free step kept that step's separating direction however the body
+moved inside. Neither says how far, nor which way, the first body has to move to leave its
+partner. For a ``(horizontal)`` pair (a ground vehicle whose box spans the
+obstacles' height, so the contact is decided in the ground plane) this module computes both:
+
+* each body is the union of its convex parts (the connected components of its mesh, each
+  taken as its convex hull: a tank = hull box, turret, barrel, antenna), projected on the
+  ground plane: convex polygons (world frame);
+* the parts of the partners that overlap the first body's polygon ``A`` (separating-axis
+  test over the edge normals of both) must all be left: along a unit direction ``n`` the
+  first body leaves part ``B_j`` after ``push_j(n) = max(B_j . n) - min(A . n)``, all of
+  them after ``push(n) = max_j push_j(n)``;
+* the exit is the shortest of these over the candidate directions (both signs of every edge
+  normal of ``A`` and of the overlapping parts): ``depth = min_n push(n)``, ``normal =
+  argmin``. For one convex part this is the exact penetration depth of two convex polygons
+  (the minimum translation distance is reached along an edge normal); for several it is
+  the shortest move along a face normal that clears them all.
+"""
+from __future__ import annotations
+
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+__all__ = ["convex_parts", "polygon", "edge_normals", "overlaps", "exit_2d", "Footprints"]
+
+#: m; overlaps of at most this along some axis count as touching, not overlapping
+TOUCH = 1e-9
+
+
+def convex_parts(mesh) -> List[np.ndarray]:
+    """Vertices (body frame, (k, 3) m) of the convex hull of each connected component of a
+    trimesh ``mesh`` (a component that qhull cannot hull, e.g. a flat one, keeps its vertices)."""
+    out = []
+    for part in mesh.split(only_watertight=False) or [mesh]:
+        v = np.asarray(part.vertices, float)
+        try:
+            v = np.asarray(part.convex_hull.vertices, float)
+        except Exception:   # degenerate component
+            pass
+        out.append(v)
+    return out
+
+
+def polygon(points: np.ndarray) -> np.ndarray:
+    """Convex hull (counter-clockwise vertices, (m, 2)) of 2-D ``points`` (k, 2); fewer than
+    three points or collinear ones: the points themselves."""
+    try:
+        h = ConvexHull(points)
+    except (QhullError, ValueError):
+        return np.asarray(points, float)
+    return np.asarray(points, float)[h.vertices]
+
+
+def edge_normals(poly: np.ndarray) -> np.ndarray:
+    """Unit outward normals (m, 2) of the edges of a counter-clockwise convex polygon (m, 2)
+    (degenerate edges dropped)."""
+    e = np.roll(poly, -1, axis=0) - poly
+    n = np.c_[e[:, 1], -e[:, 0]]
+    L = np.hypot(n[:, 0], n[:, 1])
+    keep = L > 1e-12
+    return n[keep] / L[keep, None]
+
+
+def overlaps(A: np.ndarray, nA: np.ndarray, B: np.ndarray, nB: np.ndarray) -> bool:
+    """Convex polygons ``A``, ``B`` (with their edge normals) overlap by more than ``TOUCH``
+    along every edge normal of both (separating-axis theorem)."""
+    axes = np.concatenate([nA, nB])
+    pa, pb = A @ axes.T, B @ axes.T
+    return bool(np.all(np.minimum(pa.max(0) - pb.min(0), pb.max(0) - pa.min(0)) > TOUCH))
+
+
+def exit_2d(A: np.ndarray, nA: np.ndarray, parts: Sequence[Tuple[np.ndarray, np.ndarray]]
+            ) -> Optional[Tuple[float, np.ndarray]]:
+    """Shortest exit of the convex polygon ``A`` from the convex polygons ``parts``
+    (module docstring): ``(depth m, unit normal (2,))`` along which ``A`` moves, or None when
+    no part overlaps ``A``.
+
+    Parameters
+    ----------
+    A : ndarray, shape (k, 2)
+        The moving body's polygon (counter-clockwise), ``nA`` its edge normals.
+    parts : sequence of (polygon (m, 2), edge normals (m, 2))
+        The obstacles' convex parts.
+    """
+    hit = [(B, nB) for B, nB in parts if overlaps(A, nA, B, nB)]
+    if not hit:
+        return None
+    axes = np.concatenate([nA] + [nB for _, nB in hit])
+    axes = np.concatenate([axes, -axes])
+    a_min = (A @ axes.T).min(0)                                    # (n_axes,)
+    push = np.max([(B @ axes.T).max(0) for B, _ in hit], axis=0) - a_min
+    k = int(np.argmin(push))
+    return max(float(push[k]), 0.0), axes[k].copy()
+
+
+class Footprints:
+    """Ground-plane convex parts of a scene's bodies (static bodies' polygons kept)."""
+
+    def __init__(self, scene) -> None:
+        self.scene = scene
+        self._parts: Dict[str, List[np.ndarray]] = {}
+        self._static: Dict[int, list] = {}
+
+    def _local(self, i: int) -> List[np.ndarray]:
+        """The body-frame convex parts of body ``i``'s mesh (kept per mesh)."""
+        key = self.scene.bodies[i].mesh_key
+        local = self._parts.get(key)
+        if local is None:
+            local = self._parts[key] = convex_parts(self.scene.meshes[key])
+        return local
+
+    def parts(self, i: int, T: np.ndarray, static: bool) -> list:
+        """Polygons with edge normals of body ``i`` at the world transform ``T`` (4, 4)."""
+        if static and i in self._static:
+            return self._static[i]
+        R, t = T[:2, :3], T[:2, 3]
+        out = []
+        for v in self._local(i):
+            P = polygon(v @ R.T + t)
+            out.append((P, edge_normals(P)))
+        if static:
+            self._static[i] = out
+        return out
+
+    def exit(self, a: int, Ta: np.ndarray, members: Sequence[Tuple[int, np.ndarray, bool]]
+             ) -> Optional[Tuple[float, np.ndarray]]:
+        """Shortest horizontal exit of body ``a`` (its convex hull's footprint at ``Ta``) from
+        every part of ``members`` (body, transform, static), see :func:`exit_2d`."""
+        v = np.concatenate(self._local(a))
+        A = polygon(v @ Ta[:2, :3].T + Ta[:2, 3])
+        parts = [p for b, T, st in members for p in self.parts(b, T, st)]
+        return exit_2d(A, edge_normals(A), parts)
+
