@@ -31,6 +31,7 @@ def _player_vars():
             Var(f"contact[{p}].active", "input", "Boolean", False, "", f"player {p}'s avatar is in contact (collision response this step)"),
             Var(f"contact[{p}].nx", "input", "Real", 0.0, "1", f"contact normal x, pointing from the obstacle to avatar {p}"),
             Var(f"contact[{p}].ny", "input", "Real", 0.0, "1", f"contact normal y, pointing from the obstacle to avatar {p}"),
+            Var(f"contact[{p}].depth", "input", "Real", 0.0, "m", f"penetration depth of avatar {p} in the obstacle: removed along the normal (position correction, not felt as jolt)"),
         ]
     for p in range(1, CAPACITY + 1):
         a = f"avatar[{p}]"
@@ -139,7 +140,7 @@ class network(TableSlave):
         G, E = self.model.cfg.groups, self.model.cfg.entities
         q = range(1, G + 1)
         self._in_names = [(f"avatar[{p}].throttle", f"avatar[{p}].steer", f"contact[{p}].active",
-                           f"contact[{p}].nx", f"contact[{p}].ny") for p in q]
+                           f"contact[{p}].nx", f"contact[{p}].ny", f"contact[{p}].depth") for p in q]
         self._avatar_names = [f"avatar[{p}].{n}" for p in q for n in AVATAR_FIELDS]
         self._perceived_names = [f"perceived[{p}].{c}" for p in q for c in "xy"]
         self._entity_names = [f"entity[{e}].{c}" for e in range(1, min(E, N_ENTITY_OUT) + 1) for c in "xyz"]
@@ -164,7 +165,7 @@ class network(TableSlave):
 
     def step_model(self, t, h):
         v, m = self.values, self.model
-        ins = self._in_get(v)     # latency_scale, then throttle, steer, active, nx, ny per player
+        ins = self._in_get(v)     # latency_scale, then throttle, steer, active, nx, ny, depth per player
         if ins[0] < 0:
             raise ValueError(f"{self.instance_name}: input latency_scale = {ins[0]} must be >= 0 (t = {t:g} s)")
         m.latency_scale = ins[0]
@@ -173,10 +174,13 @@ class network(TableSlave):
             self._jolt = False
         if ins != self._last_in:   # (unchanged inputs: set_input would return at once)
             for p in range(len(self._in_names)):
-                j = 1 + 5 * p
+                j = 1 + 6 * p
                 m.set_input(p, ins[j], ins[j + 1], t)
                 if ins[j + 2]:
-                    m.bounce(p, (ins[j + 3], ins[j + 4]))
+                    if ins[j + 5] < 0:
+                        raise ValueError(f"{self.instance_name}: input contact[{p + 1}].depth = {ins[j + 5]} "
+                                         f"must be >= 0 (t = {t:g} s)")
+                    m.bounce(p, (ins[j + 3], ins[j + 4]), depth=ins[j + 5])
                     self._jolt = True
             self._last_in = ins if not self._jolt else None   # an active contact bounces every step
         m.step(h)

@@ -1,6 +1,7 @@
 """Configuration of the network unit: one dataclass holding every option and ablation switch."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from typing import Dict
 
@@ -103,6 +104,10 @@ class NetworkConfig:
     wheelbase: float = 2.7
     max_steer_rad: float = 0.5
     restitution: float = 0.5
+    # contact masses (kg; inf: immovable): avatar-entity impulses and separations are split by
+    # inverse mass (response.py); an infinite avatar mass leaves the avatar's motion to its driver
+    avatar_mass: float = float("inf")
+    entity_mass: float = 100.0
     avatar_radius: float = 2.0
     entity_radius: float = 1.0
     entity_speed: float = 2.0
@@ -133,6 +138,8 @@ class NetworkConfig:
             (self.scene_size > 0, f"scene_size = {self.scene_size} must be > 0"),
             (self.ownership_foci in ("frame", "reach"), f"ownership_foci {self.ownership_foci!r} not in ('frame', 'reach')"),
             (self.avatar_start in ("cluster", "uniform"), f"avatar_start {self.avatar_start!r} not in ('cluster', 'uniform')"),
+            (self.avatar_mass > 0 and self.entity_mass > 0 and math.isfinite(self.entity_mass),
+             f"avatar_mass = {self.avatar_mass}, entity_mass = {self.entity_mass} must be > 0 (entity finite)"),
             (self.grid_cells >= 1, f"grid_cells = {self.grid_cells} must be >= 1"),
             (self.frame_s > 0, f"frame_s = {self.frame_s} must be > 0"),
             (self.ownership_scale > 0.5, f"ownership_scale = {self.ownership_scale} must be > 0.5 (eq. 3-12)"),

@@ -380,10 +380,12 @@ class NetworkModel:
         self._push(t + self._control_delay(), "input", g, thr, steer)
         self._push(t + float(self.rng.exponential(self.cfg.autopilot_change_s)), "autopilot", g)
 
-    def bounce(self, g: int, normal, restitution: Optional[float] = None) -> float:
-        """Collision response input for avatar ``g`` (contact normal, stop if restitution 0)."""
+    def bounce(self, g: int, normal, restitution: Optional[float] = None, depth: float = 0.0) -> float:
+        """Collision response input for avatar ``g`` against a static obstacle: contact normal
+        (from the obstacle to the avatar), penetration ``depth`` (m) removed along it, velocity
+        reflected when approaching (stop if restitution 0); returns |dv| (m/s)."""
         e = self.cfg.restitution if restitution is None else restitution
-        return self.world.bounce_avatar(g, normal, e)
+        return self.world.bounce_avatar(g, normal, e, depth)
 
     def inject_update(self, sender_group: int, viewer_group: int, obj: int, pos, vel=(0.0, 0.0),
                       arrival: Optional[float] = None) -> None:
@@ -518,15 +520,21 @@ class NetworkModel:
         # one k-d tree of the entities shared by contacts and ownership (large scenes only:
         # small ones use brute force, cheaper than a tree built every frame)
         etree = w.entity_index() if cfg.entities and cfg.groups * cfg.entities > 4096 else None
-        # a small scene without DIS below order 2 takes its positions first (contacts change
-        # velocities, not positions) as a list too, and its velocities only where read (lazy)
+        # a small scene without DIS below order 2 takes its positions first as a list too (again
+        # when a contact's separation moved them), and its velocities only where read (lazy)
         lazy = (cfg.dis_threshold <= 0 and cfg.prediction_order < 2 and self.n_obj <= SCALAR_VIEW
                 and (cfg.entities or w._fixed_key is None))    # (a resting scene: state()'s kept arrays)
         pl = vl = None     # (positions list; avatar velocities list when ownership computed them)
         if lazy:
             P = w.positions()
             pl = self._positions_list(P)
+        moved = w.separated
         ai, ei, dv = w.contacts(etree, pl)
+        if w.separated != moved:   # overlaps were removed: positions (and their index) changed
+            etree = w.entity_index() if etree is not None else None
+            if lazy:
+                P = w.positions()
+                pl = self._positions_list(P)
         if len(ai):
             ai, ei, dv = ai[online_g[ai]], ei[online_g[ai]], dv[online_g[ai]]
             self.metrics.contacts += len(ai)
@@ -558,7 +566,7 @@ class NetworkModel:
                 cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
                 new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
                                           cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis,
-                                          cfg.ownership_foci, etree)  # contacts change velocities, not positions
+                                          cfg.ownership_foci, etree)
                 claimed = new_local != cur_local
                 new = cur.copy()
                 new[claimed] = cand[new_local[claimed]]

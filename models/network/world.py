@@ -24,6 +24,7 @@ import numpy as np
 
 from .config import NetworkConfig
 from .consistency import PointIndex
+from .response import impulse, inverse_mass, separation
 
 G_ACC = 9.81
 #: up to this many avatars the kinematics run in Python floats (cheaper than numpy calls on tiny arrays)
@@ -113,6 +114,7 @@ class World:
         self.evel = cfg.entity_speed * np.c_[np.cos(ang), np.sin(ang)]
         self.eturn = rng.uniform(-0.2, 0.2, E)   # rad/s
         self.ez = np.full(E, cfg.entity_radius)
+        self.separated = 0         # avatar-entity overlaps removed so far (see _separate)
         self._fixed_key = None     # see at_fixed_point
         self._ksteer_memo = None   # (steering bytes, steering gains tan(steer max) / wheelbase)
         self._turn_memo = {}       # (sub-step h, turn rates) -> decay, cos and sin of the entities' turn per sub-step
@@ -428,29 +430,28 @@ class World:
         self.throttle[g] = _clip_unit(throttle)
         self.steer[g] = _clip_unit(steer)
 
-    def bounce_avatar(self, g: int, normal, restitution: float) -> float:
-        """Collision response of avatar ``g`` on a contact with unit normal ``normal`` (2,).
+    def bounce_avatar(self, g: int, normal, restitution: float, depth: float = 0.0) -> float:
+        """Collision response of avatar ``g`` against a static obstacle (:mod:`.response` with
+        ``w2 = 0``): unit normal ``normal`` (2,) from the obstacle to the avatar, penetration
+        ``depth`` (m). The avatar moves ``depth`` along the normal (out of the obstacle) and,
+        when approaching (``v.n < 0``), its velocity is reflected: ``v <- v - (1 + e)(v.n) n``.
 
-        Returns the velocity change |dv| (m/s); 0 when the avatar is not approaching.
+        Returns the velocity change |dv| (m/s, the jolt; the position correction is not felt);
+        0 when the avatar is not approaching.
         """
         n = np.asarray(normal, float)
         norm = np.hypot(*n)
         if norm == 0.0:
             return 0.0
         n = n / norm
-        v = self.avel[g]
-        vn = float(v @ n)
+        if depth > 0.0:
+            apos = self.apos.copy()     # (a new array: the kept state keys compare bytes)
+            apos[g] += float(depth) * n
+            self.apos = apos
+        vn = float(self.avel[g] @ n)
         if vn >= 0.0:
             return 0.0
-        dv = -(1.0 + restitution) * vn * n
-        v2 = v + dv
-        sp = float(np.hypot(*v2))
-        if sp > 1e-12:
-            self.yaw[g] = np.arctan2(v2[1], v2[0])
-        self.speed[g] = sp
-        jolt = float(np.hypot(*dv))
-        self.jolt[g] += jolt
-        return jolt
+        return self._change_avatar_velocity(g, -(1.0 + restitution) * vn * n)
 
     def push_entity(self, e: int, dv) -> None:
         """Apply a velocity change ``dv`` (2,) m/s to entity ``e`` (collision response)."""
@@ -482,12 +483,7 @@ class World:
             d = self.epos[ei] - self.apos[ai]
             d2 = np.einsum("ij,ij->i", d, d)
             close = np.flatnonzero(d2 <= r * r * (1.0 + 1e-9))
-            if len(close):
-                rv = self.avel[ai[close]] - self.evel[ei[close]]
-                dot = np.einsum("ij,ij->i", rv, d[close])
-                tol = 1e-9 * np.sqrt(np.einsum("ij,ij->i", rv, rv) * d2[close]) + 1e-300
-                close = close[dot > -tol]
-            if not len(close):
+            if not len(close):   # (an overlap needs its separation even when not approaching)
                 return _NO_CONTACTS
             etree = etree.tree
         elif etree is None and G * E <= SCALAR_CONTACT_PAIRS:
@@ -517,8 +513,43 @@ class World:
             return ai, ei, np.zeros((0, 2))
         d = self.epos[ei] - self.apos[ai]
         dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
-        n = d / dist[:, None]
-        rel = np.einsum("ij,ij->i", self.avel[ai] - self.evel[ei], n)
+        n = d / dist[:, None]     # from the avatar to the entity
+        cfg = self.cfg
+        w_e, w_a = inverse_mass(np.full(len(ai), cfg.entity_mass)), inverse_mass(np.full(len(ai), cfg.avatar_mass))
+        self._separate(ai, ei, n, r - dist, w_e, w_a)
+        avel = self.avel
+        rel = np.einsum("ij,ij->i", avel[ai] - self.evel[ei], n)
         keep = rel > 0
-        dv = ((1.0 + self.cfg.restitution) * rel[keep])[:, None] * n[keep]
-        return ai[keep], ei[keep], dv
+        ai, ei, n, w_e, w_a = ai[keep], ei[keep], n[keep], w_e[keep], w_a[keep]
+        dv, dva = impulse(w_e, w_a, self.evel[ei], avel[ai], n, cfg.restitution)
+        if w_a.any():     # a finite avatar mass: the avatar's share, at once (its master responds)
+            for g, d_a in zip(ai.tolist(), dva):
+                self._change_avatar_velocity(g, d_a)
+        return ai, ei, dv
+
+    def _separate(self, ai, ei, n, depth, w_e, w_a) -> None:
+        """Remove the overlaps ``depth`` (k,) m of avatar-entity pairs ``ai``, ``ei`` along the
+        unit normals ``n`` (k, 2) (avatar to entity), split by inverse mass (:func:`separation`);
+        ``separated`` counts the pairs moved."""
+        over = depth > 0.0
+        if not over.any():
+            return
+        dx_e, dx_a = separation(w_e[over], w_a[over], n[over], depth[over])
+        self.epos = self.epos.copy()
+        np.add.at(self.epos, ei[over], dx_e)
+        if w_a.any():
+            self.apos = self.apos.copy()
+            np.add.at(self.apos, ai[over], dx_a)
+        self.separated += int(over.sum())
+
+    def _change_avatar_velocity(self, g: int, dv) -> float:
+        """``v <- v + dv`` for avatar ``g`` (heading and speed from the new velocity); adds
+        ``|dv|`` to its jolt and returns it (m/s)."""
+        v2 = self.avel[g] + dv
+        sp = float(np.hypot(*v2))
+        if sp > 1e-12:
+            self.yaw[g] = np.arctan2(v2[1], v2[0])
+        self.speed[g] = sp
+        jolt = float(np.hypot(*dv))
+        self.jolt[g] += jolt
+        return jolt

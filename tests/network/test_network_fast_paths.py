@@ -7,6 +7,7 @@
 * a transmit plan reused over batches vs a fresh one per batch;
 * the queued-event counter behind ``at_rest`` vs a scan of the event heap.
 """
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -158,10 +159,12 @@ def test_point_index_contacts_equal_kd_tree_contacts():
     m = NetworkModel(cfg)
     w = m.world
     w.speed[:] = 5.0
+    w2 = copy.deepcopy(w)               # (contacts separate overlaps: each path on its own copy)
     a = w.contacts(w.entity_index())
-    b = w.contacts(w.entity_tree())
+    b = w2.contacts(w2.entity_tree())
     assert len(a[0]) > 5
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert np.array_equal(w.epos, w2.epos) and w.separated == w2.separated > 0
     w.epos[:] = 1e4                     # nobody near: the index answers without a tree
     idx = w.entity_index()
     assert len(w.contacts(idx)[0]) == 0 and idx._tree is None
