@@ -415,6 +415,10 @@ SET_CASES = [
     ("param_refused", ["plat.M=-240.0"], r"units\[1\]\.parameters\.M = -240\.0: unit plat refused it at initialization: .*must be > 0"),
     ("param_unknown", ["plat.mass=1.0"], r"unit plat \(platform\.fmu\) has no variable 'mass'"),
     ("scene_size", ["net.scene_size=1e300"], r"units\[0\]\.parameters\.scene_size = 1e\+300: unit net refused it at initialization"),
+    ("refused_in_a_worker", ["net:process=1", "net.players=0"],
+     r"units\[0\]\.parameters\.players = 0: unit net refused it at initialization: parameter players = 0 must be in 1\.\.4"),
+    ("empty_key", ["=5"], r"override '': not of the form"),
+    ("table_key", ["simulation=1"], r"override 'simulation': not of the form"),
 ]
 
 
