@@ -206,6 +206,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .ssp import export_ssp
+
+    out = export_ssp(args.scenario, args.output, overrides=_parse_sets(args.set))
+    sys.stdout.write(f"{out}\n")
+    return 0
+
+
 def _cmd_examples(args: argparse.Namespace) -> int:
     from .examples import copy_examples, list_examples
 
@@ -234,7 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(fn=_cmd_build)
 
     r = sub.add_parser("run", help="run a scenario file and log every signal to MCAP")
-    r.add_argument("scenario", help="scenario TOML file")
+    r.add_argument("scenario", help="scenario TOML file, or an SSP archive (.ssp)")
     r.add_argument("-o", "--output", help="MCAP file (default: results/runs/<scenario>.mcap)")
     r.add_argument("--set", action="append", metavar="UNIT.PARAM=VALUE",
                    help="override a parameter (unit.param), simulation.stop/step/algorithm/extrapolation/lazy, "
@@ -248,6 +256,12 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--replay", default=None, metavar="LOG",
                    help="drive [[live_inputs]] with the values recorded in an earlier run's MCAP log")
     r.set_defaults(fn=_cmd_run)
+
+    ex = sub.add_parser("export", help="write a scenario as an SSP 1.0 archive (FMUs, connections, parameters)")
+    ex.add_argument("scenario", help="scenario TOML file")
+    ex.add_argument("-o", "--output", required=True, help="SSP file to write")
+    ex.add_argument("--set", action="append", metavar="UNIT.PARAM=VALUE", help="override, as for run")
+    ex.set_defaults(fn=_cmd_export)
 
     i = sub.add_parser("info", help="show what an MCAP log holds")
     i.add_argument("file")

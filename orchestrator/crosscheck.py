@@ -1,4 +1,5 @@
-"""Run one FMU for a number of fixed steps under FMPy and under OSP libcosim, for comparison.
+"""Run one FMU (or an SSP system) for a number of fixed steps under FMPy and under OSP libcosim,
+for comparison.
 
 Both runners start ``instances`` copies of the FMU in one process, apply the same start
 values (parameters and constant inputs), take ``n_steps`` steps of ``step_ns`` and record
@@ -7,9 +8,10 @@ give the same results in another FMI 2.0 master.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 from pathlib import Path
-from typing import Dict, List, Sequence
+from typing import Dict, Iterator, List, Sequence
 
 import numpy as np
 
@@ -88,3 +90,76 @@ def simulate_libcosim(fmu: Path | str, start_values: Dict[str, object], n_steps:
     ex.stop()
     return [{name: np.array([row[j] for row in acc], dtype=float) for j, name in enumerate(outputs)}
             for acc in rows]
+
+
+def simulate_ssp_libcosim(ssp: Path | str, n_steps: int, outputs: Dict[str, Sequence[str]]) -> Dict[str, Dict[str, np.ndarray]]:
+    """Run an SSP archive in OSP libcosim (``CosimExecution.from_ssp_file``: its fixed-step
+    algorithm at the SSP's base step) and record Real variables after each of ``n_steps`` steps
+    (an input as libcosim sets it for the next step, after the step's transfers).
+
+    Parameters
+    ----------
+    outputs : dict of unit -> variable names (Real)
+
+    Returns
+    -------
+    dict of unit -> variable -> array of shape (n_steps,)
+    """
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+
+    log_output_level(CosimLogLevel.ERROR)
+    ex = CosimExecution.from_ssp_file(str(Path(ssp).resolve()))
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(observer=obs)
+    plan = []
+    for unit, names in outputs.items():
+        idx = ex.slave_index_from_instance_name(unit)
+        refs = {(v.name.decode() if isinstance(v.name, bytes) else v.name): v.reference for v in ex.slave_variables(idx)}
+        plan.append((unit, idx, list(names), [refs[n] for n in names]))
+    rows: Dict[str, List[List[float]]] = {unit: [] for unit in outputs}
+    for _ in range(n_steps):   # libcosim initializes on the first step: values after each step
+        ex.step(step_count=1)
+        for unit, idx, _, vrs in plan:
+            rows[unit].append(obs.last_real_values(idx, vrs))
+    ex.stop()
+    return {unit: {n: np.array([r[j] for r in rows[unit]]) for j, n in enumerate(names)}
+            for unit, _, names, _ in plan}
+
+
+@contextlib.contextmanager
+def libcosim_step_sizes() -> Iterator[None]:
+    """Within the block, FMI 2.0 units of this process are stepped with the step size OSP
+    libcosim hands its FMUs: the difference of the two time points in seconds,
+    ``(t + h) / 1e9 - t / 1e9`` (libcosim's ``to_double_duration``), instead of immersim's
+    ``h / 1e9``. The two differ in the last bit at some steps (from 0.264 s: 0.297 - 0.264 =
+    0.03300000000000003, not 0.033), and a model integrating with the step size carries that
+    rounding on. With it, immersim under Jacobi + zero-order hold reproduces libcosim's fixed-step
+    results bit for bit (``tests/orchestrator/test_ssp_libcosim.py``). Units in worker processes
+    are not affected (run them in this one: ``unit:process=0``)."""
+    from .fmu import FmuInstance
+
+    original = FmuInstance.do_step
+
+    def do_step(self, t_ns: int, h_ns: int) -> None:
+        if self._fmi2:   # the fast path reuses its c_double while the step size (ns) is unchanged
+            self._c_h.value, self._h_ns = (t_ns + h_ns) / 1e9 - t_ns / 1e9, h_ns
+        return original(self, t_ns, h_ns)
+
+    FmuInstance.do_step = do_step
+    try:
+        yield
+    finally:
+        FmuInstance.do_step = original
+
+
+def libcosim_master(scenario) -> None:
+    """Set a loaded scenario (in place) to the master OSP libcosim's fixed-step algorithm is:
+    Jacobi (every unit reads the others' outputs of the step's start), zero-order hold on every
+    connection, every unit stepped at every step (no lazy skip)."""
+    import dataclasses
+
+    scenario.algorithm, scenario.extrapolation, scenario.lazy = "jacobi", "zoh", False
+    scenario.connections[:] = [dataclasses.replace(c, extrapolation="zoh", delayed=False)
+                               for c in scenario.connections]

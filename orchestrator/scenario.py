@@ -191,6 +191,10 @@ def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) 
         checked as the file's own.
     """
     path = Path(path)
+    if path.suffix.lower() == ".ssp":   # an SSP 1.0 archive (orchestrator/ssp/)
+        from .ssp import load_ssp
+
+        return load_ssp(path, overrides)
     data, text = schema.read_toml(path, "scenario file")
     return parse_scenario(data, path, text, overrides)
 
