@@ -323,19 +323,19 @@ def main(argv: Optional[List[str]] = None) -> int:
     # `run` defers SIGINT for the whole command (the run itself acts on it between steps): a
     # signal while FMUs are being freed would otherwise kill the interpreter (exit -2). As the
     # program's entry point (argv None) SIGINT is ignored once the command has finished.
-    from .execution import DeferredSigint
+    # SIGTERM and SIGHUP likewise. The handlers are in place before anything heavy is imported.
+    from . import supervisor
 
-    args.late_sigint = DeferredSigint(restore=argv is not None)
-    if args.fn is _cmd_run and argv is None and not args.debug:
-        from . import supervisor   # the run in a child process: a unit that crashes it is reported
-
-        if supervisor.available() and os.environ.get("IMMERSIM_SUPERVISE", "1") != "0":
-            code = supervisor.supervise()
-            if code is not None:
-                return code
+    args.late_sigint = supervisor.DeferredSigint(restore=argv is not None)
     try:
         if args.fn is _cmd_run:
             with args.late_sigint:
+                # the run in a child process: a unit that crashes it is reported (supervisor.py)
+                if (argv is None and not args.debug and supervisor.available()
+                        and os.environ.get("IMMERSIM_SUPERVISE", "1") != "0"):
+                    code = supervisor.supervise(args.late_sigint)
+                    if code is not None:
+                        return code
                 return args.fn(args)
         return args.fn(args)
     except ImmersimError as exc:

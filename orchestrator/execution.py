@@ -18,6 +18,7 @@ from typing import Any, Callable, Dict, List, Optional
 
 from .fmu import ENDED, forget_python_code
 from . import supervisor
+from .supervisor import DeferredSigint
 from .errors import FmuCallError, FmuLoadError, ImmersimError, LogWriteError, ScenarioError
 from .master import Master, Slot
 from .live import attach_live_inputs
@@ -27,77 +28,6 @@ from .scenario import Scenario, load_scenario
 from .system import System, check_system, fmu_hashes
 
 log = logging.getLogger(__name__)
-
-
-#: the signals that stop a run between macro steps (SIGINT, SIGTERM, SIGHUP): exit 128 + signal
-STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
-
-
-class DeferredSigint:
-    """Turn SIGINT, SIGTERM and SIGHUP into a flag checked between macro steps.
-
-    A KeyboardInterrupt raised inside an FMU's own Python code (pythonfmu FMUs share this
-    interpreter) would leave the FMU in a fatal state, and SIGTERM's default action would end
-    the process with the log unfinished; deferring them to the end of the step stops the run
-    cleanly with every completed step logged. Only the main thread can install the handlers;
-    elsewhere the signals keep their default behaviour.
-
-    Parameters
-    ----------
-    restore : bool
-        Put the previous handlers back on exit. False (a program's entry point): ignore the
-        signals from then on, so a late signal cannot kill the interpreter while it frees the
-        FMUs (Python's finalization puts a Python-level handler back to the default, not SIG_IGN).
-
-    Attributes
-    ----------
-    requested : bool
-        A signal came.
-    signum : int or None
-        The first signal that came.
-    """
-
-    def __init__(self, restore: bool = True) -> None:
-        self.requested = False
-        self.signum: Optional[int] = None
-        self.restore = restore
-        self._old: Dict[int, Any] = {}
-
-    def __enter__(self) -> "DeferredSigint":
-        import signal
-        import threading
-
-        if threading.current_thread() is threading.main_thread():
-            for name in STOP_SIGNALS:
-                sig = getattr(signal, name)
-                self._old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum, frame) -> None:
-        self.requested = True
-        if self.signum is None:
-            self.signum = signum
-
-    @property
-    def name(self) -> str:
-        """The signal's name (``"SIGTERM"``), ``"SIGINT"`` when none came."""
-        import signal
-
-        return signal.Signals(self.signum).name if self.signum else "SIGINT"
-
-    def __exit__(self, *exc) -> None:
-        import signal
-
-        for sig, old in self._old.items():
-            if not self.restore:
-                signal.signal(sig, signal.SIG_IGN)
-                continue
-            signal.signal(sig, old)
-            outer = getattr(old, "__self__", None)
-            if self.requested and isinstance(outer, DeferredSigint) and not outer.requested:
-                outer.requested = True  # not acted on here (it came after the last check): pass it on
-                outer.signum = self.signum
-        self._old = {}
 
 
 class RunFailed(ImmersimError, RuntimeError):

@@ -129,6 +129,77 @@ class Journal:
         CRUMB[JOURNAL] = 0
 
 
+#: the signals that stop a run between macro steps (SIGINT, SIGTERM, SIGHUP): exit 128 + signal
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+class DeferredSigint:
+    """Turn SIGINT, SIGTERM and SIGHUP into a flag checked between macro steps.
+
+    A KeyboardInterrupt raised inside an FMU's own Python code (pythonfmu FMUs share this
+    interpreter) would leave the FMU in a fatal state, and SIGTERM's default action would end
+    the process with the log unfinished; deferring them to the end of the step stops the run
+    cleanly with every completed step logged. Only the main thread can install the handlers;
+    elsewhere the signals keep their default behaviour.
+
+    Parameters
+    ----------
+    restore : bool
+        Put the previous handlers back on exit. False (a program's entry point): ignore the
+        signals from then on, so a late signal cannot kill the interpreter while it frees the
+        FMUs (Python's finalization puts a Python-level handler back to the default, not SIG_IGN).
+
+    Attributes
+    ----------
+    requested : bool
+        A signal came.
+    signum : int or None
+        The first signal that came.
+    """
+
+    def __init__(self, restore: bool = True) -> None:
+        self.requested = False
+        self.signum: Optional[int] = None
+        self.restore = restore
+        self._old: Dict[int, Any] = {}
+
+    def __enter__(self) -> "DeferredSigint":
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for name in STOP_SIGNALS:
+                sig = getattr(signal, name)
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        self.requested = True
+        if self.signum is None:
+            self.signum = signum
+
+    @property
+    def name(self) -> str:
+        """The signal's name (``"SIGTERM"``), ``"SIGINT"`` when none came."""
+        import signal
+
+        return signal.Signals(self.signum).name if self.signum else "SIGINT"
+
+    def __exit__(self, *exc) -> None:
+        import signal
+
+        for sig, old in self._old.items():
+            if not self.restore:
+                signal.signal(sig, signal.SIG_IGN)
+                continue
+            signal.signal(sig, old)
+            outer = getattr(old, "__self__", None)
+            if self.requested and isinstance(outer, DeferredSigint) and not outer.requested:
+                outer.requested = True  # not acted on here (it came after the last check): pass it on
+                outer.signum = self.signum
+        self._old = {}
+
+
 # -- the parent ---------------------------------------------------------------------------------
 def _prctl(option: int, arg: int) -> bool:
     try:
@@ -143,9 +214,16 @@ def available() -> bool:
     return sys.platform.startswith("linux") and hasattr(os, "fork")
 
 
-def supervise() -> Optional[int]:
+def supervise(deferred: Optional[DeferredSigint] = None) -> Optional[int]:
     """Fork: in the child return None (it goes on with the command); in the parent wait for
-    the child, report a crash (:func:`report_crash`) and return the exit status to use."""
+    the child, report a crash (:func:`report_crash`) and return the exit status to use.
+
+    ``deferred``: the command's :class:`DeferredSigint`, installed before anything heavy was
+    imported; a signal it caught before the fork ends the command here (exit 128 + signal).
+    """
+    if deferred is not None and deferred.requested:
+        sys.stderr.write(f"immersim: interrupted by {deferred.name} before the run started; no log was written\n")
+        return 128 + (deferred.signum or 2)
     parent = os.getpid()
     _prctl(36, 1)   # PR_SET_CHILD_SUBREAPER: the child's helpers become ours if it dies
     reset()
@@ -166,6 +244,8 @@ def supervise() -> Optional[int]:
             pass
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, forward)
+    if deferred is not None and deferred.requested:   # came between the check and the fork
+        forward(deferred.signum, None)
     _, status = os.waitpid(pid, 0)
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)

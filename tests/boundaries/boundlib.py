@@ -107,8 +107,9 @@ def _alive(pid: int) -> bool:
 
 def scenario(tmp: Path, units: str, stop: float, step: float = 0.033, extra: str = "",
              name: str = "s.toml") -> Path:
+    """A scenario file (Jacobi: two coupled units step with no cycle to break)."""
     path = tmp / name
-    path.write_text(f"[simulation]\nstop = {stop}\nstep = {step}\n\n{units}\n{extra}\n")
+    path.write_text(f'[simulation]\nstop = {stop}\nstep = {step}\nalgorithm = "jacobi"\n\n{units}\n{extra}\n')
     return path
 
 
