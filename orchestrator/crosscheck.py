@@ -9,6 +9,7 @@ give the same results in another FMI 2.0 master.
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 from pathlib import Path
 from typing import Dict, Iterator, List, Sequence
@@ -124,8 +125,27 @@ def simulate_ssp_libcosim(ssp: Path | str, n_steps: int, outputs: Dict[str, Sequ
         for unit, idx, _, vrs in plan:
             rows[unit].append(obs.last_real_values(idx, vrs))
     ex.stop()
+    del ex, obs
+    gc.collect()   # libcosim frees its FMUs and removes its extraction now
+    _forget_removed_code()
     return {unit: {n: np.array([r[j] for r in rows[unit]]) for j, n in enumerate(names)}
             for unit, _, names, _ in plan}
+
+
+def _forget_removed_code() -> None:
+    """Drop the Python modules (and ``sys.path`` entries) whose files are gone: the code of
+    pythonfmu FMUs libcosim loaded from an extraction it has removed. A later load of the same
+    FMU (its packed package has the same name) would otherwise reuse them and fail."""
+    import importlib
+    import os
+    import sys
+
+    gone = [n for n, m in list(sys.modules.items())
+            if isinstance(getattr(m, "__file__", None), str) and not os.path.exists(m.__file__)]
+    for n in gone:
+        del sys.modules[n]
+    sys.path[:] = [p for p in sys.path if not isinstance(p, str) or not p or os.path.exists(p)]
+    importlib.invalidate_caches()
 
 
 @contextlib.contextmanager
