@@ -133,10 +133,11 @@ class LogWriter:
         See :class:`~immersim.orchestrator.observers.McapObserver`.
     """
 
-    def __init__(self, plan: LogPlan, flush_seconds: float = 1.0, sources: Optional[Sequence[Any]] = None) -> None:
+    def __init__(self, plan: LogPlan, flush_seconds: float = 1.0, sources: Optional[Sequence[Any]] = None,
+                 tee: Any = None) -> None:
         self.path = plan.path
         self.steps_total = plan.steps_total if plan.steps_total is not None else "unknown"
-        obs = self.mcap = McapObserver(plan.path, flush_seconds=flush_seconds, encoding=plan.encoding,
+        obs = self.mcap = McapObserver(plan.path, flush_seconds=flush_seconds, encoding=plan.encoding, tee=tee,
                                        time_offset_ns=plan.time_offset_ns)
         for name, data in plan.metadata:
             obs.add_metadata(name, data)
