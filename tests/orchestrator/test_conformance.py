@@ -266,3 +266,28 @@ def test_default_experiment_fills_what_the_scenario_omits(tmp_path):
     sc = load_scenario(scn)
     check_system(sc)
     assert (sc.start_ns, sc.stop_ns, sc.tolerance) == (10_000, 10**9, 1e-4)
+
+
+def test_fmi3_widths_in_the_ros1_encoding(tmp_path):
+    """The "ros1" log packs each FMI 3.0 type at its own width (UInt64 structural parameters as
+    uint64, Float32 as float32): Feedthrough without its String/Binary (which keep a channel
+    JSON) reads back the values of the JSON log, the ROS 1 definition names the widths."""
+    from immersim.orchestrator.mcapio import read_info, read_series
+
+    fmu = ROOT / "fmi3" / "Feedthrough.fmu"
+    wide = {k: v for k, v in FEED_INPUTS.items() if k != "String_input"}
+    logs = {}
+    for enc in ("json", "ros1"):
+        scn = scenario(tmp_path, fmu, 0.1, 0.3, wide, extra=f'[log]\nencoding = "{enc}"\n'
+                       'exclude = ["u.String_*", "u.Binary_*"]\n')
+        logs[enc] = tmp_path / f"{enc}.mcap"
+        run_scenario(scn, logs[enc])
+    assert read_info(logs["ros1"]).channels["u"].encoding == "ros1"
+    a, b = read_series(logs["json"], ["u.*"]), read_series(logs["ros1"], ["u.*"])
+    assert a.keys() == b.keys() and len(a) == 28   # 14 inputs and 14 outputs
+    for k in a:
+        np.testing.assert_array_equal(a[k][1], b[k][1], err_msg=k)
+    assert b["u.UInt64_output"][1][-1] == float(18_000_000_000_000_000_000)   # (read_series gives floats)
+    msgs, _, _ = _messages(logs["ros1"])
+    definition = next(s.data.decode() for s, c, _ in msgs if c.topic == "u")
+    assert "uint64 UInt64_output" in definition and "float32 Float32_continuous_output" in definition
