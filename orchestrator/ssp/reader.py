@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import hashlib
+import shutil
 import sys
 import tempfile
 import xml.etree.ElementTree as ET
@@ -49,12 +50,20 @@ def extract(path: Path) -> Path:
     digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
     folder = Path(tempfile.gettempdir()) / "immersim_ssp" / digest
     if not (folder / "SystemStructure.ssd").is_file():
-        part = folder.with_name(digest + ".part")
-        with zipfile.ZipFile(path) as z:
-            z.extractall(part)
-        if not (part / "SystemStructure.ssd").is_file():
-            raise ScenarioError(f"{path}: no SystemStructure.ssd at the root of the archive")
-        part.replace(folder) if not folder.exists() else None
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        part = Path(tempfile.mkdtemp(prefix=digest, dir=folder.parent))   # (another process may extract too)
+        try:
+            with zipfile.ZipFile(path) as z:
+                z.extractall(part)
+            if not (part / "SystemStructure.ssd").is_file():
+                raise ScenarioError(f"{path}: no SystemStructure.ssd at the root of the archive")
+            try:
+                part.rename(folder)
+            except OSError:   # extracted by another process meanwhile
+                pass
+        finally:
+            if part.exists():
+                shutil.rmtree(part, ignore_errors=True)
     return folder
 
 
