@@ -101,22 +101,18 @@ def test_log_table_can_be_overridden(tmp_path, test_fmus):
         load_scenario(scn, {"log.colour": 1})
 
 
-def test_same_logs_script_compares_values_not_bytes(tmp_path, test_fmus):
-    """scripts/same_logs.py: a JSON and a ros1 log of one run are the same; a run with another
+def test_diff_compares_values_not_bytes(tmp_path, test_fmus):
+    """immersim diff: a JSON and a ros1 log of one run are the same; a run with another
     master algorithm differs, and the first differing sample is named."""
-    import importlib.util
-    from pathlib import Path
+    from immersim.orchestrator.analysis.diff import diff_logs
+    from immersim.orchestrator.cli import main
 
-    spec = importlib.util.spec_from_file_location(
-        "same_logs", Path(__file__).resolve().parents[2] / "scripts" / "same_logs.py")
-    same_logs = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(same_logs)
     logs = _runs(tmp_path, test_fmus["oscillator"])
-    assert same_logs.differences(str(logs["json"]), str(logs["ros1"]), ["*"]) == []
-    assert same_logs.main([str(logs["json"]), str(logs["ros1"])]) == 0
+    assert diff_logs(logs["json"], logs["ros1"]).equal
+    assert main(["diff", str(logs["json"]), str(logs["ros1"])]) == 0
     scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.033, stop=2.0, algorithm="gauss-seidel",
                               name="gs.toml")
     run_scenario(scn, tmp_path / "gs.mcap")
-    diff = dict(same_logs.differences(str(logs["json"]), str(tmp_path / "gs.mcap"), ["m1.x"]))
-    assert list(diff) == ["m1.x"] and diff["m1.x"].startswith("first difference at t = ")
-    assert same_logs.main([str(logs["json"]), str(tmp_path / "gs.mcap")]) == 1
+    diff = diff_logs(logs["json"], tmp_path / "gs.mcap", ["m1.x"])
+    assert [s.name for s in diff.differing] == ["m1.x"] and diff.differing[0].first_step >= 1
+    assert main(["diff", str(logs["json"]), str(tmp_path / "gs.mcap")]) == 1
