@@ -114,6 +114,9 @@ class Execution:
         self.output = Path(output) if output else None
         self.progress = progress
         self.system: System = check_system(self.scenario)
+        self.meshes: List[Any] = []   # what the units describe, drawn once ([foxglove] units)
+        if self.scenario.view_units:
+            self._add_unit_view()
         supervisor.remove_stale()   # what runs killed outright left behind
         supervisor.reset()
         self._tmp = tempfile.TemporaryDirectory(prefix=f"immersim_run_{os.getpid()}_")
@@ -121,6 +124,22 @@ class Execution:
         self._log_step: Optional[Callable[[int, int], None]] = None   # logs step k at t_ns
         self.observers: List[Callable[[int, int], None]] = []
         self._observe_ns = 0
+
+    def _add_unit_view(self) -> None:
+        """Add the bodies the loaded units describe to the 3D view (:mod:`.views`)."""
+        from dataclasses import replace
+
+        from .fmu import read_model
+        from .views import unit_view
+
+        sc, system = self.scenario, self.system
+        units = []
+        for name in system.needed:
+            scene = system.variables[name].get("scene")
+            units.append((name, read_model(system.paths[name], name)[0].modelName,
+                          sc.unit(name).parameters.get("scene", scene.start if scene is not None else None)))
+        bodies, self.meshes = unit_view(units, sc.mesh_triangles)
+        self.scenario = system.scenario = replace(sc, foxglove=list(sc.foxglove) + bodies)
 
     # -- set-up --------------------------------------------------------------------------
     def _setup(self) -> Master:
@@ -209,6 +228,7 @@ class Execution:
         if sc.foxglove:
             rank = {slot.name: s for s, slot in enumerate(slots)}
             plan.bodies = list(sc.foxglove)
+            plan.meshes = self.meshes
             for ref in {r for b in sc.foxglove for r in b.refs()}:
                 unit, var = ref.split(".", 1)
                 plan.refs[ref] = (rank[unit], master.slots[unit].index(var))

@@ -187,11 +187,15 @@ class FoxgloveObserver:
         ``lookup("unit.var")`` returns a function giving that signal's current value.
     scene_period_s : float
         Simulated seconds between two ``/scene`` messages.
+    meshes : list of views.MeshEntity, optional
+        Meshes the units describe (:mod:`~immersim.orchestrator.views`), written once on
+        ``/scene/meshes`` with the first ``/scene``; their bodies (shape ``"mesh"``) get no primitive.
     """
 
     def __init__(self, mcap, bodies: List[Body], lookup: Callable[[str], Callable[[], float]],
-                 scene_period_s: float = 1.0) -> None:
+                 scene_period_s: float = 1.0, meshes: Sequence[Any] = ()) -> None:
         self.mcap, self.bodies = mcap, bodies
+        self.meshes = list(meshes)
         self._stamp = {"sec": 0, "nsec": 0}
         self._msg: Dict[str, Any] = {"transforms": []}
         #: per body with signal references: (translation dict, its getters and offsets or None,
@@ -242,6 +246,8 @@ class FoxgloveObserver:
         sid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
                                 data=json.dumps(SCENE_UPDATE_SCHEMA).encode())
         self._scene = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid)
+        self._meshes = (w.register_channel(topic="/scene/meshes", message_encoding="json", schema_id=sid)
+                        if self.meshes else None)
 
     @staticmethod
     def _pose(body: Body, v: Sequence[float]) -> Tuple[Dict[str, float], Dict[str, float]]:
@@ -301,6 +307,11 @@ class FoxgloveObserver:
 
     def scene_due(self, k: int, t_ns: int) -> None:
         """``/scene`` at the first step and then once per ``scene_period_s``."""
+        if self._next_scene is None and self._meshes is not None:   # the meshes: once, at the start
+            from .views import meshes_message
+
+            self.mcap.writer.add_message(self._meshes, log_time=t_ns, publish_time=t_ns, sequence=k,
+                                         data=orjson.dumps(meshes_message(self.meshes, t_ns)))
         if self._next_scene is None or t_ns >= self._next_scene:
             self._next_scene = t_ns + self._period_ns
             stamp = dict(zip(("sec", "nsec"), divmod(t_ns, 1_000_000_000)))
@@ -310,6 +321,8 @@ class FoxgloveObserver:
     def _entities(self, stamp: Dict[str, int]) -> List[Dict[str, Any]]:
         entities = []
         for body in self.bodies:
+            if body.shape == "mesh":   # drawn by /scene/meshes
+                continue
             prim = {"pose": {"position": {"x": 0, "y": 0, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}},
                     "size": dict(zip("xyz", body.size)), "color": dict(zip("rgba", body.color))}
             entities.append({"timestamp": stamp, "frame_id": body.name, "id": body.name, "frame_locked": True,

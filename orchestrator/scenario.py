@@ -145,6 +145,10 @@ class Scenario:
     given: Optional[frozenset] = None
     #: inputs driven by live clients (``[[live_inputs]]``, :class:`~immersim.orchestrator.live.LiveInput`)
     live_inputs: List[Any] = field(default_factory=list)
+    #: ``[foxglove] units``: draw what the units describe (orchestrator/views.py), and the
+    #: static-triangle budget of those meshes (``mesh_triangles``)
+    view_units: bool = False
+    mesh_triangles: int = 500_000
 
     @property
     def n_steps(self) -> int:
@@ -272,4 +276,6 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
                     sim.algorithm, sim.extrapolation, sim.tolerance, sim.lazy, bodies,
                     given=frozenset(sim.model_fields_set),
                     live_inputs=[LiveInput(s.topic, s.field, s.target.strip(), s.scale, s.offset, s.initial)
-                                 for s in model.live_inputs])
+                                 for s in model.live_inputs],
+                    view_units=bool(model.foxglove and model.foxglove.units),
+                    mesh_triangles=model.foxglove.mesh_triangles if model.foxglove else 500_000)

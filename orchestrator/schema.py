@@ -322,7 +322,12 @@ class LiveInputTable(Table):
 
 
 class FoxgloveTable(Table):
+    """``[foxglove]``: the 3D view."""
+
     bodies: List[BodyTable] = Field(default_factory=list)
+    units: bool = Field(False, description="also draw what the units describe (the collision unit's meshes)")
+    mesh_triangles: Annotated[int, Field(ge=0)] = Field(
+        500_000, description="static triangles drawn as meshes; beyond, static bodies as bounding boxes")
 
 
 class ScenarioFile(Table):
