@@ -279,6 +279,9 @@ def build_native(dest_dir: Path | str | None = None, force: bool = False) -> Pat
         log.info("unit %s: up to date (%s)", NAME, fmu)
         return fmu
     folder = _platform_folder()
+    missing = [n for n in ("fmi2_platform.c", "platform_model.c", "washout.c") if not (native_dir() / n).exists()]
+    if missing:
+        raise BuildError(f"unit {NAME}: the C layer is not installed ({', '.join(missing)} missing in {native_dir()})")
     cc = compiler()
     if cc is None:
         raise BuildError(f"unit {NAME}: no C compiler found ($CC, gcc or cc)")

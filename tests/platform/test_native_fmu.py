@@ -397,3 +397,13 @@ def test_swapping_in_the_native_unit_gives_the_same_log(fmus, scenario, tmp_path
     differ = {name for name in py_meta if nat_meta[name] != py_meta[name]}
     assert differ <= {"scenario", "fmus"}
     assert all("platform-native.fmu" in v for v in nat_meta["fmus"].values())
+
+
+def test_build_command_builds_the_native_unit(fmus, capsys):
+    from immersim.orchestrator.cli import main
+
+    assert main(["build", "platform", "--native"]) == 0
+    assert capsys.readouterr().out.strip() == str(fmus["native"])
+    assert main(["build", "network", "--native"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("immersim: error: unknown unit 'network-native'") and "platform-native" in err
