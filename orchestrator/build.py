@@ -46,16 +46,24 @@ def _fmus_dir() -> Path:
     return Path(immersim.fmus.__file__).resolve().parent
 
 
+def user_cache_dir() -> Path:
+    """immersim's folder in the user's cache (``$XDG_CACHE_HOME/immersim``, by default
+    ``~/.cache/immersim`` on Linux; the platform's own place elsewhere, by platformdirs)."""
+    import platformdirs
+
+    return Path(platformdirs.user_cache_dir("immersim", appauthor=False))
+
+
 def default_build_dir() -> Path:
     """Where built FMUs go: ``$IMMERSIM_BUILD_DIR``, else ``build/fmus`` of the checkout,
-    else ``~/.cache/immersim/fmus`` for a non-editable install."""
+    else ``fmus/`` in :func:`user_cache_dir` for an installed package (a wheel)."""
     env = os.environ.get("IMMERSIM_BUILD_DIR")
     if env:
         return Path(env)
     root = _fmus_dir().parent
     if (root / "pyproject.toml").exists():
         return root / "build" / "fmus"
-    return Path.home() / ".cache" / "immersim" / "fmus"
+    return user_cache_dir() / "fmus"
 
 
 def unit_names() -> List[str]:

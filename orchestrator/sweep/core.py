@@ -12,7 +12,6 @@ from ..errors import LogWriteError, ScenarioError
 from .common import log, SweepFailed
 from .executors import _run_dask, _run_local
 from .runs import RunRow, RunTask
-from .shipping import attach_inputs
 from .spec import SweepOptions, SweepSpec, load_sweep
 from .summary import SweepResult, plot_comparison, plot_file_name, write_info, write_summary
 
@@ -71,10 +70,8 @@ def execute(spec: SweepSpec, options: SweepOptions) -> SweepResult:
     _prebuild(spec)  # also for Dask: the FMUs are built here and shipped to the workers
     try:
         if options.scheduler:
-            fmus = attach_inputs(tasks, spec.scenario)
-            log.info("sweep %s: %d runs on the Dask cluster at %s (%d FMU files shipped)", spec.file, len(tasks),
-                     options.scheduler, len(fmus))
-            _run_dask(tasks, options.scheduler, on_row, fmus)
+            log.info("sweep %s: %d runs on the Dask cluster at %s", spec.file, len(tasks), options.scheduler)
+            _run_dask(tasks, options.scheduler, on_row)
         else:
             workers = max(1, min(options.workers or os.cpu_count() or 1, len(tasks)))
             log.info("sweep %s: %d runs on %d local processes", spec.file, len(tasks), workers)

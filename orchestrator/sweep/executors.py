@@ -2,14 +2,16 @@
 from __future__ import annotations
 
 import os
+import time
 import uuid
 from pathlib import Path
-from typing import Callable, List, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 from ..errors import ImmersimError
 
 from .common import log
-from .runs import RunRow, RunTask, _worker_init, run_one
+from .runs import RunRow, RunTask, _worker_init, add_metrics, run_one
+from .shipping import attach_inputs, run_shipped
 
 
 # -- executors ---------------------------------------------------------------------------
@@ -92,7 +94,19 @@ def _run_local(tasks: Sequence[RunTask], workers: int, on_row: Callable[[RunRow]
 
 
 def _run_dask(tasks: Sequence[RunTask], address: str, on_row: Callable[[RunRow], None]) -> None:
-    """Run ``tasks`` on the Dask cluster at ``address``; ``on_row`` gets each row as it completes."""
+    """Run ``tasks`` on the Dask cluster at ``address``; ``on_row`` gets each row as it completes.
+
+    The workers need no shared disk (see :mod:`.shipping`): each task carries its scenario,
+    the FMU files are scattered once and reach each worker once, and each log comes back as
+    bytes, written to ``task.mcap`` here, where the metrics are computed.
+    """
+    fmus, unresolved = attach_inputs(tasks, Path(tasks[0].scenario)) if tasks else ({}, {})
+    for t in tasks:
+        if t.index in unresolved:  # an FMU file that does not exist: failed before it starts
+            Path(t.mcap).unlink(missing_ok=True)
+            on_row(RunRow(t.index, t.id, "failed", reason=unresolved[t.index]))
+    tasks = [t for t in tasks if t.index not in unresolved]
+    log.info("%d FMU files to ship", len(fmus))
     try:
         from distributed import Client, as_completed
     except ImportError:
@@ -102,15 +116,24 @@ def _run_dask(tasks: Sequence[RunTask], address: str, on_row: Callable[[RunRow],
     except (OSError, TimeoutError) as exc:
         raise ImmersimError(f"cannot connect to the Dask scheduler at {address}: {exc}") from None
     try:
+        for t in tasks:  # never report the log of an earlier sweep
+            Path(t.mcap).unlink(missing_ok=True)
+        t0 = time.perf_counter()
+        blobs = client.scatter({f"immersim-fmu-{h}": p.read_bytes() for h, p in fmus.items()}, hash=False)
+        scatter_s = time.perf_counter() - t0
         tag = uuid.uuid4().hex[:8]
-        futures = client.map(run_one, list(tasks), key=[f"immersim-run-{t.id}-{tag}" for t in tasks], pure=False)
+        futures = [client.submit(run_shipped, t, {h: blobs[f"immersim-fmu-{h}"] for h, _ in t.fmus.values()},
+                                 key=f"immersim-run-{t.id}-{tag}", pure=False) for t in tasks]
         by_key = {f.key: t for f, t in zip(futures, tasks)}
         try:
             for fut in as_completed(futures):
+                task = by_key[fut.key]
                 try:
-                    on_row(fut.result())
+                    row, data = fut.result()
                 except Exception as exc:  # KilledWorker, lost connection, ...
-                    on_row(_failed_row(by_key[fut.key], exc))
+                    on_row(_failed_row(task, exc))
+                    continue
+                on_row(_receive(task, row, data, scatter_s / len(tasks)))
         except BaseException:
             client.cancel(futures)
             raise
@@ -118,3 +141,11 @@ def _run_dask(tasks: Sequence[RunTask], address: str, on_row: Callable[[RunRow],
         client.close()
 
 
+def _receive(task: RunTask, row: RunRow, data: Optional[bytes], scatter_s: float) -> RunRow:
+    """Write a shipped run's log to ``task.mcap`` and compute its metrics from that file;
+    ``row.timing['ship']`` adds this side's shipping time (its share of the scatter, the write)."""
+    t0 = time.perf_counter()
+    if data is not None:
+        Path(task.mcap).write_bytes(data)
+    row.timing["ship"] = row.timing.get("ship", 0.0) + scatter_s + time.perf_counter() - t0
+    return add_metrics(row, task)

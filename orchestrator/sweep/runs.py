@@ -5,7 +5,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -24,6 +24,10 @@ class RunTask:
     metrics: List[MetricSpec]
     index: int = 0
     id: str = ""
+    #: for a run shipped to a worker without the client's folders (see .shipping): the
+    #: scenario's text, and per unit instance the sha256 and client path of its FMU
+    text: str = ""
+    fmus: Dict[str, Tuple[str, str]] = field(default_factory=dict)
 
 
 @dataclass
@@ -152,18 +156,28 @@ def run_one(task: RunTask) -> RunRow:
     The returned row has status ``completed``, ``failed`` or ``interrupted`` and the reason.
     Metrics are computed only for completed runs (a partial log would bias the comparison).
     """
+    return add_metrics(execute_run(task, Path(task.mcap)), task)
+
+
+def execute_run(task: RunTask, mcap: Path, scenario: Optional[Callable[[], Any]] = None) -> RunRow:
+    """Run one variant into the log ``mcap`` (no metrics); never raises for a failed run.
+
+    ``scenario`` makes the :class:`~immersim.orchestrator.scenario.Scenario` to run (a shipped
+    run's, see :mod:`.shipping`); by default the task's scenario file with its overrides.
+    """
     from ..execution import Execution, RunFailed
 
     global _INTERRUPTED
-    row = RunRow(task.index, task.id, "failed", mcap=Path(task.mcap).name)
-    Path(task.mcap).unlink(missing_ok=True)  # never report the log of an earlier sweep
+    row = RunRow(task.index, task.id, "failed", mcap=mcap.name)
+    mcap.unlink(missing_ok=True)  # never report the log of an earlier sweep
     if _INTERRUPTED:
         row.status, row.reason, row.mcap = "interrupted", "sweep interrupted before this run started", ""
         return row
     with _RUN_LOCK:
         t0 = time.perf_counter()
         try:
-            ex = Execution(task.scenario, task.mcap, progress=False, overrides=task.overrides)
+            sc = scenario() if scenario is not None else task.scenario
+            ex = Execution(sc, mcap, progress=False, overrides=None if scenario is not None else task.overrides)
             ex.observers.append(_stop_if_interrupted)
             _take(row, ex.run())
         except RunFailed as exc:
@@ -172,12 +186,16 @@ def run_one(task: RunTask) -> RunRow:
         except Exception as exc:  # a bad FMU swap, a parameter the FMU refuses, ... : the row says why
             row.reason = f"{type(exc).__name__}: {exc}"
         row.wall_time_s = time.perf_counter() - t0
-    if not Path(task.mcap).exists():
+    if not mcap.exists():
         row.mcap = ""
+    return row
+
+
+def add_metrics(row: RunRow, task: RunTask) -> RunRow:
+    """Compute the metrics of a completed run from its log ``task.mcap``; a metric that cannot
+    be computed fails the row (its other metrics are kept)."""
     if row.status == "completed":
         row.metrics, errors = compute_metrics(task.mcap, task.metrics, row)
         if errors:  # the run itself completed: keep its other metrics, fail the row loudly
             row.status, row.reason = "failed", "; ".join(errors)
     return row
-
-
