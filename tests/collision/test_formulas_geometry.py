@@ -1,0 +1,37 @@
+"""Pose transforms and motion bounds of the collision models against independent forms."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from immersim.models.collision.backend import _face_shift
+from immersim.models.collision.geometry import pose_matrix, pose_rows
+
+
+def _random_poses(n, seed):
+    rng = np.random.default_rng(seed)
+    return np.c_[rng.uniform(-5, 5, (n, 3)), rng.uniform(-np.pi, np.pi, (n, 3))]
+
+
+def test_pose_transform_is_yaw_pitch_roll_about_fixed_axes():
+    """eq. 4-6: R = R_z(yaw) R_y(pitch) R_x(roll) (scipy's extrinsic 'xyz'), translation last column."""
+    for pose in _random_poses(30, 2):
+        T = pose_matrix(pose)
+        np.testing.assert_allclose(T[:3, :3], Rotation.from_euler("xyz", pose[3:]).as_matrix(), atol=1e-14)
+        np.testing.assert_array_equal(T[:3, 3], pose[:3])
+        np.testing.assert_array_equal(T[3], [0, 0, 0, 1])
+        assert pose_rows(pose) == T.tolist()
+
+
+def test_face_shift_terms_are_the_translation_and_frobenius_rotation_change():
+    """|t1 - t0| and ||R1 - R0||_F; with them every point of radius <= r moves at most t + f r."""
+    poses = _random_poses(40, 3)
+    rng = np.random.default_rng(4)
+    for p0, p1 in zip(poses[:-1], poses[1:]):
+        T0, T1 = pose_matrix(p0), pose_matrix(p1)
+        t, f = _face_shift(T0.tolist(), T1.tolist())
+        assert t == pytest.approx(np.linalg.norm(T1[:3, 3] - T0[:3, 3]), rel=1e-14)
+        assert f == pytest.approx(np.linalg.norm(T1[:3, :3] - T0[:3, :3], "fro"), rel=1e-14)
+        v = rng.normal(size=(50, 3))
+        v *= 0.7 / np.linalg.norm(v, axis=1)[:, None]
+        moved = np.linalg.norm(v @ T1[:3, :3].T + T1[:3, 3] - v @ T0[:3, :3].T - T0[:3, 3], axis=1)
+        assert moved.max() <= t + f * 0.7 + 1e-12
