@@ -33,8 +33,9 @@ sweep file fails at once with a :class:`ScenarioError` naming the file and the k
 
 Runs execute in worker processes (``spawn`` start method: pythonfmu FMUs embed the
 interpreter, so forking a process that has loaded FMUs is unsafe) or, given a scheduler
-address, as tasks on a Dask cluster (whose workers must see the output folder, e.g. a shared
-file system). Each run writes one MCAP file; the worker computes the metrics from it. A failed
+address, as tasks on a Dask cluster that needs no shared disk: a task carries its scenario and
+FMUs and brings its log back (:mod:`.shipping`). Each run writes one MCAP file, under the
+output folder, and its metrics are computed from it. A failed
 run does not stop the sweep: its row in ``summary.csv`` says ``failed`` and why, and
 :func:`run_sweep` raises :class:`SweepFailed` at the end (the CLI exits non-zero).
 """
