@@ -86,7 +86,9 @@ def compile_library(name: str, functions: Sequence[ca.Function], extra_c: str = 
     digest = hashlib.sha256((source + " ".join(CFLAGS) + ca.__version__).encode()).hexdigest()[:20]
     lib = cache_dir() / f"{name}_{digest}.so"
     if not lib.exists():
-        with tempfile.TemporaryDirectory(prefix="immersim_cg_") as tmp:
+        # compiled next to the cache: os.replace cannot move a file across file systems
+        # (a tmpfs /tmp and a cache folder on disk)
+        with tempfile.TemporaryDirectory(prefix="immersim_cg_", dir=lib.parent) as tmp:
             src = Path(tmp) / f"{name}.c"
             src.write_text(source)
             out = Path(tmp) / lib.name
