@@ -19,6 +19,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import ROOT, stamp  # noqa: E402
 
 
+FMPY_NOTE = ('FMPy\'s SSP simulation (`fmpy.ssp.simulation.simulate_ssp`, FMPy 0.3.32) is not used as a third master: it applies no component parameter binding (only one parameter set passed by the caller, with names prefixed by the component path), no linear transformation (its reader looks for them in the wrong namespace, `ssd:` instead of `ssc:`), starts every input at 0.0 instead of its source\'s initial output, and advances time by adding the step size in floating point; platform_tracking\'s `cueing = "pose"` alone would be lost, so its results are not comparable.')
+
+
 def messages(path: Path):
     from mcap.reader import make_reader
 
@@ -121,7 +124,8 @@ def main() -> None:
         lines.append(f"| {name} | {'libcosim' if exact else 'immersim'} | {n} | {steps} | {differing} | "
                      f"{rel:.3g} | {zero:.3g} |")
     met = all(r[5] <= 1e-9 for r in runs) and all(r[4] == 0 for r in runs if r[1])
-    lines += ["", f"Cross-run target (1e-9 relative; bit for bit with libcosim's step size): {'met' if met else 'NOT met'}.", ""]
+    lines += ["", f"Cross-run target (1e-9 relative; bit for bit with libcosim's step size): {'met' if met else 'NOT met'}.",
+              "", FMPY_NOTE, ""]
     out = ROOT / "results" / "orchestrator" / "ssp.md"
     out.write_text("\n".join(lines))
     print("\n".join(lines))
