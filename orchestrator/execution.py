@@ -115,6 +115,7 @@ class Execution:
         self.progress = progress
         self.system: System = check_system(self.scenario)
         self.meshes: List[Any] = []   # what the units describe, drawn once ([foxglove] units)
+        self.view_steps: List[Any] = []   # ... and redrawn every step (the platform's rods)
         if self.scenario.view_units:
             self._add_unit_view()
         supervisor.remove_stale()   # what runs killed outright left behind
@@ -135,10 +136,12 @@ class Execution:
         sc, system = self.scenario, self.system
         units = []
         for name in system.needed:
+            params = dict(sc.unit(name).parameters)
             scene = system.variables[name].get("scene")
-            units.append((name, read_model(system.paths[name], name)[0].modelName,
-                          sc.unit(name).parameters.get("scene", scene.start if scene is not None else None)))
-        bodies, self.meshes = unit_view(units, sc.mesh_triangles)
+            if scene is not None:
+                params.setdefault("scene", scene.start)
+            units.append((name, read_model(system.paths[name], name)[0].modelName, params))
+        bodies, self.meshes, self.view_steps = unit_view(units, sc.mesh_triangles)
         self.scenario = system.scenario = replace(sc, foxglove=list(sc.foxglove) + bodies)
 
     # -- set-up --------------------------------------------------------------------------
@@ -228,7 +231,7 @@ class Execution:
         if sc.foxglove:
             rank = {slot.name: s for s, slot in enumerate(slots)}
             plan.bodies = list(sc.foxglove)
-            plan.meshes = self.meshes
+            plan.meshes, plan.view_steps = self.meshes, self.view_steps
             for ref in {r for b in sc.foxglove for r in b.refs()}:
                 unit, var = ref.split(".", 1)
                 plan.refs[ref] = (rank[unit], master.slots[unit].index(var))

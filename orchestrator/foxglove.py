@@ -190,12 +190,16 @@ class FoxgloveObserver:
     meshes : list of views.MeshEntity, optional
         Meshes the units describe (:mod:`~immersim.orchestrator.views`), written once on
         ``/scene/meshes`` with the first ``/scene``; their bodies (shape ``"mesh"``) get no primitive.
+    steps : list, optional
+        Parts of the view redrawn every step (``views.PlatformRods``: ``topic``, ``refs``,
+        ``entities(values, stamp)``), each a SceneUpdate on its own topic.
     """
 
     def __init__(self, mcap, bodies: List[Body], lookup: Callable[[str], Callable[[], float]],
-                 scene_period_s: float = 1.0, meshes: Sequence[Any] = ()) -> None:
+                 scene_period_s: float = 1.0, meshes: Sequence[Any] = (), steps: Sequence[Any] = ()) -> None:
         self.mcap, self.bodies = mcap, bodies
         self.meshes = list(meshes)
+        self._steps = [(part, [lookup(r) for r in part.refs]) for part in steps]
         self._stamp = {"sec": 0, "nsec": 0}
         self._msg: Dict[str, Any] = {"transforms": []}
         #: per body with signal references: (translation dict, its getters and offsets or None,
@@ -248,6 +252,8 @@ class FoxgloveObserver:
         self._scene = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid)
         self._meshes = (w.register_channel(topic="/scene/meshes", message_encoding="json", schema_id=sid)
                         if self.meshes else None)
+        self._step_channels = [w.register_channel(topic=part.topic, message_encoding="json", schema_id=sid)
+                               for part, _ in self._steps]
 
     @staticmethod
     def _pose(body: Body, v: Sequence[float]) -> Tuple[Dict[str, float], Dict[str, float]]:
@@ -306,7 +312,13 @@ class FoxgloveObserver:
         return self._tf, orjson.dumps(self._msg)
 
     def scene_due(self, k: int, t_ns: int) -> None:
-        """``/scene`` at the first step and then once per ``scene_period_s``."""
+        """``/scene`` at the first step and then once per ``scene_period_s`` (with the meshes once
+        and the parts redrawn every step)."""
+        if self._steps:   # parts redrawn every step
+            stamp = dict(zip(("sec", "nsec"), divmod(t_ns, 1_000_000_000)))
+            for cid, (part, getters) in zip(self._step_channels, self._steps):
+                data = {"deletions": [], "entities": part.entities([g() for g in getters], stamp)}
+                self.mcap.writer.add_message(cid, log_time=t_ns, publish_time=t_ns, sequence=k, data=orjson.dumps(data))
         if self._next_scene is None and self._meshes is not None:   # the meshes: once, at the start
             from .views import meshes_message
 

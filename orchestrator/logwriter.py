@@ -78,6 +78,8 @@ class LogPlan:
     bodies: List[Any] = field(default_factory=list)
     #: meshes the units describe (views.MeshEntity), written once with the 3D view
     meshes: List[Any] = field(default_factory=list)
+    #: parts of the view redrawn every step (views.PlatformRods)
+    view_steps: List[Any] = field(default_factory=list)
     refs: Dict[str, Tuple[int, int]] = field(default_factory=dict)
     #: added to every message's time (a run from t < 0; see McapObserver)
     time_offset_ns: int = 0
@@ -162,7 +164,7 @@ class LogWriter:
             def lookup(ref: str) -> Callable[[], Any]:
                 return _Signal(sources[plan.refs[ref][0]], plan.refs[ref][1])
 
-            self._view = FoxgloveObserver(obs, plan.bodies, lookup, meshes=plan.meshes)
+            self._view = FoxgloveObserver(obs, plan.bodies, lookup, meshes=plan.meshes, steps=plan.view_steps)
         self.write = self._compile_write()   # the method below is its general form
 
     @property

@@ -1,7 +1,12 @@
-"""The 3D view of what the units describe: the collision unit's real meshes.
+"""The 3D view of what the units describe: the collision unit's meshes, the platform's geometry.
 
 With ``[foxglove] units = true`` a scenario gets, for every loaded instance of the built-in
-``collision`` unit, the bodies of its scene drawn with their own triangles:
+``platform`` unit, its plate (a frame-locked cuboid, ``size_x`` x ``size_y`` x ``size_z``,
+posed by ``pose.*`` with A = A_x(gamma) A_y(beta) A_z(alpha), eq. 6-8), its six slider rails
+(static lines over the stroke range) and its six rods from the closed-form inverse kinematics
+(eq. 6-14..6-19: ball joint B_i to slider C_i, redrawn every step on ``/scene/<unit>``); and
+for every loaded instance of the built-in ``collision`` unit, the bodies of its scene drawn
+with their own triangles:
 
 * a dynamic body (the FMU's ``body[j]``) is a frame of ``/tf`` posed by its inputs
   ``body[j].x, y, z, roll, pitch, yaw`` (R = Rz(yaw) Ry(pitch) Rx(roll), eq. 4-4), and its
@@ -25,6 +30,10 @@ import numpy as np
 COLORS = {"tank": (0.35, 0.42, 0.3, 1.0), "missile": (0.85, 0.2, 0.15, 1.0)}
 DEFAULT_COLOR = (0.55, 0.6, 0.7, 1.0)
 COLLISION_MODEL = "collision"
+PLATFORM_MODEL = "platform"
+PLATE_COLOR = (0.2, 0.5, 0.9, 1.0)
+RAIL_COLOR = (0.45, 0.45, 0.45, 1.0)
+ROD_COLOR = (0.95, 0.75, 0.2, 1.0)
 
 
 @dataclass(frozen=True)
@@ -38,10 +47,13 @@ class MeshEntity:
     faces: Any = None      # (m, 3) int
     color: Tuple[float, float, float, float] = DEFAULT_COLOR
     box: Any = None
+    lines: Any = None      # (2k, 3) float: k segments (a LINE_LIST)
 
     def primitive(self) -> dict:
-        """The entity's Foxglove primitive (``triangles`` or ``cubes``) as a JSON-ready dict."""
+        """The entity's Foxglove primitive (``triangles``, ``cubes`` or ``lines``) as a JSON-ready dict."""
         color = dict(zip("rgba", self.color))
+        if self.lines is not None:
+            return {"lines": [line_list(self.lines, self.color)]}
         if self.box is not None:
             size, T = self.box
             return {"cubes": [{"pose": _pose(T), "size": dict(zip("xyz", map(float, size))), "color": color}]}
@@ -49,6 +61,13 @@ class MeshEntity:
         return {"triangles": [{"pose": _pose(np.eye(4)), "points": [dict(zip("xyz", p)) for p in pts.tolist()],
                                "color": color, "colors": [],
                                "indices": np.asarray(self.faces, dtype=np.int64).ravel().tolist()}]}
+
+
+def line_list(points: Any, color: Sequence[float], thickness: float = 0.02) -> dict:
+    """A Foxglove LinePrimitive of type LINE_LIST (segments between points 0-1, 2-3, ...)."""
+    return {"type": 2, "pose": _pose(np.eye(4)), "thickness": thickness, "scale_invariant": False,
+            "points": [dict(zip("xyz", p)) for p in np.asarray(points, dtype=float).tolist()],
+            "color": dict(zip("rgba", color)), "colors": [], "indices": []}
 
 
 def _pose(T: np.ndarray) -> dict:
@@ -102,17 +121,70 @@ def collision_view(unit: str, scene_spec: str, mesh_triangles: int) -> Tuple[Lis
     return bodies, meshes
 
 
-def unit_view(units: Sequence[Tuple[str, str, Any]], mesh_triangles: int) -> Tuple[List[Any], List[MeshEntity]]:
-    """The view of every instance given as ``(instance name, model name, scene parameter)``;
-    instances of models without a view are skipped."""
+class PlatformRods:
+    """The per-step part of a platform's view: its six rods B_i -> C_i from the pose (eq. 6-14..6-19).
+
+    ``refs`` are the pose signals it reads, ``entities(values, stamp)`` the SceneUpdate entities
+    of one step (``values`` in the order of ``refs``).
+    """
+
+    def __init__(self, unit: str, params: Any) -> None:
+        from ..models.platform.kinematics import ik_full
+
+        self.unit, self.params, self._ik = unit, params, ik_full
+        self.topic = f"/scene/{unit}"
+        self.refs = [f"{unit}.pose.{ax}" for ax in ("x", "y", "z", "gamma", "beta", "alpha")]
+
+    def points(self, pose: Sequence[float]) -> np.ndarray:
+        """(12, 3): B_1, C_1, B_2, C_2, ... in the base frame, m."""
+        ik = self._ik(np.asarray(pose, dtype=float)[None], self.params)
+        B = ik.joints[0]
+        C = B - ik.rods[0]
+        return np.stack([B, C], axis=1).reshape(12, 3)
+
+    def entities(self, values: Sequence[float], stamp: dict) -> List[dict]:
+        return [{"timestamp": stamp, "frame_id": "world", "id": f"{self.unit}/rods", "frame_locked": False,
+                 "lifetime": {"sec": 0, "nsec": 0}, "lines": [line_list(self.points(values), ROD_COLOR)]}]
+
+
+def platform_view(unit: str, parameters: dict) -> Tuple[List[Any], List[MeshEntity], List[PlatformRods]]:
+    """Bodies, meshes and per-step rods of one platform instance (its geometry parameters
+    ``a, b, c, ...`` as the scenario sets them, the unit's defaults otherwise)."""
+    from dataclasses import fields
+
+    from ..models.platform.params import PlatformParams
+    from .foxglove import Body
+
+    p = PlatformParams(**{f.name: float(parameters[f.name]) for f in fields(PlatformParams) if f.name in parameters})
+    plate = f"{unit}/plate"
+    refs = PlatformRods(unit, p).refs
+    body = Body(plate, "world", tuple(refs[:3]), tuple(refs[3:]), "xyz", (0.0, 0.0, 0.0), "mesh",
+                (p.size_x, p.size_y, p.size_z), PLATE_COLOR)
+    rails = np.concatenate([[c + p.stroke_min * e, c + p.stroke_max * e] for c, e in zip(p.sliders_home, p.axes)])
+    meshes = [MeshEntity(plate, plate, color=PLATE_COLOR, box=((p.size_x, p.size_y, p.size_z), np.eye(4))),
+              MeshEntity(f"{unit}/rails", "world", color=RAIL_COLOR, lines=rails)]
+    return [body], meshes, [PlatformRods(unit, p)]
+
+
+def unit_view(units: Sequence[Tuple[str, str, dict]], mesh_triangles: int
+              ) -> Tuple[List[Any], List[MeshEntity], List[PlatformRods]]:
+    """The view of every instance given as ``(instance name, model name, parameters)``
+    (the parameters as the scenario sets them; the collision unit's ``scene`` with its
+    default filled in); instances of models without a view are skipped."""
     bodies: List[Any] = []
     meshes: List[MeshEntity] = []
-    for name, model, scene in units:
-        if model == COLLISION_MODEL and scene:
-            b, m = collision_view(name, str(scene), mesh_triangles)
-            bodies += b
-            meshes += m
-    return bodies, meshes
+    steps: List[PlatformRods] = []
+    for name, model, params in units:
+        if model == COLLISION_MODEL and params.get("scene"):
+            b, m = collision_view(name, str(params["scene"]), mesh_triangles)
+        elif model == PLATFORM_MODEL:
+            b, m, r = platform_view(name, params)
+            steps += r
+        else:
+            continue
+        bodies += b
+        meshes += m
+    return bodies, meshes, steps
 
 
 def meshes_message(meshes: Sequence[MeshEntity], t_ns: int) -> dict:

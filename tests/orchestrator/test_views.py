@@ -102,3 +102,55 @@ def test_static_bodies_beyond_the_budget_are_their_bounding_boxes(tmp_path, buil
         assert [cube["size"][k] for k in "xyz"] == pytest.approx(hi - lo)
         centre = pose_matrix(scene.bodies[i].pose) @ np.append((lo + hi) / 2, 1.0)
         assert [cube["pose"]["position"][k] for k in "xyz"] == pytest.approx(centre[:3])
+
+
+def test_the_platform_is_drawn_from_its_geometry_at_its_pose(tmp_path, built_fmus):
+    """Plate frame = the unit's pose (A = Ax(gamma) Ay(beta) Az(alpha)); every step's rods run
+    from the ball joint B_i on the plate to a slider point C_i that lies on its rail at the
+    stroke the unit reports, one rod length c away (an independent check of the IK drawing)."""
+    from immersim.models.platform.kinematics import rotation
+    from immersim.models.platform.params import PlatformParams
+
+    path = tmp_path / "plat.toml"
+    path.write_text(f'''
+[simulation]
+stop = 0.66
+[[units]]
+name = "plat"
+fmu = "{built_fmus["platform"]}"
+[[inputs]]
+target = "plat.cue.f_x"
+kind = "step"
+at = 0.1
+value = 2.0
+[[inputs]]
+target = "plat.cue.w_z"
+kind = "constant"
+value = 0.3
+[foxglove]
+units = true
+''')
+    out = tmp_path / "plat.mcap"
+    Execution(path, out).run()
+    with open(out, "rb") as f:
+        msgs = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in make_reader(f).iter_messages()]
+    p = PlatformParams()
+    unit = {t: m for topic, t, m in msgs if topic == "plat"}
+    rods = {t: m for topic, t, m in msgs if topic == "/scene/plat"}
+    tfs = {t: m for topic, t, m in msgs if topic == "/tf"}
+    assert len(rods) == len(unit) == 21
+    moved = 0.0
+    for t, m in unit.items():
+        pose = [m[f"pose.{a}"] for a in ("x", "y", "z", "gamma", "beta", "alpha")]
+        A = rotation(np.array(pose[3:]))
+        (tf,) = [x for x in tfs[t]["transforms"] if x["child_frame_id"] == "plat/plate"]
+        np.testing.assert_allclose(Rotation.from_quat([tf["rotation"][k] for k in "xyzw"]).as_matrix(), A, atol=1e-12)
+        assert [tf["translation"][k] for k in "xyz"] == pytest.approx(pose[:3])
+        pts = np.array([[q["x"], q["y"], q["z"]] for q in rods[t]["entities"][0]["lines"][0]["points"]])
+        B, C = pts[0::2], pts[1::2]
+        np.testing.assert_allclose(B, np.array(pose[:3]) + p.joints @ A.T, atol=1e-12)
+        strokes = np.array([m[f"stroke[{i}]"] for i in range(1, 7)])
+        np.testing.assert_allclose(C, p.sliders_home + strokes[:, None] * p.axes, atol=1e-9)
+        np.testing.assert_allclose(np.linalg.norm(B - C, axis=1), p.c, atol=1e-9)
+        moved = max(moved, float(np.max(np.abs(strokes))))
+    assert moved > 1e-3   # the cue moved the actuators: the check is not of the home pose only
