@@ -76,3 +76,33 @@ def test_far_lower_bound_is_at_most_the_gap(detector, gap):
         if dx == 0.0:
             assert e.distance == pytest.approx(gap, abs=0.02)
             assert d.distance >= 0.5 * gap - 0.3     # a bound, not a trivial zero
+
+
+def test_basis_point_contact_flag_agrees_with_the_exact_test_away_from_touching():
+    """Contact iff fcl finds one, for poses apart by more than 1 cm or overlapping by more than 5 cm
+    (the tolerance of the features' contact test is a fraction of the sampling distance)."""
+    scene = parse_scene(SCENE)
+    exact, bp = make_backend("fcl", scene, "ball vs block"), make_backend("basis_point", scene, "ball vs block")
+    rng = np.random.default_rng(3)
+    seen = [0, 0]
+    for _ in range(40):
+        pose = np.r_[rng.uniform(-1.2, 1.2, 3), rng.uniform(-np.pi, np.pi, 3)]
+        e, b = exact.query([pose]).pairs[0], bp.query([pose]).pairs[0]
+        if (e.in_contact and e.depth > 0.05) or (not e.in_contact and e.distance > 0.01):
+            assert b.in_contact == e.in_contact, (pose, e, b)
+            seen[e.in_contact] += 1
+    assert seen[0] >= 20 and seen[1] >= 2
+
+
+@pytest.mark.parametrize("gap", [2.0, 5.0])
+def test_fcl_far_pair_gap_is_a_lower_bound_of_the_exact_gap(gap):
+    """Two moving axis-aligned cubes ``gap`` m apart along x beyond ``max_distance``: the far-pair
+    skip's box gap never exceeds the exact gap (it is a lower bound, rounding included)."""
+    from immersim.models.collision import BackendConfig
+
+    scene = parse_scene("box:name=wall,sx=1,sy=1,sz=1,dynamic=1;box:name=cart,sx=1,sy=1,sz=1,dynamic=1")
+    be = make_backend("fcl", scene, "cart vs wall", BackendConfig(max_distance=0.5))
+    r = be.query([[0.0, 0.0, 0.0, 0, 0, 0], [1.0 + gap, 0.0, 0.0, 0, 0, 0]]).pairs[0]
+    assert r.distance == 0.5 and not r.in_contact
+    g = be._far_gap(0, be.pairs[0])
+    assert g is not None and gap - 1e-6 <= g <= gap
