@@ -4,6 +4,7 @@ input, recorded so that a replay gives the same run bit for bit."""
 from __future__ import annotations
 
 import json
+import math
 import re
 import struct
 import threading
@@ -175,3 +176,27 @@ def test_live_addresses(text, expected):
 def test_bad_live_addresses(text, message):
     with pytest.raises(ValueError, match=message):
         parse_address(text)
+
+
+def test_teleop_scenario_a_person_drives_the_avatar_and_the_platform_feels_it(tmp_path):
+    """scenarios/teleop.toml: a Twist with linear.x = 1 sent mid-run; the avatar stands before the
+    step that latched it and drives off after it, the platform's cue follows, the replay is equal."""
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[2] / "scenarios" / "teleop.toml"
+    scen = tmp_path / "teleop.toml"
+    scen.write_text(src.read_text().replace("stop = 60.0", "stop = 1.5"))
+    out = tmp_path / "teleop.mcap"
+    _, _, ex = _run_live(scen, out, publish=("/cmd_vel", {"linear": {"x": 1.0}, "angular": {"z": 0.0}}), realtime=3.0)
+    (t_on, _, v), = [c for c in ex.live_inputs.latched if c[1] == "net.avatar[1].throttle" and c[2] != 0.0]
+    assert v == 1.0
+    _, logged = _log(out)
+    net = [(t, json.loads(d)) for topic, t, d in logged if topic == "net"]
+    plat = [(t, json.loads(d)) for topic, t, d in logged if topic == "plat"]
+    speed = {t: math.hypot(m["avatar[1].vx"], m["avatar[1].vy"]) for t, m in net}
+    assert all(s == 0.0 for t, s in speed.items() if t <= t_on)
+    assert speed[max(speed)] > 0.5   # full throttle for the rest of the run
+    assert max(abs(m["cue.f_x"]) for t, m in plat if t > t_on) > 0.5   # the surge reaches the seat
+    replayed = tmp_path / "replay.mcap"
+    Execution(scen, replayed, replay=out).run()
+    assert _log(replayed)[1] == logged
