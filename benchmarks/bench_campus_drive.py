@@ -6,7 +6,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_campus_drive.py [--quick]
 
-Writes ``results/scenarios/bench.md``. Target (issue 6): campus_drive at >= 100x real time with
+Writes ``results/scenarios/bench.md``. Target: campus_drive at >= 100x real time with
 full logging on this machine (0.33 ms of wall time per 33 ms step for everything).
 
 Every figure is measured twice: in wall time (``RunResult.timing``, what the target is about)
@@ -190,7 +190,7 @@ def main() -> None:
     if args.child:
         return _child_main(args.child)
     reps = 1 if args.quick else 3
-    lines: List[str] = ["# Benchmark: campus_drive (issue 6)", "",
+    lines: List[str] = ["# Benchmark: campus_drive", "",
                         stamp(COMMAND + (" --quick" if args.quick else "")), ""]
     with tempfile.TemporaryDirectory(prefix="bench_campus_") as d:
         tmp = Path(d)

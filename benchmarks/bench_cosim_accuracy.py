@@ -1,5 +1,5 @@
 """Co-simulation accuracy: error against a fine-step reference vs master algorithm,
-input extrapolation and macro step, as work-precision diagrams (issue 7, item 2).
+input extrapolation and macro step, as work-precision diagrams.
 
 For each study scenario the same models are coupled
 

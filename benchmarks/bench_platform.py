@@ -1,4 +1,4 @@
-"""Work-precision benchmark of the platform unit's macro-step integrators (issue 3, item 8).
+"""Work-precision benchmark of the platform unit's macro-step integrators.
 
 One closed-loop scenario (computed torque on the full Lagrangian model with the reference
 prefilter, i.e. exactly what the FMU integrates), a pose reference that changes every 33 ms

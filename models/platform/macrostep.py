@@ -1,4 +1,4 @@
-"""The platform's whole 33 ms macro step as one native call (issue 3, item 8).
+"""The platform's whole 33 ms macro step as one native call.
 
 Per macro step the simulator needs: the washout filter (:func:`.cueing.washout_sx`), the
 workspace check of the resulting pose reference (IK eq. 6-14..6-19 and the limits of
