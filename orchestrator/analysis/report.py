@@ -34,8 +34,6 @@ th, td { border: 1px solid #ccc; padding: 3px 8px; text-align: right; white-spac
 td.text, th.text { text-align: left; }
 th { background: #f0f0f0; cursor: pointer; user-select: none; }
 th[aria-sort=ascending]::after { content: " \\25B2"; } th[aria-sort=descending]::after { content: " \\25BC"; }
-.metrics { display: flex; flex-wrap: wrap; gap: 8px; }
-.metric { width: 420px; height: 300px; }
 #status { color: #a00; }
 """
 
@@ -141,20 +139,31 @@ def _styles(runs: RunSet, color_by: Optional[str]) -> List[dict]:
     return out
 
 
-def _metric_figures(runs: RunSet, styles: List[dict]) -> Dict[str, dict]:
+def _metrics_figure(runs: RunSet, styles: List[dict]):
+    """One figure, a bar chart per metric (3 a row), each y axis titled with the metric's unit;
+    None without metrics."""
     import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
 
-    figs = {}
+    names = list(runs.metrics)
+    if not names:
+        return None
+    cols = min(3, len(names))
+    rows = -(-len(names) // cols)
+    fig = make_subplots(rows=rows, cols=cols, subplot_titles=names, horizontal_spacing=0.09,
+                        vertical_spacing=min(0.5 / rows, 0.12))
     labels = [r.label for r in runs.runs]
-    for i, m in enumerate(runs.metrics):
+    for i, m in enumerate(names):
         unit = runs.metric_unit(m)
         ys = [float(r.row.get(m) or "nan") for r in runs.runs]
-        fig = go.Figure(go.Bar(x=labels, y=ys, marker_color=[s["color"] for s in styles],
-                               hovertemplate="%{x}<br>" + m + " = %{y:.6g}" + (f" {unit}" if unit else "") + "<extra></extra>"))
-        fig.update_layout(title=dict(text=m, font_size=13), margin=dict(l=60, r=10, t=36, b=80),
-                          yaxis_title=f"{m} [{unit}]" if unit else m, template="plotly_white")
-        figs[f"metric-{i}"] = fig
-    return figs
+        row, col = i // cols + 1, i % cols + 1
+        fig.add_trace(go.Bar(x=labels, y=ys, marker_color=[s["color"] for s in styles], showlegend=False,
+                             hovertemplate="%{x}<br>" + m + " = %{y:.6g}" + (f" {unit}" if unit else "")
+                                           + "<extra></extra>"), row=row, col=col)
+        fig.update_yaxes(title_text=f"[{unit}]" if unit else "", row=row, col=col)
+        fig.update_xaxes(showticklabels=len(labels) <= 6, row=row, col=col)
+    fig.update_layout(height=260 * rows + 60, template="plotly_white", margin=dict(l=60, r=20, t=40, b=40))
+    return fig
 
 
 def _signal_patterns(runs: RunSet, signals: Optional[Sequence[str]]) -> List[str]:
@@ -195,6 +204,8 @@ def _trace_figure(runs: RunSet, patterns: List[str], styles: List[dict]):
                                                    + (f" {unit}" if unit else "") + "<extra></extra>"),
                           row=k, col=1)
         fig.update_yaxes(title_text=f"[{unit}]" if unit else "", row=k, col=1)
+        if {s[3] for s in series[name].values()} == {"boolean"}:
+            fig.update_yaxes(tickvals=[0, 1], ticktext=["False", "True"], range=[-0.1, 1.1], row=k, col=1)
     fig.update_xaxes(title_text="simulation time [s]", row=len(names), col=1)
     fig.update_layout(height=170 * len(names) + 120, template="plotly_white", hovermode="x unified",
                       legend=dict(orientation="h", y=1.0, yanchor="bottom"), margin=dict(l=70, r=20, t=60, b=40))
@@ -227,13 +238,13 @@ def write_report(sources: Sequence[Path | str] | Path | str, output: Path | str,
     runs = collect_runs([sources] if isinstance(sources, (str, Path)) else sources)
     styles = _styles(runs, color_by)
     heads, rows = _table(runs)
-    figs = _metric_figures(runs, styles)
+    metrics = _metrics_figure(runs, styles)
+    figs = {"metrics": metrics} if metrics is not None else {}
     traces, names = _trace_figure(runs, _signal_patterns(runs, signals), styles)
     figs["traces"] = traces
     payload = "{" + ",".join(f"{json.dumps(k)}:{pio.to_json(f, validate=False)}" for k, f in figs.items()) + "}"
     payload = payload.replace("</", "<\\/")  # no "</script>" inside the JSON block
     title = " + ".join(p.name for p in runs.sources)
-    metric_divs = "".join(f'<div class="metric" id="{k}"></div>' for k in figs if k.startswith("metric-"))
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>immersim report: {html.escape(title)}</title>
 <style>{_CSS}</style></head>
@@ -244,7 +255,7 @@ Click a column header to sort; drag in a plot to zoom, double-click to reset; cl
 <p id="status"></p>
 <h2>Runs</h2>
 {_table_html(heads, rows)}
-{"<h2>Metrics</h2><div class='metrics'>" + metric_divs + "</div>" if metric_divs else ""}
+{'<h2>Metrics</h2><div id="metrics"></div>' if metrics is not None else ""}
 <h2>Signals</h2>
 <p>{len(names)} signals: {html.escape(", ".join(names))}</p>
 <div id="traces"></div>

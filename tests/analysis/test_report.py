@@ -21,7 +21,10 @@ DOM = {
     "traces": "document.getElementById('traces').data.length",
     "yaxes": "Object.keys(document.getElementById('traces').layout).filter(k => k.startsWith('yaxis'))"
              ".map(k => document.getElementById('traces').layout[k].title.text)",
-    "metric_units": "Array.from(document.querySelectorAll('.metric')).map(d => d.layout.yaxis.title.text)",
+    "metric_units": "(() => { const l = document.getElementById('metrics').layout; return Object.keys(l)"
+                    ".filter(k => k.startsWith('yaxis')).sort((a, b) => (+a.slice(5) || 1) - (+b.slice(5) || 1))"
+                    ".map(k => l[k].title.text); })()",
+    "metric_titles": "document.getElementById('metrics').layout.annotations.map(a => a.text)",
     "sorted": "(() => { const th = Array.from(document.querySelectorAll('#runs th'))"
               ".find(t => t.textContent.startsWith('jolt_max')); th.click();"
               " const i = th.cellIndex; return Array.from(document.querySelectorAll('#runs tbody tr'))"
@@ -56,8 +59,11 @@ def test_report_renders_in_headless_chromium(report, campus_sweep, tmp_path):
     metrics = [c for c in read_summary(campus_sweep / "summary.csv")[0]
                if c.split(" ")[0] in {"contact_1", "contact_2", "contact_3", "missile_hit", "jolt_max",
                                       "stroke_max", "incons_max", "coll_s", "loop_s"}]
-    assert run.values["plots"] == len(metrics) + 1 and run.values["svgs"] >= 2 * run.values["plots"]
-    assert "jolt_max [m/s]" in run.values["metric_units"] and "coll_s [s]" in run.values["metric_units"]
+    assert run.values["plots"] == 2 and run.values["svgs"] >= 4  # metrics and traces, drawn
+    assert run.values["metric_titles"] == metrics
+    units = dict(zip(run.values["metric_titles"], run.values["metric_units"]))
+    assert units["jolt_max"] == "[m/s]" and units["coll_s"] == "[s]" and units["stroke_max"] == "[m]"
+    assert units["contact_1"] == "[1]" and len(metrics) == 9
     # the metrics' signals overlaid: pair[1..4].in_contact, avatar[1].jolt, 6 strokes, inconsistency_max
     assert run.values["traces"] == 12 * 3
     # in log order: net.avatar[1].jolt, net.inconsistency_max, 4 Booleans (no unit), plat.stroke[1..6]
