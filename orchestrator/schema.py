@@ -72,7 +72,8 @@ def _seconds(x: Any) -> float:
 def _above(low: float, strict: bool = True):
     def check(x: float) -> float:
         if x <= low if strict else x < low:
-            raise _fail("range", "must be {op} {low}, got {got}", op=">" if strict else ">=", low=f"{low:g}", got=_show(x))
+            raise _fail("range", "must be {op} {low}, got {got}", op=">" if strict else ">=", low=f"{low:g}",
+                        got=_show(x))
         return x
     return check
 
@@ -179,7 +180,8 @@ class SimulationTable(Table):
 
     start: Seconds = Field(0.0, description="start time, s")
     stop: Optional[Seconds] = Field(None, description="stop time, s (default: start + 10 steps)")
-    step: Annotated[Any, AfterValidator(_seconds), AfterValidator(_above(0.0))] = Field(0.033, description="macro step, s")
+    step: Annotated[Any, AfterValidator(_seconds), AfterValidator(_above(0.0))] = Field(
+        0.033, description="macro step, s")
     algorithm: Literal[ALGORITHMS] = "gauss-seidel"
     extrapolation: Literal[EXTRAPOLATIONS] = "linear"
     tolerance: Optional[Positive] = Field(None, description="relative tolerance handed to the units")
@@ -455,7 +457,8 @@ def read_toml(path: Path, what: str) -> Tuple[Dict[str, Any], str]:
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ScenarioError(f"{path}: not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
+        raise ScenarioError(f"{path}: not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at offset "
+                            f"{exc.start})") from None
     try:
         return tomllib.loads(text), text
     except tomllib.TOMLDecodeError as exc:
@@ -494,8 +497,10 @@ def _message(err: Dict[str, Any]) -> str:
         ctx = err.get("ctx", {})
         return f"kind {str(ctx.get('tag')).strip('<>')!r} is not one of {', '.join(INPUT_KINDS)}"
     if kind == "literal_error":
-        return f"{_show(err['input'])} is not one of {err['ctx']['expected'].replace(' or ', ', ').replace(chr(39), '')}"
-    if kind in ("bool_type", "string_type", "list_type", "dict_type", "tuple_type", "model_type", "model_attributes_type"):
+        expected = err["ctx"]["expected"].replace(" or ", ", ").replace("'", "")
+        return f"{_show(err['input'])} is not one of {expected}"
+    if kind in ("bool_type", "string_type", "list_type", "dict_type", "tuple_type", "model_type",
+                "model_attributes_type"):
         want = {"bool_type": "true or false", "string_type": "a string", "list_type": "an array",
                 "tuple_type": "an array", "dict_type": "a table", "model_type": "a table",
                 "model_attributes_type": "a table"}[kind]

@@ -6,6 +6,7 @@ whose variables nothing logs and nothing downstream consumes are not loaded at a
 """
 from __future__ import annotations
 
+import difflib
 import hashlib
 import logging
 from dataclasses import dataclass, field
@@ -188,54 +189,62 @@ def check_system(scenario: Scenario) -> System:
             return variables[unit][var]
         except KeyError:
             close = [n for n in variables[unit] if n.split(".")[-1] == var.split(".")[-1]][:3]
+            close = close or difflib.get_close_matches(var, list(variables[unit]), n=3, cutoff=0.75)
             hint = f"; did you mean {', '.join(close)}?" if close else ""
             raise ScenarioError(f"{f}: {where}: unit {unit} ({paths[unit].name}) has no variable {var!r}{hint}") from None
 
-    for u in scenario.units:
+    from .schema import key_path
+
+    for i, u in enumerate(scenario.units):
         for pname, value in u.parameters.items():
-            v = lookup(u.name, pname, f"parameter {u.name}.{pname}")
+            at = f"{key_path(('units', i, 'parameters', pname))}: parameter {u.name}.{pname}"
+            v = lookup(u.name, pname, at)
             if not settable(v):
-                raise ScenarioError(f"{f}: parameter {u.name}.{pname}: variable has causality {v.causality}, "
+                raise ScenarioError(f"{f}: {at}: variable has causality {v.causality}, "
                                     f"not parameter or input, and no initial = exact/approx start value")
             fam = _family_of_value(value)
             if fam != v.family and not (fam == "int" and v.family == "float") and not (
                     fam == "string" and v.family == "binary"):   # a Binary as hex text, as in the XML
-                raise ScenarioError(f"{f}: parameter {u.name}.{pname}: type mismatch, the FMU declares "
+                raise ScenarioError(f"{f}: {at}: type mismatch, the FMU declares "
                                     f"{v.type} but the scenario gives {type(value).__name__} {value!r}")
-    for c in scenario.connections:
-        src = lookup(c.src_unit, c.src_var, f"connection {c}")
-        dst = lookup(c.dst_unit, c.dst_var, f"connection {c}")
+    for i, c in enumerate(scenario.connections):
+        src = lookup(c.src_unit, c.src_var, f"connections[{i}].from: connection {c}")
+        dst = lookup(c.dst_unit, c.dst_var, f"connections[{i}].to: connection {c}")
         if src.causality != "output":
-            raise ScenarioError(f"{f}: connection {c}: source {c.src_unit}.{c.src_var} has causality "
+            raise ScenarioError(f"{f}: connections[{i}]: connection {c}: source {c.src_unit}.{c.src_var} has causality "
                                 f"{src.causality}, expected output")
         if dst.causality != "input":
-            raise ScenarioError(f"{f}: connection {c}: destination {c.dst_unit}.{c.dst_var} has causality "
-                                f"{dst.causality}, expected input")
+            raise ScenarioError(f"{f}: connections[{i}]: connection {c}: destination {c.dst_unit}.{c.dst_var} "
+                                f"has causality {dst.causality}, expected input")
         if src.family != dst.family:
-            raise ScenarioError(f"{f}: connection {c}: type mismatch {src.type} -> {dst.type}")
+            raise ScenarioError(f"{f}: connections[{i}]: connection {c}: type mismatch {src.type} -> {dst.type}")
         if c.scaled and src.family != "float":
-            raise ScenarioError(f"{f}: connection {c}: gain and offset apply to Real variables only, "
+            raise ScenarioError(f"{f}: connections[{i}]: connection {c}: gain and offset apply to Real variables only, "
                                 f"not {src.type}")
-    for s in scenario.inputs:
-        v = lookup(s.unit, s.var, f"input {s.unit}.{s.var}")
+    for i, s in enumerate(scenario.inputs):
+        v = lookup(s.unit, s.var, f"inputs[{i}].target: input {s.unit}.{s.var}")
         if v.causality != "input":
-            raise ScenarioError(f"{f}: input {s.unit}.{s.var}: variable has causality {v.causality}, expected input")
+            raise ScenarioError(f"{f}: inputs[{i}].target: input {s.unit}.{s.var}: variable has causality "
+                                f"{v.causality}, expected input")
         if v.family != "float":
-            raise ScenarioError(f"{f}: input {s.unit}.{s.var}: scenario signals drive Real inputs, this one is {v.type}")
+            raise ScenarioError(f"{f}: inputs[{i}].target: input {s.unit}.{s.var}: scenario signals drive Real inputs, "
+                                f"this one is {v.type}")
         if any((c.dst_unit, c.dst_var) == (s.unit, s.var) for c in scenario.connections):
-            raise ScenarioError(f"{f}: input {s.unit}.{s.var} is also the destination of a connection")
-    for s in scenario.faults:
-        v = lookup(s.unit, s.var, f"fault {s.unit}.{s.var}")
+            raise ScenarioError(f"{f}: inputs[{i}].target: input {s.unit}.{s.var} is also the destination of a "
+                                "connection")
+    for i, s in enumerate(scenario.faults):
+        v = lookup(s.unit, s.var, f"faults[{i}].target: fault {s.unit}.{s.var}")
         if v.causality not in ("input", "parameter"):
-            raise ScenarioError(f"{f}: fault {s.unit}.{s.var}: only inputs can be forced, causality is {v.causality}")
+            raise ScenarioError(f"{f}: faults[{i}].target: fault {s.unit}.{s.var}: only inputs can be forced, "
+                                f"causality is {v.causality}")
     from .values import check_values
 
     check_values(scenario, variables, paths)   # parameter and fault values against the FMI types
 
-    for b in scenario.foxglove:
+    for i, b in enumerate(scenario.foxglove):
         for ref in b.refs():
             unit, var = ref.split(".", 1)
-            lookup(unit, var, f"foxglove body {b.name!r}")
+            lookup(unit, var, f"foxglove.bodies[{i}]: foxglove body {b.name!r}")
 
     # what is logged
     logged: Dict[str, List[str]] = {}

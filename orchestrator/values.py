@@ -91,8 +91,8 @@ def declared_bounds(path: Path, unit: str) -> Dict[str, Bounds]:
         if v.type not in INT_RANGES:
             continue
         declared = getattr(v, "declaredType", None)
-        lo = _int(getattr(v, "min", None)) if getattr(v, "min", None) is not None else _int(getattr(declared, "min", None))
-        hi = _int(getattr(v, "max", None)) if getattr(v, "max", None) is not None else _int(getattr(declared, "max", None))
+        lo, hi = (_int(getattr(v, key, None) if getattr(v, key, None) is not None else getattr(declared, key, None))
+                  for key in ("min", "max"))
         if lo is not None or hi is not None:
             out[v.name] = (lo, hi)
     return out
