@@ -1,4 +1,4 @@
-"""Long stress cases (issue 7, item 3) -> ``results/stress/``.
+"""Long stress cases -> ``results/stress/``.
 
 The fast cases run in ``make test`` (``tests/stress/``); this script runs the long ones:
 
@@ -9,7 +9,14 @@ The fast cases run in ``make test`` (``tests/stress/``); this script runs the lo
   (4 players, latency 2 s, loss 50 %) and their boundedness;
 * **meshes** -- a probe crossing a tank of 10 .. 200k triangles (bipyramid OBJ, box, spheres,
   the thesis's tanks, 100k and 200k tanks);
-* **sigint** -- SIGINT at random instants of ``immersim run`` (including during start-up).
+* **sigint** -- SIGINT at random instants of ``immersim run`` (including during start-up);
+* **signals** -- SIGINT, SIGTERM and SIGHUP, 50 random instants each (start-up included), with
+  the log in the master's process, in a log-writer process, or a unit in a worker process: exit
+  128 + signal, one line, a CRC-checked log holding exactly the completed steps, no leftovers;
+* **segfault** -- a unit that segfaults or aborts at a random time (10 tries): exit 1, one line
+  naming it and the time, a CRC-checked log of exactly the completed steps, no leftovers;
+* **supervision** -- what the supervising parent of ``immersim run`` costs: campus_drive with
+  and without it (``IMMERSIM_SUPERVISE=0``), interleaved, medians of loop and wall time.
 
 Property everywhere: a run completes, or it fails with a clear message naming the unit and
 the time; in both cases the MCAP log holds only finite numbers and one message per completed
@@ -42,6 +49,9 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 import stresslib as sl  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests" / "boundaries"))
+import boundlib as bl  # noqa: E402
 from test_random_scenarios import cue_amplitudes, network_params, platform_params  # noqa: E402
 
 OUT = ROOT / "results" / "stress"
@@ -267,6 +277,129 @@ def sigint_cases(tmp: Path, n: int) -> None:
         record("sigint", f"SIGINT {delay:.2f} s after the FMU build check", case)
 
 
+def _test_unit(name: str, tmp: Path) -> Path:
+    from immersim.orchestrator.build import build_unit
+
+    return build_unit(ROOT / "tests" / "units" / name, tmp / "units")
+
+
+#: the configurations the signal and crash tries rotate through
+CONFIGS = {"log in the master": [], "log-writer process": ["--set", "log.process=true"],
+           "unit in a worker": ["--set", "m2:process=1"]}
+
+
+def signal_cases(tmp: Path, tries: int) -> None:
+    """SIGINT, SIGTERM and SIGHUP at ``tries`` random instants each (0.02 .. 5 s after the
+    command starts: start-up, set-up and the run) of two coupled oscillators (100 s at 1 ms)."""
+    fmu = _test_unit("oscillator", tmp)
+    rng = random.Random(13)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        tally = {"before the log": 0, "mid-run": 0}
+        problems: List[str] = []
+        t0 = time.perf_counter()
+        for i in range(tries):
+            label, extra = list(CONFIGS.items())[i % len(CONFIGS)]
+            run_dir = tmp / f"{sig.name}{i}"
+            run_dir.mkdir()
+            sc = bl.scenario(run_dir, bl.oscillator_units(fmu), stop=100.0, step=0.001)
+            out = run_dir / "run.mcap"
+            since = time.time()
+            delay = rng.uniform(0.02, 5.0)
+            p = bl.start(["run", str(sc), "-o", str(out), "-q", *extra], run_dir)
+            time.sleep(delay)
+            p.send_signal(sig)
+            stdout, stderr = p.communicate(timeout=600)
+            res = bl.Outcome(p.returncode, stdout, stderr)
+            try:
+                line = bl.one_line(res, 128 + sig, rf"interrupted by {sig.name}")
+                if "no log was written" in line or "before the run started" in line:
+                    assert not out.exists(), "a log exists though the line says none was written"
+                    tally["before the log"] += 1
+                else:
+                    bl.assert_log_holds(out, "m1", bl.completed_steps(line), "interrupted")
+                    tally["mid-run"] += 1
+                left = bl.leftovers(run_dir, since)
+                assert not left, f"left behind: {left}"
+            except Exception as exc:  # noqa: BLE001 - every failure is recorded
+                problems.append(f"try {i} ({label}, {delay:.2f} s): {type(exc).__name__}: {exc}; stderr "
+                                f"{res.stderr.strip()[-200:]!r}"[:500])
+
+        def case(tally=tally, problems=problems) -> str:
+            if problems:
+                raise AssertionError("; ".join(problems))
+            return (f"{tries} of {tries} clean: exit 128+{sig.value}, one line, CRC-valid log of exactly the completed "
+                    f"steps, 0 steps lost, 0 leftovers ({tally['mid-run']} mid-run, {tally['before the log']} before "
+                    f"the log was opened)")
+        t1 = time.perf_counter()
+        record("signals", f"{sig.name} at {tries} random instants (0.02 .. 5 s), rotating {', '.join(CONFIGS)}", case)
+        ROWS[-1]["wall_s"] = round(t1 - t0, 1)
+
+
+def segfault_cases(tmp: Path, tries: int) -> None:
+    """A unit that segfaults or aborts at a random time of a 6 s run (33 ms steps)."""
+    fmu = _test_unit("crasher", tmp)
+    rng = random.Random(17)
+    problems: List[str] = []
+    t0 = time.perf_counter()
+    for i in range(tries):
+        how = "segv" if i % 3 else "abort"
+        crash_at = round(rng.uniform(0.05, 5.5), 3)
+        extra = ["--set", "log.process=true"] if i % 2 else []
+        run_dir = tmp / f"crash{i}"
+        run_dir.mkdir()
+        sc = bl.scenario(run_dir, bl.crash_units(fmu, crash_at, how), stop=6.0, step=0.033)
+        out = run_dir / "run.mcap"
+        since = time.time()
+        res = bl.run(["run", str(sc), "-o", str(out), "-q", *extra], run_dir)
+        k = bl.steps_of_crash(crash_at, 0.033)
+        name = "SIGSEGV" if how == "segv" else "SIGABRT"
+        try:
+            bl.one_line(res, 1, rf"failed after {k} of 182 steps: unit boom crashed the process \({name}\) in a step "
+                                rf"at t = {k * 0.033:.9g} s; the log .* holds steps 0\.\.{k}$")
+            bl.assert_log_holds(out, "boom", k, "failed")
+            assert not bl.leftovers(run_dir, since)
+        except Exception as exc:  # noqa: BLE001 - every failure is recorded
+            problems.append(f"try {i} ({how} at {crash_at} s{' log.process' if extra else ''}): {exc}"[:300])
+
+    def case() -> str:
+        if problems:
+            raise AssertionError("; ".join(problems))
+        return (f"{tries} of {tries} clean: exit 1, one line naming the unit and the time, CRC-valid log of exactly "
+                f"the completed steps (in-process log and log-writer process), 0 leftovers")
+    record("segfault", f"crasher unit, {tries} random crash times (segv and abort)", case)
+    ROWS[-1]["wall_s"] = round(time.perf_counter() - t0, 1)
+
+
+def supervision_cases(tmp: Path, pairs: int) -> None:
+    """campus_drive with the supervising parent (A) and without (B, ``IMMERSIM_SUPERVISE=0``),
+    interleaved; also with ``log.process = true`` (the supervised log-writer process gets each
+    step at once instead of batches of 8)."""
+    import os
+    import statistics
+
+    sc = ROOT / "scenarios" / "campus_drive.toml"
+    for label, extra in (("campus_drive", []), ("campus_drive, log.process = true", ["--set", "log.process=true"])):
+        loops: dict = {"A": [], "B": []}
+        walls: dict = {"A": [], "B": []}
+        for i in range(pairs):
+            for arm in ("A", "B") if i % 2 == 0 else ("B", "A"):
+                env = dict(os.environ, IMMERSIM_SUPERVISE="1" if arm == "A" else "0")
+                w0 = time.perf_counter()
+                r = subprocess.run(CLI + ["run", str(sc), "-o", str(tmp / f"ab{arm}.mcap"), "-q", *extra],
+                                   capture_output=True, text=True, env=env)
+                walls[arm].append(time.perf_counter() - w0)
+                assert r.returncode == 0, r.stderr
+                loops[arm].append(float(re.search(r"loop ([0-9.e+-]+) s", r.stdout).group(1)))
+
+        def case(loops=loops, walls=walls) -> str:
+            la, lb = statistics.median(loops["A"]), statistics.median(loops["B"])
+            wa, wb = statistics.median(walls["A"]), statistics.median(walls["B"])
+            return (f"{pairs} pairs interleaved; loop median supervised {la:.3f} s vs unsupervised {lb:.3f} s "
+                    f"(ratio {la / lb:.3f}); wall median {wa:.2f} s vs {wb:.2f} s (ratio {wa / wb:.3f}); loops A "
+                    f"{', '.join(f'{x:.2f}' for x in loops['A'])}; B {', '.join(f'{x:.2f}' for x in loops['B'])}")
+        record("supervision", f"{label}: supervised (A) vs IMMERSIM_SUPERVISE=0 (B)", case)
+
+
 def write_report(quick: bool, cmd: str, groups: List[str]) -> None:
     """Write cases.csv and README.md; rows of groups not run this time are kept from cases.csv."""
     OUT.mkdir(parents=True, exist_ok=True)
@@ -275,7 +408,7 @@ def write_report(quick: bool, cmd: str, groups: List[str]) -> None:
     if (OUT / "cases.csv").exists():
         with open(OUT / "cases.csv", newline="") as fh:
             old = [r for r in csv.DictReader(fh) if r["group"] not in groups]
-    order = ["random", "long", "meshes", "sigint"]
+    order = ["random", "long", "meshes", "sigint", "signals", "segfault", "supervision"]
     ROWS = sorted(old + ROWS, key=lambda r: order.index(r["group"]) if r["group"] in order else 99)
     with open(OUT / "cases.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=["group", "case", "status", "wall_s", "detail"])
@@ -303,10 +436,11 @@ def write_report(quick: bool, cmd: str, groups: List[str]) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer examples, 100 s long runs, meshes up to 26.4k")
-    ap.add_argument("--only", nargs="*", default=None, help="groups: random long meshes sigint")
+    ap.add_argument("--only", nargs="*", default=None,
+                    help="groups: random long meshes sigint signals segfault supervision")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.CRITICAL)
-    groups = args.only or ["random", "long", "meshes", "sigint"]
+    groups = args.only or ["random", "long", "meshes", "sigint", "signals", "segfault", "supervision"]
     with tempfile.TemporaryDirectory(prefix="bench_stress_") as d:
         tmp = Path(d)
         if "random" in groups:
@@ -317,6 +451,12 @@ def main(argv=None) -> int:
             mesh_cases(tmp, args.quick)
         if "sigint" in groups:
             sigint_cases(tmp, n=2 if args.quick else 5)
+        if "signals" in groups:
+            signal_cases(tmp, tries=5 if args.quick else 50)
+        if "segfault" in groups:
+            segfault_cases(tmp, tries=10)
+        if "supervision" in groups:
+            supervision_cases(tmp, pairs=3 if args.quick else 5)
     cmd = "python benchmarks/bench_stress.py" + (" --quick" if args.quick else "") + \
           (f" --only {' '.join(args.only)}" if args.only else "")
     write_report(args.quick, cmd, groups)

@@ -171,6 +171,9 @@ class DeferredSigint:
             for name in STOP_SIGNALS:
                 sig = getattr(signal, name)
                 self._old[sig] = signal.signal(sig, self._handle)
+                outer = getattr(self._old[sig], "__self__", None)
+                if isinstance(outer, DeferredSigint) and outer.requested and not self.requested:
+                    self.requested, self.signum = True, outer.signum   # came before: acted on here
         return self
 
     def _handle(self, signum, frame) -> None:
