@@ -545,6 +545,26 @@ def test_bad_sweep_file(sweep_dir, make, pattern, capsys, caplog):
     _assert_one_line(rc, lines, pattern)
 
 
+@pytest.mark.parametrize("workers", ["0", "-2"])
+def test_bad_worker_count(sweep_dir, workers, capsys, caplog):
+    path = sweep_dir / "sweep.toml"
+    path.write_text(dump_toml(sweep_data()))
+    rc, lines = _run(["sweep", path, "-o", sweep_dir / "out", "-q", "-j", workers], capsys, caplog)
+    _assert_one_line(rc, lines, rf"--workers must be >= 1, got {workers}")
+
+
+def test_unreadable_scenario_file(tmp_path, good, monkeypatch, capsys, caplog):
+    """(Permissions do not stop root, so the read itself is made to fail.)"""
+    path = tmp_path / "locked.toml"
+    path.write_text(dump_toml(good))
+
+    def refuse(self):
+        raise PermissionError(13, "Permission denied", str(self))
+    monkeypatch.setattr(Path, "read_bytes", refuse)
+    rc, lines = _run(["run", path, "-q"], capsys, caplog)
+    _assert_one_line(rc, lines, r"locked\.toml: cannot read the scenario file: Permission denied")
+
+
 @pytest.mark.parametrize("address", ["not a url", "tcp://host", "http://host:8786", "host:port", "tcp://:8786"])
 def test_bad_scheduler_address(sweep_dir, address, capsys, caplog):
     path = sweep_dir / "sweep.toml"
@@ -555,7 +575,7 @@ def test_bad_scheduler_address(sweep_dir, address, capsys, caplog):
 
 def test_corpus_size():
     """The issue asks for at least 250 bad scenario, sweep and --set cases here."""
-    n = (len(SCENARIO_CASES) + len(SET_CASES) + len(FILE_CASES) + len(SWEEP_CASES) + len(SWEEP_FILE_CASES) + 5
+    n = (len(SCENARIO_CASES) + len(SET_CASES) + len(FILE_CASES) + len(SWEEP_CASES) + len(SWEEP_FILE_CASES) + 5 + 2 + 1
          + len(FEEDTHROUGH_CASES))
     assert n >= 250, n
     assert len({c[0] for c in SCENARIO_CASES}) == len(SCENARIO_CASES)
