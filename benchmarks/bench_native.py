@@ -72,8 +72,71 @@ def fmpy_steps(path: Path, U: np.ndarray):
     return whole, step, np.array(out, float)
 
 
+TIMER_C = r"""
+#include <dlfcn.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include "fmi2Functions.h"
+static void logger(fmi2ComponentEnvironment e, fmi2String n, fmi2Status s, fmi2String c, fmi2String m, ...) {}
+static int cmp(const void* a, const void* b) { double x = *(const double*) a, y = *(const double*) b; return (x > y) - (x < y); }
+int main(int argc, char** argv) {  /* library, GUID, inputs file, 19 input vrs, k_t vr, k_r vr; prints the median */
+  fmi2CallbackFunctions cb = {logger, calloc, free, NULL, NULL};
+  void* lib = dlopen(argv[1], RTLD_NOW);
+  fmi2InstantiateTYPE* inst = (fmi2InstantiateTYPE*) dlsym(lib, "fmi2Instantiate");
+  fmi2SetupExperimentTYPE* setup = (fmi2SetupExperimentTYPE*) dlsym(lib, "fmi2SetupExperiment");
+  fmi2EnterInitializationModeTYPE* enter = (fmi2EnterInitializationModeTYPE*) dlsym(lib, "fmi2EnterInitializationMode");
+  fmi2ExitInitializationModeTYPE* leave = (fmi2ExitInitializationModeTYPE*) dlsym(lib, "fmi2ExitInitializationMode");
+  fmi2SetRealTYPE* set = (fmi2SetRealTYPE*) dlsym(lib, "fmi2SetReal");
+  fmi2DoStepTYPE* step = (fmi2DoStepTYPE*) dlsym(lib, "fmi2DoStep");
+  fmi2ValueReference in[19], par[2];
+  double u[19], gains[2] = {0.2, 0.2}, t = 0.0, *dt = malloc(sizeof(double) * 100000);
+  int k, n = 0;
+  struct timespec a, b;
+  FILE* f = fopen(argv[3], "r");
+  fmi2Component c = inst("timer", fmi2CoSimulation, argv[2], "", &cb, fmi2False, fmi2False);
+  for (k = 0; k < 19; ++k) in[k] = (fmi2ValueReference) atoi(argv[4 + k]);
+  par[0] = (fmi2ValueReference) atoi(argv[23]); par[1] = (fmi2ValueReference) atoi(argv[24]);
+  setup(c, fmi2False, 0, 0.0, fmi2False, 0); set(c, par, 2, gains); enter(c); leave(c);
+  while (fscanf(f, "%lf", &u[0]) == 1) {
+    for (k = 1; k < 19; ++k) if (fscanf(f, "%lf", &u[k]) != 1) return 4;
+    set(c, in, 19, u);
+    clock_gettime(CLOCK_MONOTONIC, &a);
+    if (step(c, t, 0.033, fmi2True)) return 5;
+    clock_gettime(CLOCK_MONOTONIC, &b);
+    dt[n++] = (b.tv_sec - a.tv_sec) * 1e6 + (b.tv_nsec - a.tv_nsec) * 1e-3;
+    t += 0.033;
+  }
+  qsort(dt, n, sizeof(double), cmp);
+  printf("%.3f\n", dt[n / 2]);
+  return 0;
+}
+"""
+
+
+def c_host_timer(path: Path, U: np.ndarray, tmp: Path):
+    """A callable giving the median fmi2DoStep time (us) of the native FMU stepped over ``U`` by a C
+    program (no Python in the process), compiled once into ``tmp``."""
+    import subprocess
+
+    from fmpy import extract, read_model_description
+
+    from immersim.orchestrator.native_build import fmi_headers
+
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    folder = Path(extract(str(path), unzipdir=str(tmp / "fmu")))
+    (tmp / "timer.c").write_text(TIMER_C)
+    subprocess.run(["gcc", "-O2", f"-I{fmi_headers()}", str(tmp / "timer.c"), "-o", str(tmp / "timer"), "-ldl"],
+                   check=True)
+    np.savetxt(tmp / "inputs.txt", U, fmt="%.17g")
+    args = [str(tmp / "timer"), str(folder / "binaries" / "linux64" / "platform_native.so"), md.guid,
+            str(tmp / "inputs.txt")] + [str(vr[n]) for n in PACKED_INPUTS] + [str(vr[n]) for n in CAMPUS_PARAMS]
+    return lambda: float(subprocess.run(args, capture_output=True, text=True, check=True).stdout)
+
+
 def run(scenario_text: str, folder: Path, name: str):
-    """Run a scenario text; returns (loop s, platform unit s, steps) from the run's timing."""
+    """Run a scenario text in this process; returns (loop s, platform unit s, steps) from the run's timing."""
     from immersim.orchestrator.execution import run_scenario
 
     src = folder / f"{name}.toml"
@@ -81,6 +144,21 @@ def run(scenario_text: str, folder: Path, name: str):
     res = run_scenario(src, folder / f"{name}.mcap")
     unit = sum(v for k, v in res.timing.items() if k.startswith("unit:") and "plat" in k)
     return res.timing.get("loop", float("nan")), unit, res.steps_done
+
+
+def campus_cli(src: Path, out: Path):
+    """(wall s, loop s, platform unit s, steps) of ``immersim run`` in a fresh process, from its summary line."""
+    import re
+    import subprocess
+
+    t0 = time.perf_counter()
+    proc = subprocess.run([str(Path(sys.executable).with_name("immersim")), "run", str(src), "-o", str(out), "-q"],
+                          capture_output=True, text=True, check=True, cwd=ROOT)
+    wall = time.perf_counter() - t0
+    steps = int(re.search(r": (\d+) steps to", proc.stdout).group(1))
+    loop = float(re.search(r"loop ([\d.e+-]+) s", proc.stdout).group(1))
+    plat = float(re.search(r"plat ([\d.e+-]+) s", proc.stdout).group(1))
+    return wall, loop, plat, steps
 
 
 def record_inputs(mcap: Path) -> None:
@@ -105,13 +183,17 @@ def main() -> None:
     rounds = 2 if args.quick else 5
     whole = {b: [] for b in fmus}
     step = {b: [] for b in fmus}
-    outs = {}
-    for _ in range(rounds):  # alternate the builds: both see the same machine load
-        for b, path in fmus.items():
-            w, s, outs[b] = fmpy_steps(path, U)
-            whole[b] += w
-            step[b] += s
+    outs, host = {}, []
+    with tempfile.TemporaryDirectory(prefix="bench_native_host_") as tmp:
+        timer = c_host_timer(fmus["native"], U, Path(tmp))
+        for _ in range(rounds):  # alternate the builds: both see the same machine load
+            for b, path in fmus.items():
+                w, s, outs[b] = fmpy_steps(path, U)
+                whole[b] += w
+                step[b] += s
+            host.append(timer())
     equal = bool(np.array_equal(outs["native"], outs["python"]))
+    host_us = statistics.median(host)
     med = {b: (statistics.median(whole[b]) * 1e6, statistics.median(step[b]) * 1e6) for b in fmus}
 
     rows_orch, rows_campus = [], []
@@ -125,10 +207,9 @@ def main() -> None:
         if not args.quick or args.record:
             campus = (ROOT / "scenarios" / "campus_drive.toml").read_text()
             for b, fmu in (("python", "platform"), ("native", "platform-native")):
-                text = campus.replace('fmu = "platform"', f'fmu = "{fmu}"')
-                t0 = time.perf_counter()
-                loop, unit, n = run(text, tmp, f"campus_{b}")
-                rows_campus.append((b, time.perf_counter() - t0, loop, unit, n))
+                src = tmp / f"campus_{b}.toml"
+                src.write_text(campus.replace('fmu = "platform"', f'fmu = "{fmu}"'))
+                rows_campus.append((b, *campus_cli(src, tmp / f"campus_{b}.mcap")))
                 if b == "python" and args.record:
                     record_inputs(tmp / f"campus_{b}.mcap")
 
@@ -145,6 +226,10 @@ def main() -> None:
          "|---|---|---|"]
     L += [f"| {b} | {med[b][0]:.1f} | {med[b][1]:.1f} |" for b in fmus]
     L += [f"| ratio python / native | {ratio_whole:.2f}x | {ratio_step:.2f}x |", "",
+          f"The native fmi2DoStep called from a C program (no Python in the process, same inputs, run in each "
+          f"round): "
+          f"**{host_us:.1f} us** median; the Python build's fmi2DoStep under FMPy is {med['python'][1] / host_us:.1f}x "
+          "that.", "",
           "## Under the immersim orchestrator (demo scenario, 243 steps, platform only)", "",
           "| build | loop per step, us | platform unit per step, us |", "|---|---|---|"]
     L += [f"| {b} | {orch(b, 1):.1f} | {orch(b, 2):.1f} |" for b in fmus]
@@ -152,6 +237,7 @@ def main() -> None:
           f"{orch('python', 2) / orch('native', 2):.2f}x |", ""]
     if rows_campus:
         L += ["## campus_drive (20 s, 607 steps; network in a worker process, collision, platform)", "",
+              "`immersim run` in a fresh process per build.", "",
               "| build | run wall time, s | loop, s | platform unit, s | platform per step, us |", "|---|---|---|---|---|"]
         L += [f"| {b} | {wall:.2f} | {loop:.2f} | {unit:.3f} | {unit / n * 1e6:.1f} |" for b, wall, loop, unit, n in rows_campus]
         L.append("")
