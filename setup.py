@@ -14,7 +14,7 @@ from setuptools import setup
 
 TOP = ("models", "orchestrator", "fmus", "scenarios")
 HERE = Path(__file__).parent
-DATA = ["*.md", "*.json", "*.csv", "*.toml", "*.txt"]
+DATA = ["*.md", "*.json", "*.csv", "*.toml", "*.txt", "*.c", "*.h"]
 
 packages = ["immersim"]
 for top in TOP:
