@@ -401,6 +401,8 @@ class MetricTable(Table):
 
 
 class PlotTable(Table):
+    """``[plot]``: one comparison figure, a subplot per ``y`` column against ``x``."""
+
     x: Union[str, List[str]]
     y: Union[str, List[str]]
     hue: Optional[Union[str, List[str]]] = None
@@ -434,6 +436,9 @@ PlotEntry = Annotated[Union[Annotated[PlotTable, Tag("<table>")], Annotated[List
 
 
 class SweepFile(Table):
+    """A whole sweep file (orchestrator/sweep/spec.py checks what needs the scenario: the override
+    keys against its units, the plot columns against the grid and the metrics)."""
+
     scenario: Text = Field(description="scenario file, relative to the sweep file")
     grid: Dict[str, Annotated[List[Scalar], Field(min_length=1)]] = Field(default_factory=dict)
     variants: List[VariantTable] = Field(default_factory=list)
