@@ -6,6 +6,7 @@ binary runs in FMPy, OSP libcosim and a C host process that has no libpython.
 """
 from __future__ import annotations
 
+import functools
 import re
 import subprocess
 import xml.etree.ElementTree as ET
@@ -37,6 +38,12 @@ def fmus():
     return {"python": build_unit(ROOT / "fmus" / "platform", dest), "native": build_native(dest)}
 
 
+@functools.lru_cache(maxsize=None)
+def _extracted(path: Path) -> str:
+    """One extraction per FMU file for the whole module (instances share it, as in one master)."""
+    return extract(str(path))
+
+
 class Runner:
     """One FMU instance stepped with FMPy, its logged messages kept."""
 
@@ -51,7 +58,7 @@ class Runner:
         cb.logger = fmi2CallbackLoggerTYPE(lambda env, inst, status, cat, msg: self.messages.append(msg.decode()))
         cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
+        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=_extracted(path),
                              modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
         self.fmu.instantiate(callbacks=cb, loggingOn=True)
         self.fmu.setupExperiment(startTime=0.0)
@@ -407,3 +414,45 @@ def test_build_command_builds_the_native_unit(fmus, capsys):
     assert main(["build", "network", "--native"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("immersim: error: unknown unit 'network-native'") and "platform-native" in err
+
+
+def _native_outcome(path: Path, name: str, value: float):
+    """None when the native FMU's initialization accepts ``name = value``, else its ValueError's text."""
+    r = Runner(path, None)
+    r.set({name: value})
+    r.fmu.enterInitializationMode()
+    try:
+        r.fmu.exitInitializationMode()
+        return None
+    except FMICallException:
+        return " ".join(r.messages).removeprefix("ValueError: ")
+    finally:
+        r.fmu.freeInstance()
+
+
+def _python_outcome(name: str, value: float):
+    """The same for the Python build's wrapper (its configuration step, in this process: pythonfmu's
+    binary does not survive many failed initializations in one process)."""
+    from tests.fmpy_runner import wrapper_class
+
+    slave = wrapper_class(ROOT / "fmus" / "platform")(instance_name="p1", resources=str(ROOT))
+    slave.values[name] = value
+    try:
+        slave._config()
+        return None
+    except ValueError as exc:
+        return str(exc)
+
+
+def test_every_real_parameter_is_checked_as_the_python_build_checks_it(fmus):
+    """Each Real parameter set to -1 (then 0): accepted or refused with the same message by both builds
+    (the native parameter checks are a copy of the dataclasses' and must not drift)."""
+    md = read_model_description(str(fmus["native"]))
+    names = [v.name for v in md.modelVariables if v.causality == "parameter" and v.type == "Real"]
+    refused = 0
+    for name in names:
+        for value in (-1.0, 0.0):
+            native = _native_outcome(fmus["native"], name, value)
+            assert native == _python_outcome(name, value), (name, value)
+            refused += native is not None
+    assert refused >= 20  # the > 0 checks of geometry, mass and washout, payload_mass, stroke limits, tolerances
