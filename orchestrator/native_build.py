@@ -3,8 +3,8 @@
 The platform's whole macro step is CasADi-generated C (:mod:`immersim.models.platform.macrostep`).
 This build compiles that same C (one translation unit per controller, generated exactly as the
 Python build generates it at run time), the C port of the washout matrices
-(``fmus/platform/native/washout.c``) and the small FMI 2.0 layer
-(``fmus/platform/native/fmi2_platform.c``) into ``binaries/linux64/platform_native.so`` with the
+(``fmus/platform/native/washout.c``), the model step (``platform_model.c``) and the small FMI 2.0
+layer (``fmi2_platform.c``) into ``binaries/linux64/platform_native.so`` with the
 system C compiler, and ships every C source under ``sources/`` (``<SourceFiles>`` in the model
 description) so it compiles elsewhere.
 
