@@ -34,9 +34,8 @@ def test_crash_ends_with_one_line_and_complete_log(test_fmus, tmp_path, how, cra
     assert bl.leftovers(tmp_path, since) == []
 
 
-def test_crash_while_loading_is_named(test_fmus, tmp_path):
-    """A crash before the first step (here: at initialization, t = 0 ends the first step) names
-    the unit; no log was opened."""
+def test_crash_in_the_first_step(test_fmus, tmp_path):
+    """A crash in the first step: the log holds the initial values (step 0) only."""
     sc = bl.scenario(tmp_path, bl.crash_units(test_fmus["crasher"], 0.0), stop=1.0)
     out = tmp_path / "run.mcap"
     res = bl.run(["run", str(sc), "-o", str(out), "-q"], tmp_path)

@@ -42,7 +42,7 @@ def test_run_output_failure(test_fmus, tmp_path, capsys, target, process, patter
 def test_file_size_limit(test_fmus, tmp_path):
     """``ulimit -f``: EFBIG while the log grows (a worker's shared memory falls back to the
     socket); one line naming the log and the time; the log keeps its complete chunks."""
-    sc = _osc(tmp_path, test_fmus["oscillator"], stop=40.0)
+    sc = _osc(tmp_path, test_fmus["oscillator"], stop=30.0)
     out = tmp_path / "big.mcap"
     cap = 400 * 1024   # above the FMU's largest member, below a worker's 512 KiB shared memory
 
@@ -50,7 +50,7 @@ def test_file_size_limit(test_fmus, tmp_path):
         resource.setrlimit(resource.RLIMIT_FSIZE, (cap, cap))
 
     res = bl.run(["run", str(sc), "-o", str(out), "-q", "--set", "m2:process=1"], tmp_path, preexec_fn=limit)
-    bl.one_line(res, 1, r"failed at t = .* after \d+ of 4000 steps: cannot write the log .*big\.mcap at t = .*: "
+    bl.one_line(res, 1, r"failed at t = .* after \d+ of 3000 steps: cannot write the log .*big\.mcap at t = .*: "
                         r"File too large; the log .* keeps what the disk accepted$")
     assert out.stat().st_size <= cap
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from immersim.orchestrator.errors import ScenarioError
-from immersim.orchestrator.execution import RunFailed, run_scenario
+from immersim.orchestrator.execution import run_scenario
 from immersim.orchestrator.scenario import load_scenario
 
 from .helpers import oscillator_scenario
@@ -80,9 +80,11 @@ from = "m2.x"
 to = "plat.cue.f_y"
 delayed = true
 ''')
-    with pytest.raises(RunFailed, match=r"mixed.toml: connection m2.x -> plat.cue.f_y is delayed but plat also reads "
-                                        r"m1.x -> plat.cue.f_x in the same step"):
+    # refused at load (exit 2), before any step and before the log is opened
+    with pytest.raises(ScenarioError, match=r"mixed.toml: connection m2.x -> plat.cue.f_y is delayed but plat also "
+                                            r"reads m1.x -> plat.cue.f_x in the same step"):
         run_scenario(p, tmp_path / "mixed.mcap")
+    assert not (tmp_path / "mixed.mcap").exists()
 
 
 def test_delayed_must_be_a_boolean(tmp_path, test_fmus):
