@@ -27,6 +27,8 @@ INT_RANGES: Dict[str, Tuple[int, int]] = {
     "Int64": (-2 ** 63, 2 ** 63 - 1), "UInt64": (0, 2 ** 64 - 1),
 }
 REAL_TYPES = ("Real", "Float64", "Float32")
+#: the largest finite Float32 (a larger value would become inf)
+FLOAT32_MAX = 3.4028234663852886e38
 Bounds = Tuple[Optional[int], Optional[int]]
 
 
@@ -58,6 +60,8 @@ def check_value(value: Any, fmi_type: str, bounds: Bounds = (None, None), non_fi
             return f"{_show(value)} is too large for {fmi_type}"
         if not non_finite and not math.isfinite(number):
             return f"{fmi_type} value must be finite, got {_show(value)}"
+        if fmi_type == "Float32" and math.isfinite(number) and abs(number) > FLOAT32_MAX:
+            return f"{_show(value)} is outside the Float32 range +-{FLOAT32_MAX:.8g}"
         return None
     if fmi_type == "Boolean":
         return None if isinstance(value, bool) else f"Boolean takes true or false, got {_show(value)}"

@@ -603,6 +603,8 @@ FEEDTHROUGH_CASES = [
     ("fmi3.fault.Boolean_nan", "fmi3", {}, [("Boolean_input", NAN)], r"faults\[0\]\.value: ft\.Boolean_input: Boolean takes true or false, got nan"),
     ("fmi3.fault.String_number", "fmi3", {}, [("String_input", 5)], r"faults\[0\]\.value: ft\.String_input: String takes a string, got 5"),
     ("fmi3.fault.Float32_string", "fmi3", {}, [("Float32_continuous_input", "x")], r"ft\.Float32_continuous_input: Float32 takes a number, got 'x'"),
+    ("fmi3.start.Float32_huge", "fmi3", {"Float32_continuous_input": 1e39}, [],
+     r"ft\.Float32_continuous_input: 1e\+39 is outside the Float32 range \+-3\.4028235e\+38"),
     ("fmi3.fault.fixed_parameter", "fmi3", {}, [("Float64_fixed_parameter", 2.0)],
      r"faults\[0\]\.target: ft\.Float64_fixed_parameter is a fixed parameter"),
     ("fmi3.fault.tunable_nan", "fmi3", {}, [("Float64_tunable_parameter", NAN)],
