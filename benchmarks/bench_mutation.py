@@ -68,13 +68,17 @@ def merged(new_rows, mutants):
     return out
 
 
-def write(rows, command: str, wall: float) -> None:
+def write(rows, command: str, wall: float, equivalent=None) -> None:
+    """``results/mutation/README.md`` and ``mutants.csv`` from ``rows``; ``equivalent`` maps the
+    ids of mutants analysed as changing no output to the reason (scored both ways)."""
+    equivalent = equivalent or {}
     OUT.mkdir(parents=True, exist_ok=True)
     with open(OUT / "mutants.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, FIELDS)
         w.writeheader()
         w.writerows(rows)
     dead, n, s, c = score(rows)
+    eq = [r for r in rows if r["status"] == "survived" and r["id"] in equivalent]
     per = defaultdict(Counter)
     for r in rows:
         per[module_of(r["file"])][r["status"]] += 1
@@ -84,7 +88,8 @@ def write(rows, command: str, wall: float) -> None:
              f"Command: `{command}` (part of `make bench`)  ",
              f"Commit of the tree under test: {', '.join(f'`{k}` ({v} mutants)' for k, v in commits.items())}  ",
              f"Machine: {machine()}  ",
-             f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; wall time of the last invocation {wall / 60:.0f} min",
+             f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; wall time of the last invocation {wall / 60:.0f} min, "
+             f"test time of all mutants {sum(float(r['seconds']) for r in rows) / 60:.0f} min",
              "",
              "Each declared mutant (`benchmarks/mutation/mutants.toml`: file, original line, replacement, why)",
              "is applied to a private copy of the committed tree and its declared test files run with",
@@ -95,6 +100,9 @@ def write(rows, command: str, wall: float) -> None:
              f"| mutation score >= {TARGET_SCORE:.0%} | {s:.1%} ({dead} of {n} killed) | "
              f"{'met' if s >= TARGET_SCORE else 'NOT met'} |",
              f"| >= {TARGET_COUNT} scored mutants | {n} | {'met' if n >= TARGET_COUNT else 'NOT met'} |",
+             *([f"| (the same without the {len(eq)} survivors analysed as equivalent, below) | "
+                f"{dead / (n - len(eq)):.1%} ({dead} of {n - len(eq)}) | "
+                f"{'met' if dead / (n - len(eq)) >= TARGET_SCORE else 'NOT met'} |"] if eq else []),
              f"| every module of models/ and orchestrator/ mutated | {len(modules)} modules | see below |", "",
              "Outcomes: " + ", ".join(f"{k} {c[k]}" for k in ("killed", "timeout", "error", "survived", "invalid", "stale")
                                      if c[k]), "",
@@ -110,8 +118,9 @@ def write(rows, command: str, wall: float) -> None:
     else:
         lines += ["| id | file | status | change | why | detail |", "|---|---|---|---|---|---|"]
         for r in rest:
+            detail = r["detail"] or (f"equivalent: {equivalent[r['id']]}" if r["id"] in equivalent else "")
             lines.append(f"| {r['id']} | `{r['file']}` | {r['status']} | `{r['original']}` -> `{r['replacement']}` | "
-                         f"{r['why']} | {r['detail'].replace('|', '/')} |")
+                         f"{r['why']} | {detail.replace('|', '/')} |")
     lines += ["", "Per-mutant outcomes: `mutants.csv` (id, file, status, seconds, first failing test, commit, change, why)."]
     (OUT / "README.md").write_text("\n".join(lines) + "\n")
 
@@ -158,7 +167,7 @@ def main(argv=None) -> int:
             print(f"{o.mutant.id}: {o.status} by {o.mutant.named}")
     if not args.no_write and not args.tests and not args.named:
         cmd = "python benchmarks/bench_mutation.py" + (" --quick" if args.quick else "")
-        write(merged(rows, declared), cmd, wall)
+        write(merged(rows, declared), cmd, wall, {m.id: m.equivalent for m in declared if m.equivalent})
         print(f"wrote {OUT / 'README.md'}")
     return 0
 

@@ -35,3 +35,21 @@ def test_face_shift_terms_are_the_translation_and_frobenius_rotation_change():
         v *= 0.7 / np.linalg.norm(v, axis=1)[:, None]
         moved = np.linalg.norm(v @ T1[:3, :3].T + T1[:3, 3] - v @ T0[:3, :3].T - T0[:3, 3], axis=1)
         assert moved.max() <= t + f * 0.7 + 1e-12
+
+
+@pytest.mark.parametrize("n_rays", [1, 3])
+def test_rays_through_a_posed_cube_hit_its_faces_where_the_pose_puts_them(n_rays):
+    """Rays along +x through a unit cube at x = 2 (rotated 90 deg about z: the same faces) enter
+    at x = 1.5 and leave at x = 2.5, in world coordinates; a ray that misses gives no hit."""
+    import trimesh
+
+    from immersim.models.collision.raycast import cast_rays
+
+    T = pose_matrix([2.0, 0.0, 0.0, 0.0, 0.0, np.pi / 2])
+    origins = np.array([[-3.0, 0.1 * k, 0.2] for k in range(n_rays)] + [[-3.0, 5.0, 0.0]])
+    loc, idx = cast_rays(trimesh.creation.box((1, 1, 1)), T, origins, np.tile([1.0, 0.0, 0.0], (len(origins), 1)))
+    assert sorted(set(idx.tolist())) == list(range(n_rays))
+    for k in range(n_rays):
+        xs = np.sort(loc[idx == k, 0])
+        np.testing.assert_allclose(xs, [1.5, 2.5], atol=1e-12)
+        np.testing.assert_allclose(loc[idx == k, 1:], [[0.1 * k, 0.2]] * 2, atol=1e-12)
