@@ -8,7 +8,7 @@ Usage: ``python benchmarks/bench_mutation.py [--quick] [--named] [--only ID ...]
 [--prefix PATH] [--timeout S] [--no-write]``. A run of some mutants (``--only``, ``--prefix``,
 ``--quick``) replaces their rows in the last results and keeps the others, each row naming the
 commit it was measured on. ``--named`` checks that each mutant of the first block fails the
-test named for it, alone. ``--quick`` runs the mutants of the first block (the changes the
+test named for it, alone (``results/mutation/named.md``). ``--quick`` runs the mutants of the first block (the changes the
 suite once missed) only; ``--tests`` replaces every mutant's test files (to check that one
 test file alone kills a mutant).
 """
@@ -132,7 +132,7 @@ def main(argv=None) -> int:
     ap.add_argument("--prefix", default=None, help="only mutants of files under this path (results merged)")
     ap.add_argument("--tests", nargs="*", default=None, help="test files replacing each mutant's own")
     ap.add_argument("--named", action="store_true",
-                    help="each mutant of the first block against its named test alone (nothing written)")
+                    help="each mutant of the first block against its named test alone (results/mutation/named.md)")
     ap.add_argument("--timeout", type=float, default=240.0, help="seconds per mutant's test run")
     ap.add_argument("--list", type=Path, default=HERE / "mutation" / "mutants.toml")
     ap.add_argument("--no-write", action="store_true", help="print the outcomes, write nothing to results/")
@@ -163,8 +163,20 @@ def main(argv=None) -> int:
     dead, n, s, c = score(rows)
     print(f"mutation score {s:.1%}: {dead} of {n} killed; {dict(c)}; {wall / 60:.1f} min")
     if args.named:
+        lines = ["# Each once-missed change against the test named for it", "",
+                 f"Command: `python benchmarks/bench_mutation.py --named`  ", f"Commit: `{rev}`  ",
+                 f"Machine: {machine()}  ", f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}", "",
+                 "Each mutant of the first block of `benchmarks/mutation/mutants.toml` applied alone, with only",
+                 "its named test run (`pytest -x`): killed means that test alone fails on the change.", "",
+                 "| mutant | change | named test | outcome | first failing case |", "|---|---|---|---|---|"]
         for o in outcomes:
-            print(f"{o.mutant.id}: {o.status} by {o.mutant.named}")
+            m = o.mutant
+            print(f"{m.id}: {o.status} by {m.named}")
+            lines.append(f"| {m.id} | {m.why} | `{m.named.replace('tests/', '')}` | {o.status} | "
+                         f"`{o.detail.split('::')[-1]}` |")
+        if not args.no_write:
+            OUT.mkdir(parents=True, exist_ok=True)
+            (OUT / "named.md").write_text("\n".join(lines) + "\n")
     if not args.no_write and not args.tests and not args.named:
         cmd = "python benchmarks/bench_mutation.py" + (" --quick" if args.quick else "")
         write(merged(rows, declared), cmd, wall, {m.id: m.equivalent for m in declared if m.equivalent})
