@@ -258,7 +258,8 @@ def load_ssp(path: Path | str, overrides: Optional[Dict[str, Any]] = None):
 def _merge_scenario(data: Dict[str, Any], el: ET.Element, folder: Path, where: str) -> str:
     """Add what the SSD cannot say from the scenario file an immersim export carries: the
     simulation settings other than start/stop/step, each connection's extrapolation and delay,
-    each unit's worker process, the inputs, faults, log selection and 3D view. The signal-source
+    each unit's worker process, and every other table (inputs, faults, log selection, 3D view,
+    live inputs, ...). The signal-source
     component and its connections are dropped: immersim applies the inputs itself."""
     try:
         text = (folder / el.get("source", "")).read_text()
@@ -284,7 +285,7 @@ def _merge_scenario(data: Dict[str, Any], el: ET.Element, folder: Path, where: s
         c.update(extras.get(c["to"], {}))
         if c["gain"] == 1.0 and c["offset"] == 0.0:
             del c["gain"], c["offset"]
-    for key in ("inputs", "faults", "log", "foxglove", "description", "title"):
-        if key in emb:
-            data[key] = emb[key]
+    for key, value in emb.items():   # inputs, faults, log, foxglove, live inputs, ...
+        if key not in ("simulation", "units", "connections"):
+            data[key] = value
     return text
