@@ -158,6 +158,27 @@ def wait_for_workers(client, n: int, proc_checks: Sequence[IsolatedWorker], time
         time.sleep(0.2)
 
 
+#: the records that carry a log's content; chunks, message indexes, statistics and summary
+#: offsets only say where they lie (MCAP spec), and the writer cuts chunks on wall-clock time
+#: (observers.McapObserver: flushed every second), so two runs of one scenario differ there,
+#: and in where a metadata record written between two chunks falls among the messages
+CONTENT_RECORDS = ("Header", "Schema", "Channel", "Message", "Metadata", "Attachment")
+
+
+def log_records(path: Path) -> Tuple[List[tuple], List[tuple]]:
+    """The content of an MCAP file: its non-message content records in file order (header,
+    schemas, channels, metadata, attachments) and its messages in file order, each as (record
+    type, its fields): channel, sequence, log and publish time, data bytes."""
+    from dataclasses import astuple
+
+    from mcap.stream_reader import StreamReader
+
+    with open(path, "rb") as fh:
+        recs = [(type(r).__name__, astuple(r)) for r in StreamReader(fh, emit_chunks=False).records
+                if type(r).__name__ in CONTENT_RECORDS]
+    return [r for r in recs if r[0] != "Message"], [r for r in recs if r[0] == "Message"]
+
+
 def scratch_dir(prefix: str) -> Path:
     """A fresh folder outside the checkout and outside the temporary folder (the isolated
     workers hide both), removed by :func:`remove`."""
