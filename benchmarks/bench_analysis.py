@@ -107,7 +107,10 @@ def main(argv=None) -> int:
     from immersim.orchestrator.analysis.report import write_report
     from tests.browser import open_page
 
+    import os
+
     OUT.mkdir(parents=True, exist_ok=True)
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="bench_analysis_") as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
@@ -122,6 +125,7 @@ def main(argv=None) -> int:
                           screenshot=shot)
         pages = page_times(report, tmp, repeats)
         reads = read_times(sweep / "000_fcl.mcap", repeats)
+    load_after = os.getloadavg()[0]
     render = median(pages["report"])
     cold = median(reads["times"]["read_log in a fresh interpreter (imports included)"])
     warm = median(reads["times"]["read_log (warm)"])
@@ -131,7 +135,8 @@ def main(argv=None) -> int:
                    + (f" --repeats {args.repeats}" if args.repeats else "")), "",
              f"Sweep: `scenarios/sweeps/campus_backends.toml` (fcl, basis_point, honeycomb), campus_drive to {stop}, "
              f"`-j 2`, {sweep_s:.0f} s wall. Timings are medians of {repeats} interleaved repeats on a machine "
-             "shared with other jobs: compare within the table.", "",
+             f"shared with other jobs (1-minute load average {load_before:.1f} at the start, {load_after:.1f} at "
+             "the end, on 2 cores): compare within the tables.", "",
              "| target | measured | met |", "|---|---|---|",
              f"| report of a 3-run sweep < 5 MB | {size / 1e6:.2f} MB ({size} bytes) | {'met' if size < 5e6 else 'NOT met'} |",
              f"| renders in headless Chromium < 5 s | {render:.2f} s (navigation until all {check.values['plots'] // 3 if check.values.get('plots') else '?'} plots are drawn; min {min(pages['report']):.2f} s) "

@@ -55,8 +55,9 @@ def _is_unit_channel(topic: str) -> bool:
     return not topic.startswith("/") and not topic.endswith("/parameters")
 
 
-def _decode(topic: str, schema, channel, datas: List[bytes], t_ns: np.ndarray, wanted: Sequence[str],
+def _decode(topic: str, channel, datas: List[bytes], t_ns: np.ndarray, wanted: Sequence[str],
             props: Dict) -> ChannelData:
+    """The ``wanted`` variables of one channel's messages ``datas`` (schema properties ``props``)."""
     out = ChannelData(topic, t_ns, units={v: props[v].get("unit", "") for v in wanted},
                       types={v: props[v]["type"] for v in wanted})
     if channel.message_encoding == "ros1":
@@ -112,13 +113,13 @@ def read_channels(path: Path | str, patterns: Iterable[str] = ("*",)) -> Dict[st
             props = channel_schema(schema, channel)[0].get("properties", {})
             wanted = [v for v, p in props.items()
                       if p.get("type") in SIGNAL_TYPES and matches(f"{topic}.{v}", patterns)]
-            meta[topic] = (schema, channel, props, wanted) if wanted else None
+            meta[topic] = (channel, props, wanted) if wanted else None
             datas[topic], times[topic] = [], []
         if meta[topic] is None:
             continue
         datas[topic].append(message.data)
         times[topic].append(message.log_time)
-    out = {topic: _decode(topic, m[0], m[1], datas[topic], np.asarray(times[topic], dtype=np.int64), m[3], m[2])
+    out = {topic: _decode(topic, m[0], datas[topic], np.asarray(times[topic], dtype=np.int64), m[2], m[1])
            for topic, m in meta.items() if m is not None}
     if not out:
         raise LogReadError(f"{path}: no signal matches {' '.join(patterns)}")
