@@ -10,8 +10,8 @@ writes its log into a private temporary folder and returns the bytes; the client
 to the sweep's output folder and computes the metrics from that file.
 
 A run on a worker names the scenario file and the FMU files as the client resolved them (the
-log's ``scenario`` and ``fmus`` metadata), so its log is byte for byte the log of the same run
-on the client's own processes.
+log's ``scenario`` and ``fmus`` metadata), so its log holds the records of the same run on the
+client's own processes bit for bit (the chunk layout, cut on wall-clock time, may differ).
 """
 from __future__ import annotations
 
