@@ -129,7 +129,7 @@ def expand_arrays(scenario: Any, variables_: Mapping[str, Mapping[str, "VarInfo"
     """Spell out references to whole arrays in ``scenario`` element by element (in place):
     an array parameter given as a (nested) list, a connection between two arrays of one size,
     a scenario input driving every element of an array with one signal."""
-    from .scenario import Connection, InputSpec
+    from .scenario import InputSpec
 
     f = scenario.file
     for u in scenario.units:
@@ -162,7 +162,6 @@ def expand_arrays(scenario: Any, variables_: Mapping[str, Mapping[str, "VarInfo"
         elems = array_elements(variables_[s.unit], s.var) if s.var not in variables_[s.unit] else []
         inputs += [InputSpec(s.unit, e, s.kind, s.params) for e in elems] if elems else [s]
     scenario.inputs[:] = inputs
-    _ = Connection  # (the dataclass replaced above)
 
 
 class _Group:
@@ -215,10 +214,6 @@ class _Group:
             self.buf[pos] = bool(value)
         else:
             self.buf[pos] = int(value)
-
-    def values(self) -> List[Any]:
-        """The buffer's values as Python values, in the order of the requested variables."""
-        return self.converter()()
 
     def converter(self) -> Callable[[], List[Any]]:
         """A function returning :meth:`values` (made once: no branch on the type per call)."""

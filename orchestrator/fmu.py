@@ -595,7 +595,8 @@ class FmuInstance:
 
 
 class ValueReader:
-    """Reads a fixed set of variables with one FMI call per type family.
+    """Reads a fixed set of FMI 2.0 variables with one FMI call per type family (FMI 3.0:
+    :class:`.fmi3.Reader`).
 
     ``names`` is reordered by family (floats, integers, booleans, strings) and :meth:`read`
     returns the values in that order, so a step costs one ``fmi2GetReal`` (plus one
@@ -691,8 +692,6 @@ class ValueReader:
         """Current values, in the order of ``self.names`` (Reals as float, Integers as int,
         Booleans as bool)."""
         inst = self.inst
-        if not self.fmi2:
-            return self._read_fmi3()
         comp = inst._c_component
         out: List[Any] = []
         for fn, vrs, n, buf, view, getter, as_bool in self._groups:
@@ -707,12 +706,6 @@ class ValueReader:
             self._raise_nonfinite(out)
         if self._strings:
             out.extend(inst.get_values(self._strings))
-        return out
-
-    def _read_fmi3(self) -> List[Any]:
-        out = self.inst.get_values(self.names)
-        if self.check_finite:
-            self._raise_nonfinite(out)
         return out
 
     def _raise_nonfinite(self, values: Sequence[Any]) -> None:
@@ -741,7 +734,7 @@ class ValueReader:
 
 
 class RealSetter:
-    """Sets a fixed list of float variables from a sequence of values (one FMI call)."""
+    """Sets a fixed list of FMI 2.0 Real variables from a sequence of values (one FMI call)."""
 
     def __init__(self, inst: FmuInstance, names: List[str]) -> None:
         self.inst = inst
@@ -749,8 +742,7 @@ class RealSetter:
         self._vrs = (ctypes.c_uint * len(names))(*[inst.var(n).vr for n in names])
         self._buf = (ctypes.c_double * len(names))()
         self._n = ctypes.c_size_t(len(names))
-        if inst._fmi2:
-            self.set = self._fmi2_setter()  # a closure: no attribute look-ups per call
+        self.set = self._fmi2_setter()  # a closure: no attribute look-ups per call
 
     def _fmi2_setter(self) -> Callable[[Sequence[float]], None]:
         inst, fn, comp, vrs, n, buf = self.inst, self.inst._set_real, self.inst._c_component, self._vrs, self._n, self._buf
@@ -766,10 +758,10 @@ class RealSetter:
         return set_values
 
     def set(self, values: Sequence[float]) -> None:
-        """Set the values (in the order of ``names``) with one call; an FMI 2.0 instance
-        replaces this method by the :meth:`_fmi2_setter` closure (one ``fmi2SetReal``)."""
-        inst = self.inst
-        inst._guard("fmi3SetFloat64", lambda: inst.fmu.setFloat64(list(self._vrs), list(values)))
+        """Set the values (in the order of ``names``) with one ``fmi2SetReal``: the
+        :meth:`_fmi2_setter` closure replaces this method at construction (FMI 3.0 units use
+        :class:`.fmi3.Setter`)."""
+        raise NotImplementedError
 
 
 class DiscreteSetter:
