@@ -24,7 +24,7 @@ import operator
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
-from .errors import FmuLoadError, ScenarioError
+from .errors import FmuCallError, FmuLoadError, ScenarioError
 
 if TYPE_CHECKING:  # pragma: no cover
     from .fmu import FmuInstance, VarInfo
@@ -375,7 +375,11 @@ def stepper(inst: "FmuInstance") -> Callable[[int, int], Optional[int]]:
             reached = int(round(last.value * 1e9)) if early.value else end
             if terminate.value:
                 return min(reached, end)
-            if reached >= end or reached * 1e-9 <= c_t.value:
+            if reached >= end:
                 return None
+            if reached / 1e9 <= c_t.value:   # returned early without advancing: it would never end
+                raise FmuCallError(inst.name, "fmi3DoStep", t_ns, 2,
+                                   f"returned early at t = {last.value:.9g} s without advancing "
+                                   f"(step from {c_t.value:.9g} s to {end / 1e9:.9g} s)")
             c_t.value, c_h.value = reached / 1e9, (end - reached) / 1e9
     return do_step

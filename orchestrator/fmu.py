@@ -89,6 +89,8 @@ def ns_to_s(t_ns: int) -> float:
 #: (unit, time in ns) of every unit that asked to end the simulation (FMI 2.0 fmi2Terminated,
 #: FMI 3.0 terminateSimulation) since the execution cleared it; the step it ends is complete
 ENDED: List[tuple] = []
+#: this is a worker process (orchestrator/remote.py): see FmuInstance._ended
+IN_WORKER = False
 
 #: parsed model descriptions by (path, mtime, size): a scenario reads each FMU at check time
 #: and again when it instantiates it, often several instances of one FMU
@@ -480,7 +482,7 @@ class FmuInstance:
         else:
             ended = self._step3(t_ns, h_ns)
             if ended is not None:
-                ENDED.append((self.name, ended))
+                self._ended(ended)
         self.t_ns = t_ns + h_ns
 
     def _fmi2_terminated(self, end_ns: int) -> bool:
@@ -498,8 +500,18 @@ class FmuInstance:
             last = self.fmu.getRealStatus(fmi2LastSuccessfulTime)
         except Exception:   # the FMU does not report it: a plain discard
             return False
-        ENDED.append((self.name, min(int(round(last * 1e9)), end_ns)))
+        self._ended(min(int(round(last * 1e9)), end_ns))
         return True
+
+    def _ended(self, t_ns: int) -> None:
+        """The unit asked to end the simulation at ``t_ns``: recorded in :data:`ENDED` (the
+        execution ends the run after this step). A unit in a worker process cannot end the run
+        cleanly (its reply carries outputs only): there it is an error that says so."""
+        if IN_WORKER:
+            raise FmuCallError(self.name, "doStep", self.t_ns, 2,
+                               f"the unit asked to end the simulation at t = {t_ns / 1e9:.9g} s; a unit in a "
+                               f"worker process cannot end the run cleanly: run it in the master's (process = 0)")
+        ENDED.append((self.name, t_ns))
 
     def terminate(self) -> None:
         """Terminate and free the instance; errors here are logged, not raised.

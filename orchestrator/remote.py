@@ -367,6 +367,9 @@ def _serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in th
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):   # the master acts on them
         signal.signal(sig, signal.SIG_IGN)
     logging.basicConfig(level=logging.WARNING, format="worker %(process)d: %(levelname)s %(name)s: %(message)s")
+    from . import fmu
+
+    fmu.IN_WORKER = True   # a unit asking to end the simulation is an error here (FmuInstance._ended)
     units: Dict[str, FmuInstance] = {}
     readers: Dict[str, Any] = {}
     setters: Dict[tuple, Any] = {}

@@ -291,3 +291,13 @@ def test_fmi3_widths_in_the_ros1_encoding(tmp_path):
     msgs, _, _ = _messages(logs["ros1"])
     definition = next(s.data.decode() for s, c, _ in msgs if c.topic == "u")
     assert "uint64 UInt64_output" in definition and "float32 Float32_continuous_output" in definition
+
+
+def test_a_worker_unit_asking_to_end_fails_the_run_saying_why(tmp_path):
+    """In a worker process the request cannot end the run cleanly: one error naming it, not a
+    confusing failure of the next step."""
+    scn = scenario(tmp_path, ROOT / "fmi3" / "Stair.fmu", 1.0, 12.0, {})
+    scn.write_text(scn.read_text().replace('name = "u"\n', 'name = "u"\nprocess = 1\n'))
+    with pytest.raises(RunFailed, match=r"unit u: doStep returned discard at t = 8 s: the unit asked to end the "
+                                        r"simulation at t = 9 s; a unit in a worker process cannot end the run cleanly"):
+        run_scenario(scn, tmp_path / "w.mcap")
