@@ -1,19 +1,31 @@
 """``immersim`` command line: build, run, info, plot, sweep, examples.
 
 User errors print one line ``immersim: error: ...`` and exit with status 2 (bad input) or 1
-(a run that failed); SIGINT exits with 130. No traceback for user errors (``--debug`` shows it).
+(a run that failed); SIGINT, SIGTERM and SIGHUP exit with 128 + the signal. No traceback for
+user errors (``--debug`` shows it).
 """
 from __future__ import annotations
 
-import argparse
-import logging
-import math
 import os
+import signal
 import sys
-from pathlib import Path
-from typing import List, Optional
 
-from .errors import ImmersimError
+#: signals that came while the program was starting, before ``main`` could act on them: as the
+#: program (not imported by a test), the module's first act is to hold them (the interpreter's
+#: own start-up, before this line, keeps the default actions; nothing is written then)
+_EARLY: list = []
+_HOLDING = __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") == "immersim"
+if _HOLDING:
+    for _sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(_sig, lambda signum, frame: _EARLY.append(signum))
+
+import argparse  # noqa: E402
+import logging  # noqa: E402
+import math  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import List, Optional  # noqa: E402
+
+from .errors import ImmersimError  # noqa: E402
 
 log = logging.getLogger("immersim")
 
@@ -327,9 +339,19 @@ def main(argv: Optional[List[str]] = None) -> int:
     from . import supervisor
 
     args.late_sigint = supervisor.DeferredSigint(restore=argv is not None)
+    if args.fn is not _cmd_run and _HOLDING:   # other commands: the default actions again
+        for sig, action in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL),
+                            (signal.SIGHUP, signal.SIG_DFL)):
+            signal.signal(sig, action)
+    if _EARLY:   # came while the program started: nothing was done yet
+        name = signal.Signals(_EARLY[0]).name
+        sys.stderr.write(f"immersim: interrupted by {name} while starting; nothing was done\n")
+        return 128 + _EARLY[0]
     try:
         if args.fn is _cmd_run:
             with args.late_sigint:
+                if _EARLY:   # came between the check above and the handlers: acted on as any other
+                    args.late_sigint.requested, args.late_sigint.signum = True, _EARLY[0]
                 # the run in a child process: a unit that crashes it is reported (supervisor.py)
                 if (argv is None and not args.debug and supervisor.available()
                         and os.environ.get("IMMERSIM_SUPERVISE", "1") != "0"):

@@ -125,6 +125,17 @@ def oscillator_units(fmu: Path) -> str:
             '[[connections]]\nfrom = "m2.x"\nto = "m1.x_other"\n')
 
 
+def catches(pid: int, sig: int) -> bool:
+    """Process ``pid`` has a handler for ``sig`` (``SigCgt`` of /proc/PID/status): past the
+    interpreter's own start-up, whose signals take their default action."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            mask = next(int(ln.split()[1], 16) for ln in fh if ln.startswith("SigCgt:"))
+    except (OSError, StopIteration):
+        return False
+    return bool(mask >> (sig - 1) & 1)
+
+
 def wait_for(predicate, timeout: float, poll: float = 0.02) -> bool:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
