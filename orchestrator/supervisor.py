@@ -233,7 +233,12 @@ def supervise(deferred: Optional[DeferredSigint] = None) -> Optional[int]:
     CRUMB[SUPERVISED] = 1
     sys.stdout.flush()
     sys.stderr.flush()
-    pid = os.fork()
+    try:
+        pid = os.fork()
+    except OSError as exc:   # no process to spare: the run goes on unsupervised
+        log.warning("running without a supervising parent: fork failed: %s", exc)
+        CRUMB[SUPERVISED] = 0
+        return None
     if pid == 0:
         _prctl(1, signal.SIGKILL)   # PR_SET_PDEATHSIG: end with the parent
         if os.getppid() != parent:
