@@ -58,3 +58,16 @@ def test_dis_republishes_a_resting_object_at_the_first_frame_a_heartbeat_after_i
             assert m.metrics.published == cfg.groups
             times.append(round(t, 6))
     assert times == expected == [1.023, 2.046, 3.069]
+
+
+def test_cluster_holds_the_masters_of_the_render_groups_of_its_scene_only():
+    from immersim.models.network.supernode import CONTROLLER, RENDER, Supernode
+
+    sn = Supernode()
+    sn.join(0.0, 1, "Render-01", RENDER, "10.0.0.10", 20014, 1)
+    sn.join(0.1, 2, "Render-01", RENDER, "10.0.0.11", 20014, 1)
+    sn.join(0.2, 3, "Render-02", RENDER, "10.0.0.12", 20014, 2)      # another scene
+    sn.join(0.3, 4, "Render-03", RENDER, "10.0.0.13", 20014, 1)
+    sn.join(0.4, 9, "Control-09", CONTROLLER, "10.0.0.200", 20010, 1)  # a controller, not a render group
+    assert sn.cluster(1) == [1, 4]
+    assert sn.cluster(2) == [3]
