@@ -37,8 +37,8 @@ def run_sweep(dest: Path, stop: float | None) -> Path:
         text = text.replace("[grid]\n", f'[grid]\n"simulation.stop" = [{stop}]\n', 1)
     path = dest / "campus_backends.toml"
     path.write_text(text)
-    sweep(path, dest / "sweep", workers=2, progress=False)
-    return dest / "sweep"
+    sweep(path, dest / "campus_backends", workers=2, progress=False)
+    return dest / "campus_backends"
 
 
 def page_times(report: Path, tmp: Path, repeats: int) -> dict:
@@ -54,16 +54,20 @@ def page_times(report: Path, tmp: Path, repeats: int) -> dict:
     empty = tmp / "empty.html"
     empty.write_text("<html><body><script>document.body.dataset.rendered = 1</script></body></html>")
 
-    def timed(path):
+    cpu = {}
+
+    def timed(name, path):
         def f():
             run = open_page(path, READY)
             if run.errors:
                 raise RuntimeError(f"{path}: {run.errors}")
+            cpu.setdefault(name, []).append(run.cpu_s)
             return run.load_s
         return f
 
-    return interleaved({"report": timed(report), "plotly.js only": timed(bare), "empty page": timed(empty)},
-                       repeats)
+    pages = {"report": report, "plotly.js only": bare, "empty page": empty}
+    wall = interleaved({k: timed(k, p) for k, p in pages.items()}, repeats)
+    return {"wall": wall, "cpu": cpu}
 
 
 def read_times(log: Path, repeats: int) -> dict:
@@ -117,7 +121,9 @@ def main(argv=None) -> int:
         sweep = run_sweep(tmp, 5.0 if args.quick else None)
         sweep_s = time.perf_counter() - t0
         t0 = time.perf_counter()
-        report = write_report(sweep, tmp / "report.html")
+        os.chdir(tmp)  # the page names its sources as given: a relative folder, not this machine's path
+        report = write_report(Path(sweep.name), tmp / "report.html")
+        os.chdir(ROOT)
         write_s = time.perf_counter() - t0
         size = report.stat().st_size
         shot = OUT / "report_campus_backends.png"
@@ -126,7 +132,8 @@ def main(argv=None) -> int:
         pages = page_times(report, tmp, repeats)
         reads = read_times(sweep / "000_fcl.mcap", repeats)
     load_after = os.getloadavg()[0]
-    render = median(pages["report"])
+    render = median(pages["wall"]["report"])
+    render_cpu = median(pages["cpu"]["report"])
     cold = median(reads["times"]["read_log in a fresh interpreter (imports included)"])
     warm = median(reads["times"]["read_log (warm)"])
     stop = "5 s (--quick)" if args.quick else "20 s"
@@ -139,7 +146,8 @@ def main(argv=None) -> int:
              "the end, on 2 cores): compare within the tables.", "",
              "| target | measured | met |", "|---|---|---|",
              f"| report of a 3-run sweep < 5 MB | {size / 1e6:.2f} MB ({size} bytes) | {'met' if size < 5e6 else 'NOT met'} |",
-             f"| renders in headless Chromium < 5 s | {render:.2f} s (navigation until all {check.values['plots'] // 3 if check.values.get('plots') else '?'} plots are drawn; min {min(pages['report']):.2f} s) "
+             f"| renders in headless Chromium < 5 s | {render:.2f} s wall, navigation until both plots are drawn (min "
+             f"{min(pages['wall']['report']):.2f} s); the browser's processes used {render_cpu:.2f} s CPU in that span "
              f"| {'met' if render < 5 else 'NOT met'} |",
              f"| read_log of a campus_drive log < 0.5 s | {warm:.3f} s warm; {cold:.2f} s in a fresh interpreter with its imports "
              f"| {'met' if warm < 0.5 else 'NOT met'} (warm){'' if cold < 0.5 else '; NOT met cold'} |",
@@ -148,10 +156,12 @@ def main(argv=None) -> int:
              f"{'met' if reads['identical'] else 'NOT met'} |", "",
              f"Report written in {write_s:.2f} s. Script errors in the page: {check.errors or 'none'}.", "",
              "## Page load in headless Chromium (s, from navigation until the ready flag)", "",
-             "| page | median | min | max |", "|---|---|---|---|"]
-    lines += [f"| {k} | {median(v):.3f} | {min(v):.3f} | {max(v):.3f} |" for k, v in pages.items()]
+             "| page | wall median | wall min | wall max | CPU median (browser processes) |", "|---|---|---|---|---|"]
+    lines += [f"| {k} | {median(v):.3f} | {min(v):.3f} | {max(v):.3f} | {median(pages['cpu'][k]):.3f} |"
+              for k, v in pages["wall"].items()]
     lines += ["", f"The report's own cost over unpacking and running plotly.js: "
-              f"{render - median(pages['plotly.js only']):.2f} s (median difference).", "",
+              f"{render - median(pages['wall']['plotly.js only']):.2f} s wall, "
+              f"{render_cpu - median(pages['cpu']['plotly.js only']):.2f} s CPU (median differences).", "",
               f"## Reading a campus_drive log ({reads['shape'][0]} samples x {reads['shape'][1]} signals, ros1)", "",
               "| reader | median [s] | min [s] |", "|---|---|---|"]
     lines += [f"| {k} | {median(v):.4f} | {min(v):.4f} |" for k, v in reads["times"].items()]

@@ -31,8 +31,29 @@ class PageRun:
     """What happened while a page loaded."""
 
     load_s: float                       # navigation start -> the ready condition held
+    cpu_s: float = float("nan")         # CPU time of the browser's processes over that span
     errors: List[str] = field(default_factory=list)   # uncaught exceptions, console.error, error log entries
     values: dict = field(default_factory=dict)         # results of the ``evaluate`` expressions
+
+
+def tree_cpu_s(root: int) -> float:
+    """User + system CPU seconds of process ``root`` and its live descendants (Linux /proc)."""
+    parent, cpu = {}, {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        parent[int(d.name)] = int(fields[1])
+        cpu[int(d.name)] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    tree, frontier = {root}, [root]
+    while frontier:
+        kids = [p for p, pp in parent.items() if pp in frontier and p not in tree]
+        tree.update(kids)
+        frontier = kids
+    return sum(cpu.get(p, 0.0) for p in tree)
 
 
 class _Cdp:
@@ -101,6 +122,7 @@ async def _run(url: str, ready: str, evaluate: dict, screenshot: Optional[Path],
                     await cdp.call(f"{domain}.enable", session)
                 await cdp.call("Emulation.setDeviceMetricsOverride", session, width=width, height=900,
                                deviceScaleFactor=1, mobile=False)
+                c0 = tree_cpu_s(proc.pid)
                 t0 = time.perf_counter()
                 await cdp.call("Page.navigate", session, url=url)
                 load_s = None
@@ -112,7 +134,7 @@ async def _run(url: str, ready: str, evaluate: dict, screenshot: Optional[Path],
                     if _errors(cdp.events):
                         break
                     await asyncio.sleep(0.02)
-                run = PageRun(load_s if load_s is not None else float("nan"))
+                run = PageRun(load_s if load_s is not None else float("nan"), tree_cpu_s(proc.pid) - c0)
                 for name, expr in evaluate.items():
                     r = await cdp.call("Runtime.evaluate", session, expression=expr, returnByValue=True,
                                        awaitPromise=True)

@@ -60,19 +60,46 @@ def test_json_and_ros1_logs_of_one_run_are_equal(tmp_path):
 
 @pytest.mark.parametrize("other", ["001_basis_point", "002_honeycomb"])
 def test_campus_backends_differ_from_the_collision_onwards(campus_sweep, other):
-    """fcl against another collision backend on campus_drive: the network reads the collision
-    unit's contact outputs one step late (delayed connections), so each net.contact[1] input
-    first differs one step after the coll.pair[1] output feeding it; avatar 1's path and the
-    platform (which reads the network in the same step) first differ one step after the
-    contact flag does; the network is identical before."""
+    """fcl against another collision backend on campus_drive: each net.contact[1] input first
+    differs where the coll.pair[1] output feeding it does, one step later when the scenario
+    declares that connection delayed (the network reads the previous step); avatar 1's path and
+    the platform (which reads the network in the same step) part when the contact flag reaches
+    the network; the network is identical before."""
+    from immersim.orchestrator.scenario import load_scenario
+
+    lag = {c.dst_var: int(c.delayed) for c in load_scenario(CAMPUS).connections
+           if c.src_unit == "coll" and c.src_var.startswith("pair[1].")}
     d = immersim.diff_logs(campus_sweep / "000_fcl.mcap", campus_sweep / f"{other}.mcap")
     first = {s.name: s.first_step for s in d.signals}
     for coll, net in [("in_contact", "active"), ("nx", "nx"), ("ny", "ny"), ("depth", "depth")]:
-        if first[f"coll.pair[1].{coll}"] is not None:
-            assert first[f"net.contact[1].{net}"] == first[f"coll.pair[1].{coll}"] + 1, coll
-    hit = first["coll.pair[1].in_contact"]
+        if first[f"coll.pair[1].{coll}"] is not None and f"contact[1].{net}" in lag:
+            assert first[f"net.contact[1].{net}"] == first[f"coll.pair[1].{coll}"] + lag[f"contact[1].{net}"], coll
+    hit = first["net.contact[1].active"]
     assert hit is not None and 3.5 < hit * 0.033 < 3.9
-    assert first["net.avatar[1].x"] == first["plat.stroke[1]"] == hit + 1
+    assert first["net.avatar[1].x"] == first["plat.stroke[1]"] == hit
     net_first = min(s.first_step for s in d.differing if s.name.startswith("net."))
     assert net_first == min(first[f"net.contact[1].{v}"] for v in ("active", "nx", "ny", "depth")
                             if first[f"net.contact[1].{v}"] is not None)
+
+
+def test_read_log_and_overlay_show_the_same_change(osc_log, changed):
+    """read_log of the two logs differs in m2.v only, from CHANGE_STEP on, by DELTA; the overlay
+    draws both runs' m2.v, equal before that step."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from immersim.orchestrator.plotting import overlay_figures
+
+    a, b = immersim.read_log(osc_log), immersim.read_log(changed)
+    differs = (a != b).any()
+    assert list(differs[differs].index) == ["m2.v"]
+    d = (b["m2.v"] - a["m2.v"]).to_numpy()
+    assert np.all(d[:CHANGE_STEP] == 0) and np.allclose(d[CHANGE_STEP:], DELTA, rtol=1e-9, atol=0)
+    figs = overlay_figures([osc_log, changed], ["m2.v"])
+    try:
+        (ax,) = figs[0].axes
+        ya, yb = (ln.get_ydata() for ln in ax.get_lines())
+        assert [ln.get_label() for ln in ax.get_lines()] == ["osc", "changed"] and ax.get_ylabel() == "[m/s]"
+        assert np.array_equal(ya[:CHANGE_STEP], yb[:CHANGE_STEP]) and np.all(ya[CHANGE_STEP:] != yb[CHANGE_STEP:])
+    finally:
+        plt.close(figs[0])
