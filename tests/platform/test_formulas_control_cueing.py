@@ -210,3 +210,41 @@ def test_ball_joint_damping_dissipates_p_B_times_relative_rates_squared():
             D += 0.5 * damped.p_B * np.sum((Omega - wj) ** 2)
         assert D > 1e-6
         np.testing.assert_allclose(dq @ (h1 - h0), 2 * D, rtol=1e-6)
+
+
+def test_tilt_grows_at_the_rate_limit_up_to_the_tilt_limit():
+    """A sustained 5 m/s^2 surge asks for more than tilt_max (asin(5/9.81) > 10 deg). Per step the
+    pitch tilt moves towards its target -asin(clip(lp / g, +-sin tilt_max)) by at most
+    tilt_rate h: beta_k = beta_(k-1) + clip(target_k - beta_(k-1), +-tilt_rate h)."""
+    p = WashoutParams()
+    wo = Washout(p)
+    beta, limited = 0.0, 0
+    for k in range(1, 160):
+        wo.step(np.array([5.0, 0.0, 0.0]), np.zeros(3), 0.0, H)
+        lp = (wo.C_lp @ wo.x)[0]
+        target = -math.asin(min(max(lp / p.g, -math.sin(p.tilt_max)), math.sin(p.tilt_max)))
+        step = p.tilt_rate * H
+        limited += abs(target - beta) > step
+        beta += min(max(target - beta, -step), step)
+        assert wo.tilt[1] == pytest.approx(beta, rel=1e-12, abs=1e-15)
+    assert limited > 50                                          # the rate limit was active
+    assert wo.tilt[1] == pytest.approx(-p.tilt_max, rel=1e-12)   # and the angle limit reached
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_plant_gets_the_force_demand_clipped_at_plus_minus_F_max(sign):
+    """closed_loop's xdot is the forward dynamics under clip(F, -F_max, F_max), F the unclipped
+    demand it reports; a 30 mm heave error up asks for about 1.7 kN, down for about -170 N."""
+    from immersim.models.platform.control import closed_loop
+    from immersim.models.platform.dynamics import forward_dynamics
+
+    cp, pp = ControlParams(F_max=150.0), PlatformParams()
+    x = np.zeros(12)
+    x[2] = -sign * 0.03
+    ref = np.zeros(18)
+    xdot, F = (np.asarray(v).ravel() for v in closed_loop("computed_torque", "full")(x, ref, np.zeros(6), pp.vector(),
+                                                                                        cp.vector()))
+    assert (sign * F > cp.F_max).any()
+    np.testing.assert_allclose(xdot[:6], x[6:], atol=0)
+    np.testing.assert_allclose(xdot[6:], forward_dynamics(x[:6], x[6:], np.clip(F, -cp.F_max, cp.F_max), pp),
+                               rtol=1e-9, atol=1e-9)
