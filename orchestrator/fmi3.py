@@ -190,7 +190,7 @@ class _Group:
         if setter:   # elements not set by the caller keep their start values (arrays move whole)
             by_pos = {}
             for v in inst.variables.values():
-                if v.vr in offset and v.type == type_:
+                if v.vr in offset and _CTYPE[v.type][1] == type_:
                     start = v.start if v.index >= 0 else (_parse_start(v.type, v.start) or [None])[0]
                     if start is not None:
                         by_pos[offset[v.vr] + max(v.index, 0)] = start
@@ -254,9 +254,13 @@ class _Group:
 
 
 def _groups(inst: "FmuInstance", names: Sequence[str], setter: bool) -> Tuple[List[str], List[_Group]]:
+    """The variables ``names`` in the order of their calls, and one group per FMI function (an
+    Enumeration shares the Int64 call)."""
     infos = [inst.var(n) for n in dict.fromkeys(names)]
-    infos.sort(key=lambda v: (_FAMILY_ORDER.get(v.family, 5), list(_CTYPE).index(v.type), v.vr, v.index))
-    groups = [_Group(inst, t, list(vs), setter) for t, vs in itertools.groupby(infos, key=lambda v: v.type)]
+    suffix = [t for t in _CTYPE if t != "Enumeration"]   # the functions, in call order
+    infos.sort(key=lambda v: (_FAMILY_ORDER.get(v.family, 5), suffix.index(_CTYPE[v.type][1]), v.vr, v.index))
+    groups = [_Group(inst, t, list(vs), setter)
+              for t, vs in itertools.groupby(infos, key=lambda v: _CTYPE[v.type][1])]
     return [v.name for v in infos], groups
 
 
