@@ -120,30 +120,31 @@ def test_campus_closed_loop_collision_bounce_and_jolt(tmp_path):
     assert np.all(np.diff(d[near[0]:k]) < 0) and d[k] == 0.0
     active = series(a, "net.contact[1].active") > 0
     nx, ny = series(a, "coll.pair[1].nx"), series(a, "coll.pair[1].ny")
-    # collision -> network: the contact reaches the network input one step later (cycle broken there)
-    assert not active[:k + 1].any() and active[k + 1]
-    assert series(a, "net.contact[1].nx")[k + 1] == nx[k] and series(a, "net.contact[1].ny")[k + 1] == ny[k]
+    # collision -> network: the contact reaches the network input in the same step (the
+    # collision unit steps first, on the network's last poses; the network reads it fresh)
+    assert not active[:k].any() and active[k]
+    assert series(a, "net.contact[1].nx")[k] == nx[k] and series(a, "net.contact[1].ny")[k] == ny[k]
     # the normal points from tank_a (partner) to the avatar (first body), against its velocity: the network bounces it
     vx, vy = series(a, "net.avatar[1].vx"), series(a, "net.avatar[1].vy")
     n = np.array([nx[k], ny[k]]) / np.hypot(nx[k], ny[k])
-    vn_before = vx[k] * n[0] + vy[k] * n[1]
-    vn_after = vx[k + 1] * n[0] + vy[k + 1] * n[1]
+    vn_before = vx[k - 1] * n[0] + vy[k - 1] * n[1]
+    vn_after = vx[k] * n[0] + vy[k] * n[1]
     assert vn_before < -1.0 and vn_after > 0.0
     jolt = series(a, "net.avatar[1].jolt")
-    assert not jolt[:k + 1].any()
+    assert not jolt[:k].any()
     # |dv| = (1 + e)|v.n| (the throttle adds a little over the step)
-    assert jolt[k + 1] == pytest.approx((1 + RESTITUTION) * -vn_before, rel=0.05)
+    assert jolt[k] == pytest.approx((1 + RESTITUTION) * -vn_before, rel=0.05)
     # network -> platform: the jolt arrives in the same step (Gauss-Seidel, platform after network)
     # wired as jolt_acc = jolt / h (m/s2) with the cue gain of the connection
     acc = series(a, "net.avatar[1].jolt_acc")
-    assert acc[k + 1] == pytest.approx(jolt[k + 1] / 0.033, rel=1e-12)
+    assert acc[k] == pytest.approx(jolt[k] / 0.033, rel=1e-12)
     pj = series(a, "plat.jolt")
-    assert pj[k + 1] == pytest.approx(JOLT_GAIN * acc[k + 1], rel=1e-15) and not pj[:k + 1].any()
+    assert pj[k] == pytest.approx(JOLT_GAIN * acc[k], rel=1e-15) and not pj[:k].any()
     # and the platform responds: strokes equal to the no-jolt run until the jolt, then differ
     s = np.array([series(a, f"plat.stroke[{i}]") for i in range(1, 7)])
     s0 = np.array([series(b, f"plat.stroke[{i}]") for i in range(1, 7)])
-    assert np.array_equal(s[:, :k + 1], s0[:, :k + 1])
-    assert np.abs(s - s0)[:, k + 1:].max() > 2e-3
+    assert np.array_equal(s[:, :k], s0[:, :k])
+    assert np.abs(s - s0)[:, k:].max() > 2e-3
 
 
 def test_lazy_stepping_matches_eager_on_idle_scene(tmp_path):
