@@ -24,7 +24,7 @@ from common import ROOT, commit, machine  # noqa: E402
 HERE = Path(__file__).resolve().parent
 #: benchmarks the issues ask for; a missing one is reported, not silently skipped
 EXPECTED = ("orchestrator", "platform", "collision", "network", "campus_drive", "cosim_accuracy", "stress", "native",
-            "mutation", "sweep", "analysis")
+            "mutation", "sweep", "analysis", "contact")
 #: quick-mode arguments of scripts without a ``--quick`` flag
 QUICK_ARGS: Dict[str, List[str]] = {"orchestrator": ["--steps", "2000", "--repeats", "3"]}
 
