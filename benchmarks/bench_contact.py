@@ -1,0 +1,270 @@
+"""Contact response on a dense tank field: do avatars stay out of the tanks?
+
+Four players drive for 60 s (sine throttle 0.2..1.0 and sine steering, each its own phase)
+through a field of 500 tanks (``tanks:n=500,tris=5.4k,spacing=9``, 23 columns x 22 rows in a
+200 m scene); the collision unit's pairs ``avatar_p vs any tank* (horizontal)`` come back to
+the network as ``net.contact[p].active / nx / ny / depth`` (held). The poses reach the
+collision unit delayed (its input is the network's last output, extrapolated over the step;
+yaw held: a bounce turns the heading in one step, and interpolating that jump would swing
+the box through the obstacle), so the collision unit steps first and the network responds
+in the same step to the contact it reports. The scene is written to ``benchmarks/scenarios/tank_field_drive.toml`` (network seed 1;
+the tank grid's origin is the first one, on a 0.25 m lattice, that leaves the four start
+poses clear of every tank, so no overlap is there before anyone drives). Two runs: the response as shipped (depth wired:
+position correction + reflection) and the same scene without the depth connections (the
+reflection alone, the response before the position correction).
+
+Measured per run and pair, from the log:
+
+* ``depth_max`` (reported by the collision unit, at its input pose) and ``true_depth_max``
+  (the avatar box at the network's pose at the end of each step, :func:`true_depths`) against
+  the bound ``|v| h + 5 cm`` (``|v|`` the avatar's largest speed over
+  the step reported and the one before it): the largest ratio depth / bound;
+* depth one step after a response: the network responds in step k to the contact reported
+  in step k - 1 (delayed connection); the first report that sees the corrected pose is that
+  of step k + 1. Counted: responses followed by a depth >= 1 cm there, split by whether the
+  avatar then moves into the obstacle again (``v.n < 0`` along the response's normal: the
+  driver pushes in) or not;
+* the longest run of contact steps during which the avatar moves away from the obstacle
+  (``v.n >= 0`` in every step of the run), and the longest contact run of any kind.
+
+Usage: ``.venv/bin/python benchmarks/bench_contact.py [--quick]`` (quick: 20 s drives).
+Writes ``results/contact/README.md``.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ROOT, stamp  # noqa: E402
+
+SCENE_FILE = ROOT / "benchmarks" / "scenarios" / "tank_field_drive.toml"
+OUT = ROOT / "results" / "contact" / "README.md"
+COMMAND = ".venv/bin/python benchmarks/bench_contact.py"
+H = 0.033
+PLAYERS = 4
+SIZE = 200.0
+FIELD = dict(n=500, spacing=9.0)       # tank_k at (x0 + 9 (k % 23), y0 + 9 (k // 23))
+SEED = 1
+TANK_BOX = ((-3.25, 4.9), (-1.7, 1.7))               # tank footprint (body frame, m)
+AVATAR_R = math.hypot(2.0, 1.0)                      # circumradius of the 4 x 2 m avatar box
+
+
+def _tanks_xy(x0: float, y0: float) -> np.ndarray:
+    cols = math.ceil(math.sqrt(FIELD["n"]))
+    k = np.arange(FIELD["n"])
+    return np.c_[x0 + (k % cols) * FIELD["spacing"], y0 + (k // cols) * FIELD["spacing"]]
+
+
+def _starts(seed: int):
+    """The network's start poses (x, y, yaw per avatar) for ``seed`` (the FMU's configuration)."""
+    from immersim.models.network import NetworkConfig, NetworkModel
+
+    m = NetworkModel(NetworkConfig(groups=PLAYERS, render_nodes=2, entities=8, driven_groups=PLAYERS, seed=seed,
+                                   scene_size=SIZE))
+    return m.world.apos.copy(), m.world.yaw.copy()
+
+
+def field_origin(seed: int, margin: float = 0.05):
+    """The first origin (x, y) of the tank grid, on a 0.25 m lattice of [0, 9)^2, at which every
+    avatar's start box (seed ``seed``, grown by ``margin`` m) is clear of every tank's footprint
+    rectangle: nobody starts inside a tank."""
+    from immersim.models.collision.exit import edge_normals, overlaps
+
+    pos, yaw = _starts(seed)
+    hx, hy = 2.0 + margin, 1.0 + margin
+    boxes = []
+    for (x, y), w in zip(pos, yaw):
+        c, s = math.cos(w), math.sin(w)
+        P = np.array([[x + c * u - s * v, y + s * u + c * v] for u, v in ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy))])
+        boxes.append((P, edge_normals(P)))
+    (ax, bx), (ay, by) = TANK_BOX
+    rect = np.array([[ax, ay], [bx, ay], [bx, by], [ax, by]])
+    nr = edge_normals(rect)
+    for x0 in np.arange(0.0, 9.0, 0.25):
+        for y0 in np.arange(0.0, 9.0, 0.25):
+            t = _tanks_xy(x0, y0)
+            if all(not overlaps(P, nP, rect + q, nr) for P, nP in boxes
+                   for q in t[np.hypot(*(t - P.mean(0)).T) < 8.0]):
+                return float(x0), float(y0)
+    raise RuntimeError(f"seed {seed}: no tank grid origin leaves the avatars' starts clear")
+
+
+def scenario_text(seed: int, stop: float, depth: bool = True, delayed: bool = False) -> str:
+    """The scene as a scenario TOML (``depth`` False: without the depth connections;
+    ``delayed``: the contacts reach the network one step late, as in campus_drive, instead of
+    in the step the collision unit reports them)."""
+    pos, yaw = _starts(seed)
+    x0, y0 = field_origin(seed)
+    boxes = ";".join(f"box:name=avatar_{p},sx=4,sy=2,sz=4.4,dynamic=1" for p in range(1, PLAYERS + 1))
+    field = f"tanks:n={FIELD['n']},tris=5.4k,spacing={FIELD['spacing']:g},x={x0:g},y={y0:g}"
+    pairs = "; ".join(f"avatar_{p} vs any tank* (horizontal)" for p in range(1, PLAYERS + 1))
+    out = [f'description = "tank_field_drive: {PLAYERS} players, 60 s through 500 tanks; contact response"',
+           "", "[simulation]", "start = 0.0", f"stop = {stop:g}", f"step = {H}", 'algorithm = "gauss-seidel"', "",
+           "[[units]]", 'name = "net"', 'fmu = "network"', "[units.parameters]", f"players = {PLAYERS}",
+           "render_nodes = 2", "entities = 8", f"seed = {seed}", f"scene_size = {SIZE:g}", "",
+           "[[units]]", 'name = "coll"', 'fmu = "collision"', "[units.parameters]", 'backend = "fcl"',
+           f'scene = "{boxes};{field}"', f'pairs = "{pairs}"']
+    for p in range(PLAYERS):
+        out += [f'"body[{p + 1}].x" = {float(pos[p, 0])!r}', f'"body[{p + 1}].y" = {float(pos[p, 1])!r}',
+                f'"body[{p + 1}].yaw" = {float(yaw[p])!r}', f'"body[{p + 1}].z" = 2.5']
+    out.append("")
+    for p in range(1, PLAYERS + 1):
+        for c in ("x", "y", "yaw"):
+            out += ["[[connections]]", f'from = "net.avatar[{p}].{c}"', f'to = "coll.body[{p}].{c}"', "delayed = true"]
+            if c == "yaw":
+                out.append('extrapolation = "zoh"')
+        fields = [("in_contact", "active")] + [(c, c) for c in ("nx", "ny")] + ([("depth", "depth")] if depth else [])
+        for src, dst in fields:
+            out += ["[[connections]]", f'from = "coll.pair[{p}].{src}"', f'to = "net.contact[{p}].{dst}"']
+            if delayed:
+                out.append("delayed = true")
+            if src != "in_contact":
+                out.append('extrapolation = "zoh"')
+    for p in range(1, PLAYERS + 1):   # drivers: full throttle at the peaks, weaving
+        out += ["[[inputs]]", f'target = "net.avatar[{p}].throttle"', 'kind = "sine"', "offset = 0.6",
+                "amplitude = 0.4", f"frequency = {0.05 + 0.01 * p:g}", f"phase = {0.7 * p:g}",
+                "[[inputs]]", f'target = "net.avatar[{p}].steer"', 'kind = "sine"', "amplitude = 0.5",
+                f"frequency = {0.09 + 0.013 * p:g}", f"phase = {1.3 * p:g}"]
+    out += ["", "[log]", 'include = ["net.avatar*", "net.contact*", "coll.pair*"]', ""]
+    return "\n".join(out)
+
+
+def _runs(mask: np.ndarray):
+    """(start, length) of the runs of True in a boolean vector."""
+    d = np.diff(np.r_[0, mask.astype(int), 0])
+    s, e = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    return list(zip(s.tolist(), (e - s).tolist()))
+
+
+def true_depths(scene_spec: str, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Penetration depth (m) of an avatar box at the network's logged poses (the end of each
+    step: the body itself, not the collision unit's extrapolated input pose): its shortest
+    ground-plane exit from the tanks (:mod:`immersim.models.collision.exit`), 0 when clear."""
+    from immersim.models.collision import parse_scene
+    from immersim.models.collision.exit import Footprints
+    from immersim.models.collision.geometry import pose_matrix
+
+    scene = parse_scene(scene_spec)
+    fp = Footprints(scene)
+    a = scene.index("avatar_1")
+    tanks = [i for i, b in enumerate(scene.bodies) if b.group == "tank"]
+    txy = np.array([scene.bodies[i].pose[:2] for i in tanks])
+    T = {i: pose_matrix(scene.bodies[i].pose) for i in tanks}
+    out = np.zeros(len(x))
+    for k, (xk, yk, wk) in enumerate(zip(x, y, yaw)):
+        near = np.flatnonzero(np.hypot(txy[:, 0] - xk, txy[:, 1] - yk) < 9.0)
+        if len(near):
+            ex = fp.exit(a, pose_matrix((xk, yk, 2.5, 0.0, 0.0, wk)), [(tanks[j], T[tanks[j]], True) for j in near])
+            out[k] = ex[0] if ex is not None else 0.0
+    return out
+
+
+def measure(log: Path, scene_spec: str, lag: int) -> list:
+    """Per pair the figures of the module docstring, from a run's MCAP log (``lag``: steps
+    from a contact report to the network's response, 0 or 1)."""
+    from immersim.orchestrator.mcapio import read_series
+
+    s = read_series(log, ["coll.pair*", "net.avatar*", "net.contact*"])
+    get = lambda name: s[name][1].astype(float)   # noqa: E731
+    rows = []
+    for p in range(1, PLAYERS + 1):
+        c = get(f"coll.pair[{p}].in_contact") > 0.5
+        d = get(f"coll.pair[{p}].depth")
+        td = true_depths(scene_spec, get(f"net.avatar[{p}].x"), get(f"net.avatar[{p}].y"), get(f"net.avatar[{p}].yaw"))
+        nx, ny = get(f"coll.pair[{p}].nx"), get(f"coll.pair[{p}].ny")
+        vx, vy = get(f"net.avatar[{p}].vx"), get(f"net.avatar[{p}].vy")
+        sp = np.hypot(vx, vy)
+        sp2 = np.maximum(sp, np.r_[sp[:1], sp[:-1]])
+        bound = sp2 * H + 0.05
+        ratio = np.where(c, d / bound, 0.0)
+        k_max = int(np.argmax(ratio))
+        tratio = td / bound
+        # the true depth at the end of the step in which the network responded
+        t_after = td[resp] if len(resp := np.flatnonzero(c[:-2] & (d[:-2] > 0)) + lag) else np.zeros(0)
+        # responses: the network acts in step k on the report of step k - lag; seen in step k + 1
+        resp = np.flatnonzero(c[:-2] & (d[:-2] > 0)) + lag
+        after = resp + 1
+        deep = c[after] & (d[after] >= 0.01)
+        vn = vx[after] * nx[resp - lag] + vy[after] * ny[resp - lag]
+        pushed = deep & (vn < 0)
+        away = c & (vx * nx + vy * ny >= 0)
+        rows.append(dict(pair=p, contact_steps=int(c.sum()), depth_max=float(d[c].max()) if c.any() else 0.0,
+                         bound_at_max=float(bound[k_max]), ratio_max=float(ratio.max()),
+                         true_depth_max=float(td.max()), true_ratio_max=float(tratio.max()),
+                         true_after_max=float(t_after.max()) if len(t_after) else 0.0,
+                         responses=len(resp), deep_after=int(deep.sum()), deep_after_pushed=int(pushed.sum()),
+                         deep_after_not_pushed=int((deep & ~pushed).sum()),
+                         away_max_s=max([n for _, n in _runs(away)], default=0) * H,
+                         contact_max_s=max([n for _, n in _runs(c)], default=0) * H))
+    return rows
+
+
+def run(seed: int, stop: float, depth: bool, folder: Path, delayed: bool = False):
+    from immersim.orchestrator.execution import run_scenario
+
+    path = folder / f"drive_{'depth' if depth else 'reflect'}{'_delayed' if delayed else ''}.toml"
+    path.write_text(scenario_text(seed, stop, depth, delayed))
+    log = folder / (path.stem + ".mcap")
+    t0 = time.perf_counter()
+    run_scenario(path, log)
+    wall = time.perf_counter() - t0
+    print(f"bench_contact: {path.stem}: {stop:g} s run in {wall:.1f} s", flush=True)
+    import tomllib
+
+    spec = tomllib.loads(path.read_text())["units"][1]["parameters"]["scene"]
+    return measure(log, spec, 1 if delayed else 0), wall
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="20 s drives instead of 60 s")
+    args = ap.parse_args(argv)
+    stop = 20.0 if args.quick else 60.0
+    seed = SEED
+    SCENE_FILE.write_text(scenario_text(seed, 60.0))
+    with tempfile.TemporaryDirectory() as tmp:
+        res = {k: run(seed, stop, k != "reflect", Path(tmp), k == "delayed") for k in ("depth", "reflect", "delayed")}
+    cols = ["pair", "contact_steps", "depth_max", "bound_at_max", "ratio_max", "true_depth_max", "true_ratio_max",
+            "true_after_max", "responses", "deep_after",
+            "deep_after_pushed", "deep_after_not_pushed", "away_max_s", "contact_max_s"]
+    lines = ["# Contact response on a 500-tank field", "", stamp(COMMAND + (" --quick" if args.quick else "")), "",
+             f"Scene: `benchmarks/scenarios/tank_field_drive.toml` (network seed {seed}), {stop:g} s "
+             f"({round(stop / H)} steps). See `benchmarks/bench_contact.py` for the definitions.", ""]
+    for k, title in (("depth", "Response as shipped: position correction along the exit normal + reflection"),
+                     ("reflect", "Without the depth connections: reflection only (the response before)"),
+                     ("delayed", "As shipped, contacts one step late (`delayed = true` both ways, campus_drive's coupling)")):
+        rows, wall = res[k]
+        lines += [f"## {title}", "", f"Run wall time {wall:.1f} s.", "", "| " + " | ".join(cols) + " |",
+                  "|" + "---|" * len(cols)]
+        for r in rows:
+            lines.append("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols) + " |")
+        lines.append("")
+    rows = res["depth"][0]
+    ratio = max(r["ratio_max"] for r in rows)
+    tratio = max(r["true_ratio_max"] for r in rows)
+    bad = sum(r["deep_after_not_pushed"] for r in rows)
+    away = max(r["away_max_s"] for r in rows)
+    lines += ["## Targets", "",
+              f"- no depth above `|v| h + 5 cm`: largest reported depth / bound = {ratio:.3f} "
+              f"({'met' if ratio <= 1 else 'NOT met'}); largest depth of the body at the network's poses / bound "
+              f"= {tratio:.3f} ({'met' if tratio <= 1 else 'NOT met'});",
+              f"- depth < 1 cm one step after the response unless pushed in again: {bad} responses of "
+              f"{sum(r['responses'] for r in rows)} leave >= 1 cm without the driver pushing in "
+              f"({'met' if bad == 0 else 'NOT met'}); with pushing in: {sum(r['deep_after_pushed'] for r in rows)};",
+              f"- no contact longer than 1 s while moving away: longest {away:.3f} s "
+              f"({'met' if away <= 1.0 else 'NOT met'}).", ""]
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text("\n".join(lines))
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
