@@ -408,6 +408,42 @@ def supervision_cases(tmp: Path, pairs: int) -> None:
         record("supervision", f"{label}: supervised (A) vs IMMERSIM_SUPERVISE=0 (B)", case)
 
 
+def journal_cost(tmp: Path, steps: int = 3000, reps: int = 7) -> None:
+    """The supervised log's extra work per step, in isolation: ``McapObserver.write_step`` of a
+    campus_drive-sized step (5 channels, ~3 kB) with the journal (A) and without (B),
+    interleaved; and the two int64 crumb stores before each doStep."""
+    import statistics
+    import timeit
+
+    from immersim.orchestrator import supervisor
+    from immersim.orchestrator.observers import McapObserver
+
+    items = [(0, bytes(range(256)) * 2 + b"%d" % i) for i in range(5)]
+    times: dict = {"A": [], "B": []}
+    for r in range(reps):
+        for arm in ("A", "B") if r % 2 == 0 else ("B", "A"):
+            obs = McapObserver(tmp / f"journal{arm}.mcap")
+            cid, _ = obs.add_channel("u", [])
+            if arm == "A":
+                obs.writer.journal = supervisor.Journal(obs._fh)
+            step_items = [(cid, d) for _, d in items]
+            t0 = time.perf_counter()
+            for k in range(steps):
+                obs.write_step(k * 33_000_000, k, step_items)
+            times[arm].append((time.perf_counter() - t0) / steps)
+            obs.close()
+    crumb = supervisor.CRUMB
+    store = min(timeit.repeat("c[2] = 1; c[3] = t", globals={"c": crumb, "t": 123456789}, number=200000, repeat=5))
+    empty = min(timeit.repeat("pass", number=200000, repeat=5))
+
+    def case() -> str:
+        a, b = statistics.median(times["A"]), statistics.median(times["B"])
+        return (f"write_step of 5 messages (2.6 kB): {a * 1e6:.1f} us with the journal vs {b * 1e6:.1f} us without "
+                f"(+{(a - b) * 1e6:.1f} us per step, medians of {reps} x {steps} steps); crumb stores before a "
+                f"doStep {(store - empty) / 200000 * 1e9:.0f} ns")
+    record("supervision", "the journal copy and the crumb stores in isolation", case)
+
+
 def write_report(quick: bool, cmd: str, groups: List[str]) -> None:
     """Write cases.csv and README.md; rows of groups not run this time are kept from cases.csv."""
     OUT.mkdir(parents=True, exist_ok=True)
@@ -477,7 +513,8 @@ def main(argv=None) -> int:
         if "segfault" in groups:
             segfault_cases(tmp, tries=10)
         if "supervision" in groups:
-            supervision_cases(tmp, pairs=3 if args.quick else 5)
+            journal_cost(tmp)
+            supervision_cases(tmp, pairs=3 if args.quick else 7)
     cmd = "python benchmarks/bench_stress.py" + (" --quick" if args.quick else "") + \
           (f" --only {' '.join(args.only)}" if args.only else "")
     write_report(args.quick, cmd, groups)
