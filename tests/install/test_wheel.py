@@ -32,7 +32,7 @@ def test_sdist_and_wheel_carry_the_units_and_the_example_scenarios(dists_and_env
     assert all(f"immersim/{m}" in in_wheel for m in models)
 
 
-def test_installed_wheel_runs_the_demo_and_campus_drive_from_an_empty_folder(dists_and_env, tmp_path):
+def test_installed_wheel_runs_every_shipped_scenario_from_an_empty_folder(dists_and_env, tmp_path):
     _, _, env = dists_and_env
     home, cwd = tmp_path / "home", tmp_path / "empty"
     home.mkdir()
@@ -74,3 +74,20 @@ def test_installed_wheel_runs_the_demo_and_campus_drive_from_an_empty_folder(dis
     assert info.metadata["run"]["status"] == "completed"
     assert {t.split("/")[0] for t in info.channels} >= {"net", "coll", "plat"}
     assert sorted(p.name for p in cache.glob("*.fmu")) == [f"{u}.fmu" for u in UNITS]
+
+    # every other shipped scenario, two macro steps each, in one process of the wheel's immersim
+    run(env.immersim, "examples", "--copy", "all")
+    script = (
+        "import pathlib, sys\n"
+        "from immersim.orchestrator.execution import run_scenario\n"
+        "from immersim.orchestrator.scenario import load_scenario\n"
+        "for f in sys.argv[1:]:\n"
+        "    sc = load_scenario(f)\n"
+        "    stop = (sc.start_ns + 2 * sc.step_ns) / 1e9\n"
+        "    r = run_scenario(load_scenario(f, {'simulation.stop': stop}), pathlib.Path(f).with_suffix('.mcap'))\n"
+        "    print(f, r.status, r.steps_done)\n")
+    scenarios = sorted(str(p.relative_to(cwd)) for p in (cwd / "all").rglob("*.toml")
+                       if "scenario =" not in p.read_text() and p.name not in ("demo.toml", "campus_drive.toml"))
+    assert len(scenarios) >= 6
+    lines = run(env.python, "-c", script, *scenarios).splitlines()
+    assert lines == [f"{f} completed 2" for f in scenarios]
