@@ -94,7 +94,7 @@ class NetworkConfig:
     ownership: str = "mahalanobis"
     ownership_scale: float = 30.0
     ownership_min_axis: float = 5.0
-    ownership_foci: str = "frame"    # eq. 3-12 reading: 'frame' (foci one frame apart) or 'reach
+    ownership_foci: str = "reach"    # eq. 3-12 reading: 'reach' (foci a apart) or 'frame' (literal: one frame apart)
     dis_threshold: float = 0.0
     dis_heartbeat_s: float = 1.0
     # world

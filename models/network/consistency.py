@@ -246,6 +246,24 @@ def ellipsoid_axes(vel: np.ndarray, frame_s: float, scale: float, min_axis: floa
     return a, b, u, 0.5 * focal[:, None] * u
 
 
+def heading_distance(r: np.ndarray, u: np.ndarray, ecc: np.ndarray) -> np.ndarray:
+    """Arrival distance (m) of points ``r`` (k, d) from an avatar (relative positions) heading
+    along ``u`` (k, d) with ownership-ellipse eccentricity ``ecc`` (k,): ``L = |r| - ecc r.u =
+    |r| (1 - ecc cos theta)``.
+
+    The control ellipse has a focus at the avatar (its centre is ``A + f u``, ``ecc = f / a``),
+    so its boundary in polar form about the avatar is ``|r| (1 - ecc cos theta) = a (1 - ecc^2)``:
+    ``L`` is the ellipse's own radial measure, in metres, hence comparable between avatars of
+    different region sizes (the Mahalanobis ``d`` of eq. 3-6 is relative to each region's
+    size). Straight ahead ``L = (1 - ecc)|r|``, behind ``(1 + ecc)|r|``, a parked avatar
+    (``ecc = 0``) ``|r|``: an avatar driving toward an entity wins it from a parked one up to
+    ``1 / (1 - ecc)`` times nearer (2 in the ``reach`` reading, ``ecc = 1/2``); one driving away
+    never wins it from a nearer parked one.
+    """
+    along = np.einsum("...i,...i->...", r, u)
+    return np.sqrt(np.einsum("...i,...i->...", r, r)) - ecc * along
+
+
 def mahalanobis_ellipsoid(x: np.ndarray, centre: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Mahalanobis distance of eq. 3-6 with ``Sigma = R diag(a^2, b^2, b^2) R^T`` (long axis ``u``).
 
@@ -274,7 +292,7 @@ def _all_pairs(n: int, m: int):
 
 def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, entity_pos: np.ndarray,
                   current: np.ndarray, frame_s: float, scale: float, min_axis: float,
-                  foci: str = "frame", etree=None, lists=None) -> np.ndarray:
+                  foci: str = "reach", etree=None, lists=None) -> np.ndarray:
     """Owning avatar (group index) of every entity, or the current one where nobody claims it.
 
     ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
@@ -319,10 +337,15 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     if rule == "mahalanobis":
         d = mahalanobis_ellipsoid(entity_pos[ei], centre[gi], u[gi], a[gi], b[gi])
         keep = d <= 1.0
+        gi, ei = gi[keep], ei[keep]
+        # among the regions that hold it: the smallest arrival distance (heading_distance)
+        r = entity_pos[ei] - avatar_pos[gi]
+        ecc = np.sqrt(np.einsum("ij,ij->i", shift, shift)) / a
+        d = heading_distance(r, u[gi], ecc[gi])
     else:  # nearest distance (eq. 3-3) among the avatars within reach a
         d = sd["v"]
         keep = d <= a[gi]
-    gi, ei, d = gi[keep], ei[keep], d[keep]
+        gi, ei, d = gi[keep], ei[keep], d[keep]
     out = current.copy()
     if len(ei):
         order = np.lexsort((gi, d, ei))
@@ -368,13 +391,14 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
         # b <= a: the ellipsoid (and the reach sphere) lie in the sphere of radius a, so a pair
         # with |r|^2 > a^2 (1 + 1e-9) has d > 1 (d > a) whatever the rounding: skipped
         a2 = a * a
-        av.append((i, cxi, cyi, a2 * (1.0 + 1e-9), u0, u1, a2, b * b, a))
+        ecc = math.sqrt((hf * u0) * (hf * u0) + (hf * u1) * (hf * u1)) / a
+        av.append((i, cxi, cyi, a2 * (1.0 + 1e-9), u0, u1, a2, b * b, a, axi, ayi, ecc))
     # avatar by avatar over the entities (the same winner: avatars in index order, a later one
     # wins only with a strictly smaller distance)
     ents = entity_pos
     best = [None] * len(ents)
     who = [-1] * len(ents)
-    for i, cxi, cyi, far, u0, u1, a2, b2, reach in av:
+    for i, cxi, cyi, far, u0, u1, a2, b2, reach, axi, ayi, ecc in av:
         # |r|^2 >= rx^2 > a^2 (with margin): outside the sphere of radius a (NaN: never claimed either way)
         for j in [j for j, (x, _) in enumerate(ents) if (x - cxi) * (x - cxi) <= far]:
             x, y = ents[j]
@@ -392,6 +416,8 @@ def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, fra
                 d = math.sqrt(al2 / a2 + perp2 / b2)
                 if not d <= 1.0:     # (NaN too, like the array test)
                     continue
+                qx, qy = x - axi, y - ayi     # the arrival distance (heading_distance)
+                d = math.sqrt(qx * qx + qy * qy) - ecc * (qx * u0 + qy * u1)
             else:
                 d = math.sqrt(rr)
                 if not d <= reach:

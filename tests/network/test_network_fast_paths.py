@@ -149,7 +149,11 @@ def test_point_index_owners_equal_kd_tree_and_brute_force(foci):
     a, b, u, shift = ellipsoid_axes(avel, 0.033, 30.0, 4.0, foci)
     d = mahalanobis_ellipsoid(epos[:, None, :], (apos + shift)[None], u[None], a[None], b[None])   # (E, G)
     inside = d <= 1.0
-    brute[inside.any(1)] = np.where(inside, d, np.inf).argmin(1)[inside.any(1)]
+    # among the regions holding an entity the smallest arrival distance |r| - ecc r.u wins
+    r = epos[:, None, :] - apos[None]
+    ecc = np.hypot(*shift.T) / a
+    L = np.hypot(r[..., 0], r[..., 1]) - ecc[None] * np.einsum("egi,gi->eg", r, u)
+    brute[inside.any(1)] = np.where(inside, L, np.inf).argmin(1)[inside.any(1)]
     assert np.array_equal(via_index, via_tree) and np.array_equal(via_index, brute)
     assert (via_index != cur).sum() > 20
 

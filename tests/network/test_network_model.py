@@ -128,9 +128,12 @@ def test_mahalanobis_ownership_prefers_the_avatar_heading_to_the_entity():
     avel = np.array([[10.0, 0.0], [0.0, 0.0]])      # avatar 0 drives toward the entity at x = 9
     epos = np.array([[9.0, 0.0]])
     cur = np.array([1])
-    # avatar 1 is nearer (5.5 m < 9 m) but avatar 0 reaches it first: d_M = 8.835/9.9 < 5.5/6
+    # avatar 1 is nearer (5.5 m < 9 m) but avatar 0 drives toward it: in the 'reach' reading
+    # (ecc 1/2) its arrival distance is 9 (1 - 1/2) = 4.5 m < 5.5 m; the literal 'frame'
+    # reading (ecc 1/60: a circle) gives 9 (1 - 1/60) = 8.85 m > 5.5 m, the nearer one
     assert assign_owners("euclidean", apos, avel, epos, cur, T, 30.0, 6.0)[0] == 1
-    assert assign_owners("mahalanobis", apos, avel, epos, cur, T, 30.0, 6.0)[0] == 0
+    assert assign_owners("mahalanobis", apos, avel, epos, cur, T, 30.0, 6.0, foci="reach")[0] == 0
+    assert assign_owners("mahalanobis", apos, avel, epos, cur, T, 30.0, 6.0, foci="frame")[0] == 1
     assert assign_owners("none", apos, avel, epos, cur, T, 30.0, 6.0)[0] == 1
     # the 'reach' reading stretches the region ahead: an entity 13 m ahead is claimed
     far = np.array([[13.0, 0.5]])
