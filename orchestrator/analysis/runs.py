@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -79,13 +80,19 @@ class RunSet:
         for run in self.runs:
             if not run.path.exists():
                 continue
-            for topic, ch in read_info(run.path).channels.items():
+            for topic, ch in _channels(run.path, run.path.stat().st_mtime_ns).items():
                 for var in ch.signals:
                     if matches(f"{topic}.{var}", [spec["signal"]]):
                         kind = ch.schema["properties"][var].get("type")
                         return "1" if kind == "boolean" else ch.unit_of(var)
             return ""
         return ""
+
+
+@lru_cache(maxsize=8)
+def _channels(path: Path, mtime_ns: int) -> dict:
+    """The channels of a log (cached per file version: a report asks once per metric)."""
+    return read_info(path).channels
 
 
 def _sweep_runs(folder: Path) -> RunSet:
