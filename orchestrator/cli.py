@@ -1,4 +1,4 @@
-"""``immersim`` command line: build, run, info, plot, sweep, examples.
+"""``immersim`` command line: build, run, export, info, plot, diff, report, convert, sweep, examples.
 
 User errors print one line ``immersim: error: ...`` and exit with status 2 (bad input) or 1
 (a run that failed); SIGINT, SIGTERM and SIGHUP exit with 128 + the signal. No traceback for
