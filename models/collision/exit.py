@@ -64,41 +64,62 @@ def polygon(points: np.ndarray) -> np.ndarray:
 def edge_normals(poly: np.ndarray) -> np.ndarray:
     """Unit outward normals (m, 2) of the edges of a counter-clockwise convex polygon (m, 2)
     (degenerate edges dropped)."""
+    return _edges(poly)[0]
+
+
+def _edges(poly: np.ndarray):
+    """Outward unit normals (m, 2) of a counter-clockwise convex polygon's edges and their
+    offsets ``max(P . n) = P_k . n_k`` (m,) (the edge's own vertex: no product with the rest)."""
     e = np.roll(poly, -1, axis=0) - poly
     n = np.c_[e[:, 1], -e[:, 0]]
     L = np.hypot(n[:, 0], n[:, 1])
     keep = L > 1e-12
-    return n[keep] / L[keep, None]
+    n = n[keep] / L[keep, None]
+    return n, np.einsum("ij,ij->i", poly[keep], n)
 
 
-def overlaps(A: np.ndarray, nA: np.ndarray, B: np.ndarray, nB: np.ndarray) -> bool:
-    """Convex polygons ``A``, ``B`` (with their edge normals) overlap by more than ``TOUCH``
-    along every edge normal of both (separating-axis theorem)."""
-    axes = np.concatenate([nA, nB])
-    pa, pb = A @ axes.T, B @ axes.T
-    return bool(np.all(np.minimum(pa.max(0) - pb.min(0), pb.max(0) - pa.min(0)) > TOUCH))
+def _part(p) -> tuple:
+    """A part as (polygon, normals, offsets) (offsets computed when given as (polygon, normals))."""
+    return p if len(p) == 3 else (p[0], p[1], (p[0] @ p[1].T).max(0))
 
 
-def exit_2d(A: np.ndarray, nA: np.ndarray, parts: Sequence[Tuple[np.ndarray, np.ndarray]]
-            ) -> Optional[Tuple[float, np.ndarray]]:
+def overlaps(A: np.ndarray, nA: np.ndarray, B: np.ndarray, nB: np.ndarray, offB=None) -> bool:
+    """Convex polygons ``A``, ``B`` (with their outward edge normals; ``offB`` the offsets
+    ``max(B . nB)``) overlap by more than ``TOUCH``: no edge of either has the other polygon
+    entirely outside it (separating-axis theorem for convex polygons; touching is apart)."""
+    offB = (B @ nB.T).max(0) if offB is None else offB
+    if np.any((A @ nB.T).min(0) >= offB - TOUCH):
+        return False
+    return not np.any((B @ nA.T).min(0) >= (A @ nA.T).max(0) - TOUCH)
+
+
+def exit_2d(A: np.ndarray, nA: np.ndarray, parts: Sequence[tuple]) -> Optional[Tuple[float, np.ndarray]]:
     """Shortest exit of the convex polygon ``A`` from the convex polygons ``parts``
     (module docstring): ``(depth m, unit normal (2,))`` along which ``A`` moves, or None when
     no part overlaps ``A``.
+
+    Candidate directions: both signs of ``A``'s edge normals and the outward edge normals of
+    the overlapping parts (leaving a part through one of its faces); a part's support along
+    its own normals is its edge offsets (no product of its vertices with its own normals).
 
     Parameters
     ----------
     A : ndarray, shape (k, 2)
         The moving body's polygon (counter-clockwise), ``nA`` its edge normals.
-    parts : sequence of (polygon (m, 2), edge normals (m, 2))
+    parts : sequence of (polygon (m, 2), edge normals (m, 2)[, offsets (m,)])
         The obstacles' convex parts.
     """
-    hit = [(B, nB) for B, nB in parts if overlaps(A, nA, B, nB)]
+    hit = [q for q in map(_part, parts) if overlaps(A, nA, q[0], q[1], q[2])]
     if not hit:
         return None
-    axes = np.concatenate([nA] + [nB for _, nB in hit])
-    axes = np.concatenate([axes, -axes])
-    a_min = (A @ axes.T).min(0)                                    # (n_axes,)
-    push = np.max([(B @ axes.T).max(0) for B, _ in hit], axis=0) - a_min
+    blocks = [np.concatenate([nA, -nA])] + [nB for _, nB, _ in hit]
+    support = [np.full(len(b), -np.inf) for b in blocks]
+    for j, (B, _, offB) in enumerate(hit):
+        for k, axes in enumerate(blocks):
+            s_k = offB if k == j + 1 else (B @ axes.T).max(0)
+            np.maximum(support[k], s_k, out=support[k])
+    axes = np.concatenate(blocks)
+    push = np.concatenate(support) - (A @ axes.T).min(0)
     k = int(np.argmin(push))
     return max(float(push[k]), 0.0), axes[k].copy()
 
@@ -120,14 +141,15 @@ class Footprints:
         return local
 
     def parts(self, i: int, T: np.ndarray, static: bool) -> list:
-        """Polygons with edge normals of body ``i`` at the world transform ``T`` (4, 4)."""
+        """(polygon, edge normals, offsets) of each part of body ``i`` at the world transform
+        ``T`` (4, 4)."""
         if static and i in self._static:
             return self._static[i]
         R, t = T[:2, :3], T[:2, 3]
         out = []
         for v in self._local(i):
             P = polygon(v @ R.T + t)
-            out.append((P, edge_normals(P)))
+            out.append((P, *_edges(P)))
         if static:
             self._static[i] = out
         return out
