@@ -188,6 +188,8 @@ class network(TableSlave):
                     self._jolt = True
             self._last_in = ins if not self._jolt else None   # an active contact bounces every step
         m.step(h)
+        if not self._jolt and m.world.jolt.any():   # an entity hit the avatar in the step
+            self._jolt = True
         rest = m.at_rest()
         key = self._output_key(h) if rest else None
         if key is not None and key == self._key:   # at rest: every output would get its old value

@@ -105,9 +105,14 @@ class NetworkConfig:
     max_steer_rad: float = 0.5
     restitution: float = 0.5
     # contact masses (kg; inf: immovable): avatar-entity impulses and separations are split by
-    # inverse mass (response.py); an infinite avatar mass leaves the avatar's motion to its driver
-    avatar_mass: float = float("inf")
-    entity_mass: float = 100.0
+    # inverse mass (response.py). Equal masses: no entity leaves a collision faster than its
+    # speed plus the avatar's (e <= 1); an infinite avatar mass (the former rule) gives it up to
+    # (1 + e) times the approach speed and lets a pinned entity gain energy
+    avatar_mass: float = 1000.0
+    entity_mass: float = 1000.0
+    # ownership hand-over hysteresis: an entity handed over (region or collision) keeps its new
+    # owner at least this long (s), so the collision report and the region rule do not flap
+    handover_hold_s: float = 0.2
     avatar_radius: float = 2.0
     entity_radius: float = 1.0
     entity_speed: float = 2.0
@@ -140,6 +145,7 @@ class NetworkConfig:
             (self.avatar_start in ("cluster", "uniform"), f"avatar_start {self.avatar_start!r} not in ('cluster', 'uniform')"),
             (self.avatar_mass > 0 and self.entity_mass > 0 and math.isfinite(self.entity_mass),
              f"avatar_mass = {self.avatar_mass}, entity_mass = {self.entity_mass} must be > 0 (entity finite)"),
+            (self.handover_hold_s >= 0, f"handover_hold_s = {self.handover_hold_s} must be >= 0"),
             (self.grid_cells >= 1, f"grid_cells = {self.grid_cells} must be >= 1"),
             (self.frame_s > 0, f"frame_s = {self.frame_s} must be > 0"),
             (self.ownership_scale > 0.5, f"ownership_scale = {self.ownership_scale} must be > 0.5 (eq. 3-12)"),

@@ -159,6 +159,7 @@ class NetworkModel:
         # ownership: avatars by their group; entities initially by the nearest avatar
         self.owner = np.r_[np.arange(G), self._initial_entity_owners()]
         self.pending_contact = np.zeros(E, bool)
+        self._hold = np.full(self.n_obj, -np.inf)   # per object: no hand-over before this time (s)
         # receivers' caches (viewer group x object): one row of floats per (object, viewer),
         # flat index object * G + viewer (object-major: the pairs of a frame are sorted by
         # object, so gathers and scatters walk memory forward). Row: record time t, position
@@ -491,7 +492,7 @@ class NetworkModel:
     def _handover(self, objs: np.ndarray, new: np.ndarray) -> None:
         if self.cfg.ownership == "none":
             return
-        changed = self.owner[objs] != new
+        changed = (self.owner[objs] != new) & (self._hold[objs] <= self.t + 1e-9)   # (hysteresis)
         if changed.any():
             n = int(changed.sum())
             o, old = objs[changed], self.owner[objs[changed]]
@@ -504,6 +505,7 @@ class NetworkModel:
             self._newest = max(self._newest, self.t)
             self._epoch += 1
             self.owner[o] = new[changed]
+            self._hold[o] = self.t + self.cfg.handover_hold_s
             if self._groups is not None:          # the new owner's copy is no longer a remote one
                 self._groups.touch(self.index(self.owner[o], o))
             self.metrics.handovers += n

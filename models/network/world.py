@@ -535,11 +535,14 @@ class World:
         if not over.any():
             return
         dx_e, dx_a = separation(w_e[over], w_a[over], n[over], depth[over])
+        S = self.cfg.scene_size      # (a wall does not give way: nobody is pushed through it)
         self.epos = self.epos.copy()
         np.add.at(self.epos, ei[over], dx_e)
+        np.clip(self.epos, 0.0, S, out=self.epos)
         if w_a.any():
             self.apos = self.apos.copy()
             np.add.at(self.apos, ai[over], dx_a)
+            np.clip(self.apos, 0.0, S, out=self.apos)
         self.separated += int(over.sum())
 
     def _change_avatar_velocity(self, g: int, dv) -> float:
