@@ -72,6 +72,8 @@ def test_prefiltered_pose_step_follows_the_critically_damped_step_response():
         t = k * H
         assert abs(sim.x[14] - u * (1 - (1 + wf * t) * math.exp(-wf * t))) < 1e-6
         assert abs(sim.x[20] - u * wf * wf * t * math.exp(-wf * t)) < 1e-5
+        out = sim.out   # the tracking error output is |C - C_ref| against the prefiltered reference
+        assert out.track_err == pytest.approx(np.linalg.norm(out.pose[:3] - sim.x[12:15]), rel=1e-9, abs=1e-12)
 
 
 # -- washout: transfer functions of eq. (classical washout) -------------------------------------
@@ -248,3 +250,9 @@ def test_plant_gets_the_force_demand_clipped_at_plus_minus_F_max(sign):
     np.testing.assert_allclose(xdot[:6], x[6:], atol=0)
     np.testing.assert_allclose(xdot[6:], forward_dynamics(x[:6], x[6:], np.clip(F, -cp.F_max, cp.F_max), pp),
                                rtol=1e-9, atol=1e-9)
+
+
+def test_step_inputs_are_zero_only_without_any_input():
+    assert StepInputs().is_zero()
+    assert not StepInputs(jolt=8.0).is_zero()
+    assert not StepInputs(ref=np.array([0, 0, 0.01, 0, 0, 0])).is_zero()
