@@ -15,9 +15,12 @@ import sys
 #: own start-up, before this line, keeps the default actions; nothing is written then)
 _EARLY: list = []
 _HOLDING = __name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") == "immersim"
+#: the signals ignored by whoever started the program (nohup, a background job): they stay ignored
+_IGNORED = [s for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP) if signal.getsignal(s) is signal.SIG_IGN]
 if _HOLDING:
     for _sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(_sig, lambda signum, frame: _EARLY.append(signum))
+        if _sig not in _IGNORED:
+            signal.signal(_sig, lambda signum, frame: _EARLY.append(signum))
 
 import argparse  # noqa: E402
 import logging  # noqa: E402
@@ -342,7 +345,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     if args.fn is not _cmd_run and _HOLDING:   # other commands: the default actions again
         for sig, action in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL),
                             (signal.SIGHUP, signal.SIG_DFL)):
-            signal.signal(sig, action)
+            if sig not in _IGNORED:
+                signal.signal(sig, action)
     if _EARLY:   # came while the program started: nothing was done yet
         name = signal.Signals(_EARLY[0]).name
         sys.stderr.write(f"immersim: interrupted by {name} while starting; nothing was done\n")

@@ -170,6 +170,8 @@ class DeferredSigint:
         if threading.current_thread() is threading.main_thread():
             for name in STOP_SIGNALS:
                 sig = getattr(signal, name)
+                if signal.getsignal(sig) is signal.SIG_IGN:   # ignored by whoever started us (nohup, a
+                    continue                                    # background job): it stays ignored
                 self._old[sig] = signal.signal(sig, self._handle)
                 outer = getattr(self._old[sig], "__self__", None)
                 if isinstance(outer, DeferredSigint) and outer.requested and not self.requested:
@@ -251,7 +253,8 @@ def supervise(deferred: Optional[DeferredSigint] = None) -> Optional[int]:
         except ProcessLookupError:
             pass
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, forward)
+        if signal.getsignal(sig) is not signal.SIG_IGN:   # (one ignored by our starter stays so)
+            signal.signal(sig, forward)
     if deferred is not None and deferred.requested:   # came between the check and the fork
         forward(deferred.signum, None)
     _, status = os.waitpid(pid, 0)

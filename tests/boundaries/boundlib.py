@@ -34,11 +34,28 @@ def one_line(out: Outcome, code: int, pattern: str) -> str:
     return out.lines[0]
 
 
+def _default_signals() -> None:
+    """In the child before exec: SIGINT, SIGTERM and SIGHUP at their default actions (a test run
+    in the background, or under nohup, would hand them down ignored, and they stay ignored)."""
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def start(args: List[str], tmpdir: Path, **kw) -> subprocess.Popen:
-    """``immersim ARGS`` in a fresh process whose temporary folder is ``tmpdir``."""
+    """``immersim ARGS`` in a fresh process whose temporary folder is ``tmpdir``, with the
+    default signal actions."""
     env = dict(os.environ, TMPDIR=str(tmpdir))
     env.update(kw.pop("env", {}))
-    return subprocess.Popen(CLI + args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, **kw)
+    pre = kw.pop("preexec_fn", None)
+
+    def preexec() -> None:
+        _default_signals()
+        if pre is not None:
+            pre()
+    return subprocess.Popen(CLI + args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=preexec, **kw)
 
 
 def run(args: List[str], tmpdir: Path, timeout: float = 120, **kw) -> Outcome:

@@ -89,3 +89,20 @@ def test_leftovers_of_a_killed_run_are_removed_by_the_next(test_fmus, tmp_path):
     assert res.code == 0, res.stderr
     assert list(tmp_path.glob("immersim_run_*")) == []
     assert os.path.exists(out)
+
+
+def test_a_signal_ignored_by_the_starter_stays_ignored(test_fmus, tmp_path):
+    """``nohup immersim run ...``: SIGHUP was ignored when the program started, and stays so
+    (the run goes on); SIGTERM still stops it."""
+    sc = bl.scenario(tmp_path, bl.oscillator_units(test_fmus["oscillator"]), stop=STEPS / 1000, step=0.001)
+    out = tmp_path / "run.mcap"
+    p = bl.start(["run", str(sc), "-o", str(out), "-q"], tmp_path,
+                 preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    assert bl.wait_for(lambda: out.exists() and out.stat().st_size > 0, 120)
+    p.send_signal(signal.SIGHUP)
+    time.sleep(0.2)
+    assert p.poll() is None, "SIGHUP ignored by the starter ended the run"
+    p.send_signal(signal.SIGTERM)
+    stdout, stderr = p.communicate(timeout=120)
+    line = bl.one_line(bl.Outcome(p.returncode, stdout, stderr), 143, r"interrupted by SIGTERM")
+    bl.assert_log_holds(out, "m1", bl.completed_steps(line), "interrupted")
