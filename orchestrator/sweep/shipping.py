@@ -3,9 +3,9 @@
 On a Dask cluster a run must not read or write the client's folders. The client gives each
 :class:`~immersim.orchestrator.sweep.runs.RunTask` the scenario's text and, per unit
 instance, the sha256 and the client-side path of the FMU it resolved (:func:`attach_inputs`).
-The FMU files themselves travel separately, once per worker: the executor scatters one blob
-per distinct hash and hands each run the blobs it needs; the worker keeps them in its own
-cache (:func:`store_fmus`, content-addressed, so a later sweep finds them again). The run
+The FMU files themselves travel separately, once per worker and sweep: the executor scatters
+one blob per distinct hash and hands each run the blobs it needs; the worker keeps them in its
+own cache (:func:`store_fmus`, content-addressed: each file written once per machine). The run
 writes its log into a private temporary folder and returns the bytes; the client writes them
 to the sweep's output folder and computes the metrics from that file.
 
