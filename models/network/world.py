@@ -516,21 +516,29 @@ class World:
         n = d / dist[:, None]     # from the avatar to the entity
         cfg = self.cfg
         w_e, w_a = inverse_mass(np.full(len(ai), cfg.entity_mass)), inverse_mass(np.full(len(ai), cfg.avatar_mass))
-        self._separate(ai, ei, n, r - dist, w_e, w_a)
+        # the entity leaves the overlap (the avatar keeps its position: its contacts with the
+        # static scene are the collision unit's, which this model does not know)
+        self._separate(ai, ei, n, r - dist, w_e, np.zeros(len(ai)))
         avel = self.avel
         rel = np.einsum("ij,ij->i", avel[ai] - self.evel[ei], n)
         keep = rel > 0
         ai, ei, n, w_e, w_a = ai[keep], ei[keep], n[keep], w_e[keep], w_a[keep]
         dv, dva = impulse(w_e, w_a, self.evel[ei], avel[ai], n, cfg.restitution)
         if w_a.any():     # a finite avatar mass: the avatar's share, at once (its master responds)
-            for g, d_a in zip(ai.tolist(), dva):
-                self._change_avatar_velocity(g, d_a)
+            c, s = np.cos(self.yaw[ai]), np.sin(self.yaw[ai])
+            along = dva[:, 0] * c + dva[:, 1] * s
+            for g, dsp in zip(ai.tolist(), along.tolist()):
+                # along its heading only: the tyres hold the sideways part (the ground takes it;
+                # the avatar's kinetic energy is at most the two-body result's), so the heading
+                # of a vehicle does not jump when an entity hits it
+                self.speed[g] += dsp
+                self.jolt[g] += abs(dsp)
         return ai, ei, dv
 
     def _separate(self, ai, ei, n, depth, w_e, w_a) -> None:
         """Remove the overlaps ``depth`` (k,) m of avatar-entity pairs ``ai``, ``ei`` along the
-        unit normals ``n`` (k, 2) (avatar to entity), split by inverse mass (:func:`separation`);
-        ``separated`` counts the pairs moved."""
+        unit normals ``n`` (k, 2) (avatar to entity), split by the inverse masses ``w_e``, ``w_a``
+        (:func:`separation`; ``w_a = 0``: the entity moves); ``separated`` counts the pairs moved."""
         over = depth > 0.0
         if not over.any():
             return

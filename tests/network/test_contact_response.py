@@ -75,9 +75,11 @@ def test_bounce_corrects_the_position_and_the_jolt_is_the_velocity_change_only()
     assert jolt == 0.0 and np.allclose(w.apos[0], (49.5, 50.0)) and np.allclose(w.avel[0], (-5.0, 0.0))
 
 
-def test_an_entity_inside_an_avatar_is_pushed_out_split_by_mass():
+def test_an_entity_inside_an_avatar_is_pushed_out_whole():
+    """The entity leaves the overlap; the avatar keeps its position whatever the masses (its
+    contacts with the static scene are the collision unit's)."""
     cfg = dict(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0, scene_size=200.0)
-    for m_a, share in ((math.inf, 1.0), (300.0, 0.75)):
+    for m_a, share in ((math.inf, 1.0), (300.0, 1.0), (1000.0, 1.0)):
         m = NetworkModel(NetworkConfig(avatar_mass=m_a, entity_mass=100.0, **cfg))
         w = m.world
         w.apos[0], w.epos[0] = (100.0, 100.0), (101.0, 100.0)     # 2 m overlap (radii 2 + 1)

@@ -254,7 +254,7 @@ def test_scalar_kinematics_equal_the_array_code(monkeypatch):
     from immersim.models.network import world as world_mod
 
     cfg = NetworkConfig(groups=4, render_nodes=2, entities=20, driven_groups=4, scene_size=12.0, seed=3,
-                        avatar_start="uniform", entity_speed=6.0)
+                        avatar_start="uniform", entity_speed=6.0, avatar_mass=float("inf"))  # (the walls it hits)
 
     def trace():
         m = NetworkModel(cfg)
