@@ -129,6 +129,7 @@ def test_info_and_plot_commands(tmp_path, test_fmus):
     info = subprocess.run(cli + ["info", str(out)], capture_output=True, text=True, check=True).stdout
     assert "channel m1: 31 messages, 0 .. 0.99 s, 5 signals" in info
     assert "m1.x [m]" in info and "run: completed after 30 of 30 steps" in info
+    assert "step 0.033 s" in info                        # the macro step from the log's metadata
     png = tmp_path / "p.png"
     subprocess.run(cli + ["plot", str(out), "m*.x", "m1.v", "-o", str(png)], check=True, timeout=120)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
