@@ -216,14 +216,15 @@ at commit `{commit}` on {machine()}. The benchmark (real-time factor, time per u
 
 The closed loop `net -> coll -> net` and `net -> plat` of `scenarios/campus_drive.toml`
 ({args.stop:g} s). Top: distance and contact flag of pair 1 (`avatar_1 vs tank_a`) and the
-network's contact input one step later (the Gauss-Seidel cycle is broken at coll -> net).
+network's contact input in the same step (the collision unit steps first on the network's last
+poses; the network reads its contacts fresh).
 Second: avatar 1's speed, the bounce's velocity change `net.avatar[1].jolt` and the platform's
 `plat.jolt` input. Third: the six actuator strokes. Bottom: strokes of this run minus those of
 the same run with the `net.avatar[1].jolt_acc -> plat.jolt` connection removed: the jolt's own
 contribution to the strokes.
 
 Measured: avatar 1 touches tank_a at t = {c['t_hit']:.3f} s; the network bounces it
-(restitution 0.5) and `plat.jolt` = {c['jolt']:.2f} at t = {c['t_jolt']:.3f} s (one step later).
+(restitution 0.5) and `plat.jolt` = {c['jolt']:.2f} at t = {c['t_jolt']:.3f} s (the step it is reported in).
 The jolt changes the strokes by up to {c['stroke_diff_max_mm']:.1f} mm within 1.5 s
 (difference before the jolt: {c['stroke_diff_before_mm']:.2g} mm); the largest stroke of the run is
 {c['stroke_absmax_mm']:.1f} mm (limit 120 mm); `plat.flag.outside_workspace` (the washout reference
