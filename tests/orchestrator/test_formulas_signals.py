@@ -1,0 +1,71 @@
+"""Scenario signals, real-time pacing deadlines and a connection's offset under linear
+extrapolation, against closed forms."""
+import math
+
+import numpy as np
+import pytest
+
+from immersim.orchestrator.execution import run_scenario
+from immersim.orchestrator.mcapio import read_series
+from immersim.orchestrator.pacing import Pacer
+from immersim.orchestrator.signals import signal_function
+
+
+def test_constant_step_ramp_and_sine_signals():
+    const = signal_function("constant", {"value": 2.5})
+    step = signal_function("step", {"at": 0.33, "value": 8.0, "initial": -1.0})
+    ramp = signal_function("ramp", {"at": 1.0, "slope": 2.0, "initial": 0.5})
+    sine = signal_function("sine", {"amplitude": 3.0, "frequency": 0.5, "offset": 1.0, "phase": 0.25})
+    for t in (0.0, 0.2, 0.33, 0.99, 1.0, 1.5, 4.0):
+        assert const(t) == 2.5
+        assert step(t) == (8.0 if t >= 0.33 else -1.0)            # on at its own time
+        assert ramp(t) == pytest.approx(0.5 + 2.0 * max(0.0, t - 1.0), abs=1e-15)
+        assert sine(t) == pytest.approx(1.0 + 3.0 * math.sin(2 * math.pi * 0.5 * t + 0.25), abs=1e-15)
+    assert step(0.33 - 1e-13) == 8.0 and step(0.329) == -1.0      # (a time a rounding below 'at' counts)
+
+
+def test_pacing_deadline_is_the_simulated_time_since_start_over_the_factor():
+    """Step k ending at simulated t is due at wall0 + (t - start) / factor (ns), wall0 the wall
+    clock when the initial state was observed; a run starting at t = 5 s."""
+    now = [1_000]
+    pacer = Pacer(2.0, 5_000_000_000, clock=lambda: now[0], sleep=lambda s: now.__setitem__(0, now[0] + int(s * 1e9)))
+    pacer(0, 5_000_000_000)
+    assert pacer.wall0 == 1_000
+    assert pacer.deadline(5_000_000_000) == 1_000
+    assert pacer.deadline(6_000_000_000) == 1_000 + 500_000_000
+    assert pacer.deadline(5_033_000_000) == 1_000 + 16_500_000
+
+
+def _offset_run(tmp_path, fmu, offset, name):
+    p = tmp_path / f"{name}.toml"
+    p.write_text(f'''
+[simulation]
+stop = 0.66
+algorithm = "gauss-seidel"
+extrapolation = "linear"
+[[units]]
+name = "m2"
+fmu = "{fmu}"
+[[units]]
+name = "m1"
+fmu = "{fmu}"
+parameters = {{ x0 = 1.0 }}
+[[connections]]
+from = "m1.x"
+to = "m2.x_other"
+gain = 2.0
+offset = {offset}
+''')
+    out = tmp_path / f"{name}.mcap"
+    run_scenario(p, out)
+    return read_series(out, ["m1.x", "m2.x_other"])
+
+
+def test_connection_offset_is_added_under_linear_extrapolation(tmp_path, test_fmus):
+    """to = gain * from + offset whatever the extrapolation: the same run with offset 0.5 and 0
+    gives inputs 0.5 apart at every step (m1 does not depend on m2, so its x is the same)."""
+    a = _offset_run(tmp_path, test_fmus["oscillator"], 0.5, "a")
+    b = _offset_run(tmp_path, test_fmus["oscillator"], 0.0, "b")
+    np.testing.assert_array_equal(a["m1.x"][1], b["m1.x"][1])
+    np.testing.assert_allclose(a["m2.x_other"][1] - b["m2.x_other"][1], 0.5, rtol=0, atol=1e-12)
+    assert np.ptp(a["m1.x"][1]) > 0.01
