@@ -38,7 +38,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
-TOPS = ("models", "orchestrator", "fmus")
+TOPS = ("models", "orchestrator", "fmus", "scenarios")
 
 
 @dataclass
@@ -102,18 +102,28 @@ def check(mutants: List[Mutant], root: Path = ROOT) -> List[str]:
 
 
 def make_copy(dest: Path, rev: str = "HEAD") -> Path:
-    """Unpack ``rev`` of the checkout into ``dest/tree`` and the import shim into ``dest/shim``.
-    Returns the ``PYTHONPATH`` entry that makes ``immersim.*`` the copy."""
+    """Unpack ``rev`` of the checkout into ``dest/tree`` and the import shim into ``dest/shim``:
+    ``immersim`` is the copy's ``api/`` (or an empty package) with ``models``, ``orchestrator``,
+    ``fmus`` and ``scenarios`` linked into it, as setup.py maps them. Returns the ``PYTHONPATH``
+    entry that makes ``immersim.*`` the copy."""
     tree = dest / "tree"
     tree.mkdir(parents=True)
     blob = subprocess.run(["git", "archive", "--format=tar", rev], cwd=ROOT, capture_output=True, check=True).stdout
     with tarfile.open(fileobj=BytesIO(blob)) as tf:
         tf.extractall(tree)
-    pkg = dest / "shim" / "immersim"
-    pkg.mkdir(parents=True)
-    (pkg / "__init__.py").write_text('"""The copy under mutation test (see benchmarks/mutation/runner.py)."""\n')
+    shim = dest / "shim"
+    shim.mkdir()
+    api = tree / "api"   # the package ``immersim`` itself, when the tree has one (setup.py's package_dir)
+    if (api / "__init__.py").exists():
+        (shim / "immersim").symlink_to(api, target_is_directory=True)
+        pkg = api
+    else:
+        pkg = shim / "immersim"
+        pkg.mkdir()
+        (pkg / "__init__.py").write_text('"""The copy under mutation test (see benchmarks/mutation/runner.py)."""\n')
     for top in TOPS:
-        (pkg / top).symlink_to(tree / top, target_is_directory=True)
+        if (tree / top).is_dir() and not (pkg / top).exists():
+            (pkg / top).symlink_to(tree / top, target_is_directory=True)
     return dest / "shim"
 
 
