@@ -68,7 +68,7 @@ def test_gauss_seidel_contact_loop_in_workers_is_the_same(tmp_path):
     ov = {"simulation.stop": 4.5}
     here, there = tmp_path / "here.mcap", tmp_path / "there.mcap"
     run_scenario(SCEN / "campus_drive.toml", here, overrides={**ov, "net:process": 0})
-    res = run_scenario(SCEN / "campus_drive.toml", there, overrides=ov)   # as shipped: net in worker 1
+    res = run_scenario(SCEN / "campus_drive.toml", there, overrides={**ov, "net:process": 1})
     assert res.remote_units == ["net"]
     _same_logs(here, there)
     jolt = read_series(there, ["net.avatar[[]1].jolt"])["net.avatar[1].jolt"][1]
@@ -76,14 +76,16 @@ def test_gauss_seidel_contact_loop_in_workers_is_the_same(tmp_path):
 
 
 def _campus_parallel(tmp_path) -> Path:
-    """campus_drive with its contacts also read `delayed` by the network: the network and the
-    collision unit then depend on each other only across steps and step at the same time (the
-    shipped scene reads the contacts fresh: the collision unit steps first)."""
+    """campus_drive with its contacts also read `delayed` by the network and the network in
+    worker 1: the network and the collision unit then depend on each other only across steps
+    and step at the same time (the shipped scene reads the contacts fresh, one process)."""
     import re
 
     text, n = re.subn(r'(from = "coll\.pair\[\d\]\.\w+"\nto = "net\.contact\[\d\]\.\w+"\n)',
                       r"\1delayed = true\n", (SCEN / "campus_drive.toml").read_text())
     assert n == 12
+    text, n = re.subn(r'\nname = "net"\nfmu = "network"\n', '\nname = "net"\nfmu = "network"\nprocess = 1\n', text)
+    assert n == 1                                  # the network in worker 1
     path = tmp_path / "campus_parallel.toml"
     path.write_text(text)
     return path
