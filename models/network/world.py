@@ -13,8 +13,10 @@ Body-frame specific force (x forward, y left, z up) ``f = (dv/dt, v * dyaw/dt, g
 rate ``w = (0, 0, dyaw/dt)`` feed the motion platform's washout. Free entities move on the
 ground with a constant turn rate and linear drag (``dv/dt = w_e J v - drag_e v``) so that
 their motion is smooth but curved (dead reckoning of order 2 has something to gain). Everyone
-reflects off the scene's walls. Collision responses (inputs) bounce or stop an avatar:
-``v <- v - (1 + e) (v.n) n`` for ``v.n < 0``.
+reflects off the scene's walls. Collision responses (inputs) move an avatar out of the obstacle
+by the penetration depth along the normal and bounce or stop it: ``v <- v - (1 + e) (v.n) n``
+for ``v.n < 0``. Avatar-entity contacts: the entity leaves the overlap, the impulse is split by
+inverse mass (:mod:`.response`; the avatar's share along its heading).
 """
 from __future__ import annotations
 
