@@ -17,6 +17,7 @@ holds the time the process waited for a core, its CPU time does not.
 from __future__ import annotations
 
 import argparse
+import re
 import logging
 import sys
 import tempfile
@@ -223,9 +224,9 @@ def main() -> None:
                   f"`scenarios/campus_drive.toml` as shipped ({sim:g} s, {steps} steps of 33 ms; 3 players x 3 render "
                   f"nodes, 8 entities; collision fcl with 5 monitored pairs over 8 dynamic bodies and 7 tanks of 5.4k "
                   f"triangles; platform washout + computed torque + RK4), `[log] include = [\"*\"]` "
-                  f"(every input and output of the three units, {size / 1e6:.1f} MB MCAP); the network and the "
-                  f"collision unit read each other's previous step (connections declared `delayed`) and "
-                  f"{', '.join(f'`{u}`' for u in remote) or 'no unit'} steps in worker process 1, in parallel. "
+                  f"(every input and output of the three units, {size / 1e6:.1f} MB MCAP); the collision unit "
+                  f"reads the network's previous step (`delayed`) and the network reads the contacts fresh, after "
+                  f"it; {', '.join(f'`{u}`' for u in remote) or 'no unit'} steps in a worker process. "
                   f"{n_runs} wall-clock runs and {n_runs} CPU-clock runs, interleaved, each in a fresh process "
                   f"(as `immersim run`); medians. The CPU-clock runs are the same run with every unit in one "
                   f"process (`--set net:process=0`; the same log bit for bit): the CPU the loop's work costs. In "
@@ -277,7 +278,12 @@ def main() -> None:
         fresh = tmp / "campus_fresh.toml"   # net -> coll read fresh: the scene before the declared delays
         fresh.write_text(CAMPUS.read_text().replace("\ndelayed = true\n", "\n")
                          .replace('fmu = "network"\nprocess = 1\n', 'fmu = "network"\n'))
-        par = {"as shipped (Gauss-Seidel; net <-> coll delayed; net in worker 1)": ({}, CAMPUS),
+        parallel = tmp / "campus_parallel.toml"   # contacts delayed too, net in worker 1: net and coll in parallel
+        parallel.write_text(re.sub(r'(from = "coll\.pair\[\d\]\.\w+"\nto = "net\.contact\[\d\]\.\w+"\n)',
+                                   r"\1delayed = true\n", CAMPUS.read_text())
+                            .replace('name = "net"\nfmu = "network"\n', 'name = "net"\nfmu = "network"\nprocess = 1\n'))
+        par = {"as shipped (Gauss-Seidel; contacts read fresh, after coll; one process)": ({}, CAMPUS),
+               "contacts delayed too, net in worker 1 (net and coll in parallel; responds a step late)": ({}, parallel),
                "as shipped, one process": (ONE_PROCESS, CAMPUS),
                "net -> coll read fresh (no declared delays), one process": ({}, fresh),
                "as shipped, log in a writer process (`[log] process`)": ({"log.process": True}, CAMPUS),
