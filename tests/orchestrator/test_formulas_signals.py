@@ -84,3 +84,15 @@ def test_a_log_that_ends_early_reads_the_requested_channel_only(tmp_path, test_f
     n = len(s["m1.x"][1])
     assert 0 < n <= len(full["m1.x"][1])
     np.testing.assert_array_equal(s["m1.x"][1], full["m1.x"][1][:n])
+
+
+@pytest.mark.parametrize("times, bad", [([0.0, 1.0, 0.5], "times[2] = 0.5 < times[1] = 1"),
+                                        ([0.0, -1.0], "times[1] = -1 < times[0] = 0")])
+def test_table_times_must_increase_at_every_consecutive_pair(tmp_path, test_fmus, times, bad):
+    from immersim.orchestrator.errors import ScenarioError
+
+    p = tmp_path / "table.toml"
+    p.write_text(f'[[units]]\nname = "m"\nfmu = "{test_fmus["oscillator"]}"\n'
+                 f'[[inputs]]\ntarget = "m.x_other"\nkind = "table"\ntimes = {times}\nvalues = {[0.0] * len(times)}\n')
+    with pytest.raises(ScenarioError, match=f"'times' must be increasing: {bad.replace('[', '.').replace(']', '.')}"):
+        run_scenario(p)
