@@ -152,3 +152,32 @@ if __name__ == "__main__" and "--write-reference" in sys.argv:
     header = ",".join(["time"] + [n.replace("[", "_").replace("]", "").replace(".", "_") for n in REF_OUTPUTS])
     np.savetxt(UNIT / "reference.csv", data, delimiter=",", header=header, comments="", fmt="%.12g")
     print(f"wrote {UNIT / 'reference.csv'} ({len(data)} rows)")
+
+
+def test_contact_depth_moves_the_avatar_out_and_is_not_felt(fmu):
+    """The same head-on bounce with contact[1].depth = 0.4 m: the avatar ends the step 0.4 m
+    further out along the normal than without it, with the same jolt; a negative depth is an
+    error naming the instance, the variable and the time."""
+    out = {}
+    for depth in (0.0, 0.4):
+        r = Runner(fmu, f"deep{int(depth * 10)}", PARAMS)
+        try:
+            for k in range(20):
+                r.step({"avatar[1].throttle": 1.0})
+            vx, vy = r.get(["avatar[1].vx", "avatar[1].vy"])
+            n = -np.array([vx, vy]) / np.hypot(vx, vy)
+            r.step({"contact[1].active": True, "contact[1].nx": n[0], "contact[1].ny": n[1], "contact[1].depth": depth})
+            out[depth] = (np.array(r.get(["avatar[1].x", "avatar[1].y"])), r.get(["avatar[1].jolt"])[0], n)
+        finally:
+            r.close()
+    (p0, j0, n), (p1, j1, _) = out[0.0], out[0.4]
+    assert np.allclose(p1 - p0, 0.4 * n, atol=1e-9) and j1 == j0 > 0
+    r = Runner(fmu, "negdepth", PARAMS)
+    try:
+        r.step(drive(0))
+        with pytest.raises(FMICallException):
+            r.step({"contact[2].active": True, "contact[2].nx": 1.0, "contact[2].depth": -0.1})
+        assert any("negdepth" in m and "contact[2].depth = -0.1 must be >= 0" in m and "t = 0.033" in m
+                   for m in r.messages), r.messages
+    finally:
+        r.close()
