@@ -96,3 +96,30 @@ def test_table_times_must_increase_at_every_consecutive_pair(tmp_path, test_fmus
                  f'[[inputs]]\ntarget = "m.x_other"\nkind = "table"\ntimes = {times}\nvalues = {[0.0] * len(times)}\n')
     with pytest.raises(ScenarioError, match=f"'times' must be increasing: {bad.replace('[', '.').replace(']', '.')}"):
         run_scenario(p)
+
+
+def test_seconds_to_integer_nanoseconds_rounds_to_the_nearest():
+    from immersim.orchestrator.scenario import seconds_to_ns
+
+    assert seconds_to_ns(1.001) == 1_001_000_000     # 1.001 * 1e9 = 1000999999.9999999
+    assert seconds_to_ns(0.033) == 33_000_000 and seconds_to_ns(-0.5) == -500_000_000
+
+
+def test_simulation_and_log_overrides_write_their_table():
+    from pathlib import Path
+
+    from immersim.orchestrator.scenario import apply_overrides
+
+    data = {"simulation": {"stop": 1.0}, "units": [{"name": "m", "fmu": "x.fmu"}]}
+    origins = apply_overrides(data, Path("s.toml"), {"simulation.stop": 2.5, "log.encoding": "ros1", "m.k": 3.0})
+    assert data["simulation"]["stop"] == 2.5 and data["log"] == {"encoding": "ros1"}
+    assert data["units"][0]["parameters"] == {"k": 3.0}
+    assert origins[("simulation", "stop")] == "simulation.stop"
+
+
+def test_a_fault_is_active_from_its_own_time_on():
+    from immersim.orchestrator.manipulators import Fault
+    from immersim.orchestrator.scenario import FaultSpec
+
+    f = Fault(FaultSpec("m", "x_other", 330_000_000, float("nan")))
+    assert not f.active(329_999_999) and f.active(330_000_000) and f.active(10 ** 12)
