@@ -1,4 +1,4 @@
-"""Run the issue-6 ablations on campus_drive and write ``results/ablation/README.md``.
+"""Run the ablations on campus_drive and write ``results/ablation/README.md``.
 
 Runs ``immersim sweep`` on ``scenarios/sweeps/campus_backends.toml`` (collision backend) and
 ``scenarios/sweeps/campus_prediction.toml`` (dead-reckoning order x WAN latency) into
@@ -132,7 +132,7 @@ def main() -> None:
     lats = sorted({k[1] for k in pred})
     wall = ", ".join(f"{k} {v:.0f} s" for k, v in walls.items()) or "not re-run (--skip-run)"
     pngs = {n: sorted(p.name for p in (OUT / n).glob("*.png")) for n in SWEEPS}
-    text = f"""# Ablations on campus_drive (issue 6, item 3)
+    text = f"""# Ablations on campus_drive
 
 Command (runs both sweeps and rewrites this file):
 

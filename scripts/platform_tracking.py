@@ -63,7 +63,7 @@ def main() -> None:
             print(f"{name:14s} {c:16s} max position error after 2 s: {err:.3e} m")
     head = ["# §6.4.2 tracking, scaled into the workspace (computed torque vs PD)", "",
             f"Command: `python scripts/platform_tracking.py`; commit `{commit()}`; {machine()}.", "",
-            "Target (issue 3): tracking error after the transient < 0.1 mm on the nominal model (computed torque).",
+            "Target: tracking error after the transient < 0.1 mm on the nominal model (computed torque).",
             "Plots: `tracking_single_axis_y.png`, `tracking_yz_ellipse.png`.", ""]
     (out / "tracking.md").write_text("\n".join(head + rows) + "\n")
 
