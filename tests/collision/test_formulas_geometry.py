@@ -40,13 +40,14 @@ def test_face_shift_terms_are_the_translation_and_frobenius_rotation_change():
 @pytest.mark.parametrize("n_rays", [1, 3])
 def test_rays_through_a_posed_cube_hit_its_faces_where_the_pose_puts_them(n_rays):
     """Rays along +x through a unit cube at x = 2 (rotated 90 deg about z: the same faces) enter
-    at x = 1.5 and leave at x = 2.5, in world coordinates; a ray that misses gives no hit."""
+    at x = 1.5 and leave at x = 2.5, in world coordinates (a single ray too); a ray that misses
+    gives no hit."""
     import trimesh
 
     from immersim.models.collision.raycast import cast_rays
 
     T = pose_matrix([2.0, 0.0, 0.0, 0.0, 0.0, np.pi / 2])
-    origins = np.array([[-3.0, 0.1 * k, 0.2] for k in range(n_rays)] + [[-3.0, 5.0, 0.0]])
+    origins = np.array([[-3.0, 0.1 * k, 0.2] for k in range(n_rays)] + [[-3.0, 5.0, 0.0]] * (n_rays > 1))
     loc, idx = cast_rays(trimesh.creation.box((1, 1, 1)), T, origins, np.tile([1.0, 0.0, 0.0], (len(origins), 1)))
     assert sorted(set(idx.tolist())) == list(range(n_rays))
     for k in range(n_rays):
