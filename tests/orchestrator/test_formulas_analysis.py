@@ -1,0 +1,28 @@
+"""Small formulas of the log reader, the scenario value checks and the sweep's failure line."""
+from types import SimpleNamespace
+
+import numpy as np
+
+from immersim.orchestrator.analysis.logs import ChannelData
+from immersim.orchestrator.sweep.core import failure_message
+from immersim.orchestrator.values import _int
+
+
+def test_channel_time_in_seconds_is_the_log_time_in_ns_over_1e9():
+    ch = ChannelData("m", np.array([0, 33_000_000, 66_000_000, 10 ** 12], np.int64))
+    np.testing.assert_array_equal(ch.t, [0.0, 0.033, 0.066, 1000.0])
+
+
+def test_declared_integer_bounds_parse_or_are_absent():
+    assert _int("7") == 7 and _int(-3) == -3 and _int("0") == 0
+    assert _int(None) is None and _int("x") is None
+
+
+def test_sweep_failure_line_counts_the_runs_not_shown():
+    rows = [SimpleNamespace(id=f"{k:03d}", status="failed", reason=f"r{k}") for k in range(7)]
+    result = SimpleNamespace(failed=rows, rows=rows + [SimpleNamespace(id="007", status="completed", reason="")],
+                             spec=SimpleNamespace(file="s.toml"), summary="out/summary.csv")
+    line = failure_message(result, shown=5)
+    assert line == ("sweep s.toml: 7 of 8 runs did not complete (000: failed: r0; 001: failed: r1; 002: failed: r2; "
+                    "003: failed: r3; 004: failed: r4; and 2 more); summary: out/summary.csv")
+    assert "more" not in failure_message(result, shown=7)
