@@ -26,3 +26,18 @@ def test_sweep_failure_line_counts_the_runs_not_shown():
     assert line == ("sweep s.toml: 7 of 8 runs did not complete (000: failed: r0; 001: failed: r1; 002: failed: r2; "
                     "003: failed: r3; 004: failed: r4; and 2 more); summary: out/summary.csv")
     assert "more" not in failure_message(result, shown=7)
+
+
+def test_metric_units_come_from_the_logged_signal_and_booleans_are_shares(tmp_path, test_fmus):
+    """A metric over a Real signal has the signal's unit; over a Boolean (the mean: a share of
+    steps) the unit 1; a metric without a signal has none."""
+    from immersim.orchestrator.analysis.runs import Run, RunSet
+    from immersim.orchestrator.execution import run_scenario
+
+    p = tmp_path / "u.toml"
+    p.write_text(f'[simulation]\nstop = 0.099\n[[units]]\nname = "m1"\nfmu = "{test_fmus["oscillator"]}"\n')
+    out = tmp_path / "u.mcap"
+    run_scenario(p, out)
+    rs = RunSet([Run("a", out)], metrics={"xmax": {"signal": "m1.x"}, "rest": {"signal": "m1.at_rest"},
+                                          "other": {}})
+    assert (rs.metric_unit("xmax"), rs.metric_unit("rest"), rs.metric_unit("other")) == ("m", "1", "")
