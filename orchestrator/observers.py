@@ -446,7 +446,22 @@ class McapObserver:
                 pass
 
 
+#: JSON text of the non-finite floats (JSON has no number for them)
+_NON_FINITE = {"nan": "NaN", "inf": "Infinity", "-inf": "-Infinity"}
+
+
 def write_parameters(obs: McapObserver, unit: str, infos: List[VarInfo], values: List[Any], t_ns: int) -> None:
+    """The ``<unit>/parameters`` message. A Real parameter whose value is NaN or infinite (an
+    FMU's own start value: the scenario's are checked) is logged as the string ``"NaN"``,
+    ``"Infinity"`` or ``"-Infinity"``, its schema type ``string``: never as JSON ``null``."""
+    from dataclasses import replace
+
     topic = f"{unit}/parameters"
+    odd = [i for i, v in enumerate(values) if isinstance(v, float) and not math.isfinite(v)]
+    if odd:
+        infos, values = list(infos), list(values)
+        for i in odd:
+            infos[i] = replace(infos[i], type="String")
+            values[i] = _NON_FINITE[repr(values[i])]
     obs.add_channel(topic, infos)
     obs.write(topic, t_ns, values)
