@@ -41,3 +41,15 @@ def test_metric_units_come_from_the_logged_signal_and_booleans_are_shares(tmp_pa
     rs = RunSet([Run("a", out)], metrics={"xmax": {"signal": "m1.x"}, "rest": {"signal": "m1.at_rest"},
                                           "other": {}})
     assert (rs.metric_unit("xmax"), rs.metric_unit("rest"), rs.metric_unit("other")) == ("m", "1", "")
+
+
+def test_report_table_of_sweep_runs_has_the_point_keys_fixed_columns_and_metrics(tmp_path):
+    from immersim.orchestrator.analysis.report import _table
+    from immersim.orchestrator.analysis.runs import Run, RunSet
+
+    runs = [Run(f"r{k}", tmp_path / f"{k}.mcap", point={"plat.k": str(k)},
+                row={"id": f"00{k}", "status": "completed", "steps": "30", "t_end_s": "0.99",
+                     "wall_time_s": "0.1", "xmax": str(0.5 * k)}) for k in range(2)]
+    heads, rows = _table(RunSet(runs, keys=["plat.k"], metrics={"xmax": {}}))
+    assert heads == ["id", "plat.k", "status", "steps", "t_end_s", "wall_time_s", "xmax"]
+    assert [c[0] for c in rows[1]] == ["1", "1", "completed", "30", "0.99", "0.1", "0.5"]   # numbers shown as numbers
