@@ -53,3 +53,18 @@ def test_report_table_of_sweep_runs_has_the_point_keys_fixed_columns_and_metrics
     heads, rows = _table(RunSet(runs, keys=["plat.k"], metrics={"xmax": {}}))
     assert heads == ["id", "plat.k", "status", "steps", "t_end_s", "wall_time_s", "xmax"]
     assert [c[0] for c in rows[1]] == ["1", "1", "completed", "30", "0.99", "0.1", "0.5"]   # numbers shown as numbers
+
+
+def test_the_log_is_written_in_process_unless_log_process_is_set(tmp_path, test_fmus):
+    from immersim.orchestrator.execution import Execution
+    from immersim.orchestrator.logwriter import LogProcess, LogWriter
+
+    kinds = {}
+    for process in ("false", "true"):
+        p = tmp_path / f"p{process}.toml"
+        p.write_text(f'[simulation]\nstop = 0.099\n[[units]]\nname = "m1"\nfmu = "{test_fmus["oscillator"]}"\n'
+                     f'[log]\nprocess = {process}\n')
+        ex = Execution(p, tmp_path / f"p{process}.mcap")
+        ex.run()
+        kinds[process] = type(ex.observer)
+    assert kinds == {"false": LogWriter, "true": LogProcess}
