@@ -88,8 +88,9 @@ def write(rows, command: str, wall: float, equivalent=None) -> None:
              f"Command: `{command}` (part of `make bench`)  ",
              f"Commit of the tree under test: {', '.join(f'`{k}` ({v} mutants)' for k, v in commits.items())}  ",
              f"Machine: {machine()}  ",
-             f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; wall time of the last invocation {wall / 60:.0f} min, "
-             f"test time of all mutants {sum(float(r['seconds']) for r in rows) / 60:.0f} min",
+             f"Date: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
+             + (f"wall time of the last invocation {wall / 60:.0f} min, " if wall else "")
+             + f"test time of all mutants {sum(float(r['seconds']) for r in rows) / 60:.0f} min",
              "",
              "Each declared mutant (`benchmarks/mutation/mutants.toml`: file, original line, replacement, why)",
              "is applied to a private copy of the committed tree and its declared test files run with",
@@ -121,7 +122,10 @@ def write(rows, command: str, wall: float, equivalent=None) -> None:
             detail = r["detail"] or (f"equivalent: {equivalent[r['id']]}" if r["id"] in equivalent else "")
             lines.append(f"| {r['id']} | `{r['file']}` | {r['status']} | `{r['original']}` -> `{r['replacement']}` | "
                          f"{r['why']} | {detail.replace('|', '/')} |")
-    lines += ["", "Per-mutant outcomes: `mutants.csv` (id, file, status, seconds, first failing test, commit, change, why)."]
+    lines += ["", "Per-mutant outcomes: `mutants.csv` (id, file, status, seconds, first failing test, commit, change, why).",
+              "The changes the suite once missed, each against the one test named for it: `named.md`.",
+              "A partial run (`--only`, `--prefix`) replaces its mutants' rows; each row names the commit",
+              "of the tree it ran on."]
     (OUT / "README.md").write_text("\n".join(lines) + "\n")
 
 
@@ -136,8 +140,13 @@ def main(argv=None) -> int:
     ap.add_argument("--timeout", type=float, default=240.0, help="seconds per mutant's test run")
     ap.add_argument("--list", type=Path, default=HERE / "mutation" / "mutants.toml")
     ap.add_argument("--no-write", action="store_true", help="print the outcomes, write nothing to results/")
+    ap.add_argument("--rewrite", action="store_true", help="run nothing: rewrite README.md from mutants.csv")
     args = ap.parse_args(argv)
     mutants, _ = runner.load(args.list)
+    if args.rewrite:
+        write(merged([], mutants), "python benchmarks/bench_mutation.py", 0.0,
+              {m.id: m.equivalent for m in mutants if m.equivalent})
+        return 0
     if args.quick:
         mutants = [m for m in mutants if "missed" in m.tags]
     declared = list(mutants)
