@@ -48,43 +48,19 @@ def round_trips(folder: Path, quick: bool) -> list:
 
 
 def cross_run(name: str, steps: int, exact: bool, folder: Path) -> tuple:
-    from immersim.orchestrator.crosscheck import libcosim_master, libcosim_step_sizes, simulate_ssp_libcosim
-    from immersim.orchestrator.execution import run_scenario
-    from immersim.orchestrator.mcapio import read_series
-    from immersim.orchestrator.scenario import load_scenario
-    from immersim.orchestrator.ssp import export_ssp
-    from immersim.orchestrator.system import check_system
+    from immersim.orchestrator.crosscheck import ssp_cross_run
 
-    toml = ROOT / "scenarios" / f"{name}.toml"
-    overrides = {"simulation.stop": round(steps * 0.033, 9), "log.include": ["*"]}
-    if name == "campus_drive":
-        overrides["net:process"] = 0
-    ssp = export_ssp(toml, folder / f"{name}.ssp", overrides=overrides)
-    sc = load_scenario(toml, overrides)
-    libcosim_master(sc)
-    out = folder / f"{name}.mcap"
-    if exact:
-        with libcosim_step_sizes():
-            run_scenario(sc, out)
-    else:
-        run_scenario(sc, out)
-    system = check_system(load_scenario(toml, overrides))
-    outputs = {u.name: [n for n, v in system.variables[u.name].items() if v.causality == "output" and v.family == "float"]
-               for u in sc.units}
-    ours = read_series(out, [f"{u}.{n}" for u, names in outputs.items() for n in names])
-    theirs = simulate_ssp_libcosim(ssp, steps, outputs)
+    pairs = ssp_cross_run(ROOT / "scenarios" / f"{name}.toml", folder, steps, exact)
     differing, worst_rel, worst_zero, n = 0, 0.0, 0.0, 0
-    for u, names in outputs.items():
-        for name_ in names:
-            a, b = ours[f"{u}.{name_}"][1][1:], theirs[u][name_]
-            n += 1
-            differing += int(np.count_nonzero(a != b))
-            scale = np.max(np.abs(b))
-            d = np.max(np.abs(a - b))
-            if scale > 1e-9:
-                worst_rel = max(worst_rel, d / scale)
-            else:
-                worst_zero = max(worst_zero, d)
+    for _, a, b in pairs:
+        n += 1
+        differing += int(np.count_nonzero(a != b))
+        scale = np.max(np.abs(b))
+        d = np.max(np.abs(a - b))
+        if scale > 1e-9:
+            worst_rel = max(worst_rel, d / scale)
+        else:
+            worst_zero = max(worst_zero, d)
     return n, steps, differing, worst_rel, worst_zero
 
 

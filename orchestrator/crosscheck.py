@@ -183,3 +183,46 @@ def libcosim_master(scenario) -> None:
     scenario.algorithm, scenario.extrapolation, scenario.lazy = "jacobi", "zoh", False
     scenario.connections[:] = [dataclasses.replace(c, extrapolation="zoh", delayed=False)
                                for c in scenario.connections]
+
+
+def ssp_cross_run(toml: Path | str, folder: Path | str, steps: int, exact_steps: bool) -> List[tuple]:
+    """Export a scenario to SSP, run the SSP in OSP libcosim and the scenario in immersim with
+    the matching master (:func:`libcosim_master`), and pair every Real output.
+
+    Parameters
+    ----------
+    toml : path
+        The scenario file (every signal logged, ``steps`` macro steps of 33 ms; a unit in a
+        worker process is run in this one, where :func:`libcosim_step_sizes` acts).
+    folder : path
+        Where the SSP and the log go.
+    exact_steps : bool
+        Hand the FMUs libcosim's step sizes (:func:`libcosim_step_sizes`): then bit for bit.
+
+    Returns
+    -------
+    list of (signal, ours, libcosim's)
+        ``"unit.var"`` and the two series of the ``steps`` step ends, arrays of shape (steps,).
+    """
+    from .execution import run_scenario
+    from .mcapio import read_series
+    from .scenario import load_scenario
+    from .ssp import export_ssp
+    from .system import check_system
+
+    toml, folder = Path(toml), Path(folder)
+    overrides = {"simulation.stop": round(steps * 0.033, 9), "log.include": ["*"]}
+    sc = load_scenario(toml, overrides)
+    overrides.update({f"{u.name}:process": 0 for u in sc.units if u.process})
+    ssp = export_ssp(toml, folder / f"{toml.stem}.ssp", overrides=overrides)
+    sc = load_scenario(toml, overrides)
+    libcosim_master(sc)
+    out = folder / f"{toml.stem}.mcap"
+    with libcosim_step_sizes() if exact_steps else contextlib.nullcontext():
+        run_scenario(sc, out)
+    system = check_system(load_scenario(toml, overrides))
+    outputs = {u.name: [n for n, v in system.variables[u.name].items() if v.causality == "output" and v.family == "float"]
+               for u in sc.units}
+    ours = read_series(out, [f"{u}.{n}" for u, names in outputs.items() for n in names])
+    theirs = simulate_ssp_libcosim(ssp, steps, outputs)
+    return [(f"{u}.{n}", ours[f"{u}.{n}"][1][1:], theirs[u][n]) for u, names in outputs.items() for n in names]

@@ -12,37 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from immersim.orchestrator.crosscheck import libcosim_master, libcosim_step_sizes, simulate_ssp_libcosim
-from immersim.orchestrator.execution import run_scenario
-from immersim.orchestrator.mcapio import read_series
-from immersim.orchestrator.scenario import load_scenario
-from immersim.orchestrator.ssp import export_ssp
-from immersim.orchestrator.system import check_system
+from immersim.orchestrator.crosscheck import ssp_cross_run
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 STEPS = 30
 
 
 def cross_run(tmp_path: Path, name: str, exact_steps: bool):
-    toml = SCENARIOS / f"{name}.toml"
-    overrides = {"simulation.stop": STEPS * 0.033, "log.include": ["*"]}
-    if name == "campus_drive":
-        overrides["net:process"] = 0   # (libcosim_step_sizes acts in this process)
-    ssp = export_ssp(toml, tmp_path / f"{name}.ssp", overrides=overrides)
-    sc = load_scenario(toml, overrides)
-    libcosim_master(sc)
-    out = tmp_path / f"{name}.mcap"
-    if exact_steps:
-        with libcosim_step_sizes():
-            run_scenario(sc, out)
-    else:
-        run_scenario(sc, out)
-    system = check_system(load_scenario(toml, overrides))
-    outputs = {u.name: [n for n, v in system.variables[u.name].items() if v.causality == "output" and v.family == "float"]
-               for u in sc.units}
-    ours = read_series(out, [f"{u}.{n}" for u, names in outputs.items() for n in names])
-    theirs = simulate_ssp_libcosim(ssp, STEPS, outputs)
-    pairs = [(f"{u}.{n}", ours[f"{u}.{n}"][1][1:], theirs[u][n]) for u, names in outputs.items() for n in names]
+    pairs = ssp_cross_run(SCENARIOS / f"{name}.toml", tmp_path, STEPS, exact_steps)
     assert len(pairs) > 30 and all(len(a) == len(b) == STEPS for _, a, b in pairs)
     return pairs
 
