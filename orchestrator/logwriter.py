@@ -221,9 +221,9 @@ class LogWriter:
             return
         try:
             obs.add_metadata("run", run)
-        except OSError as exc:
+        except OSError:   # add_metadata's LogWriteError names the file once already
             obs._closed = True
-            raise LogWriteError(f"cannot finish the log {obs.path}: {exc.strerror or exc}") from None
+            raise
         obs.close()
 
 

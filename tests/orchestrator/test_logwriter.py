@@ -123,3 +123,28 @@ def test_process_must_be_a_boolean(tmp_path, test_fmus):
     with pytest.raises(ScenarioError, match=r"osc.toml: log.process: expected true or false, got 'yes'"):
         load_scenario(scn)
     assert load_scenario(scn, {"log.process": True}).log.process is True
+
+
+def test_a_close_that_failed_is_not_retried(tmp_path, monkeypatch):
+    """The disk refuses the run's metadata: the first close raises one line naming the file, the log
+    counts as closed, and a second close (the execution's cleanup) is a no-op, not a second
+    write to a broken file."""
+    import errno
+    import re
+
+    from immersim.orchestrator.logwriter import LogWriter
+
+    out = tmp_path / "run.mcap"
+    w = LogWriter(LogPlan(str(out)))
+    calls = []
+
+    def refuse(name, data):
+        calls.append(name)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(w.mcap.writer, "add_metadata", refuse)
+    with pytest.raises(LogWriteError, match=f"^cannot write the log {re.escape(str(out))}: No space left on device$"):
+        w.close({"status": "completed"})
+    assert w.closed
+    assert w.close({"status": "completed"}) is None
+    assert calls == ["run"]

@@ -331,3 +331,22 @@ def test_without_shared_memory_the_socket_gives_the_same_log(tmp_path, monkeypat
     res = run_scenario(scen, tmp_path / "socket.mcap", overrides=ov)
     assert res.remote_units == ["net"]
     assert _same_logs(tmp_path / "shm.mcap", tmp_path / "socket.mcap") > 300
+
+
+@pytest.mark.parametrize("exc", [ValueError("bad value 3"), ZeroDivisionError("division by zero"),
+                                 KeyError("x.y")])
+def test_a_builtin_error_from_a_worker_keeps_its_type_and_message(exc):
+    """The documented rule of the pipe: a builtin exception comes back as the same builtin type
+    with the same text (KeyError's quoting included), not as a RuntimeError naming it."""
+    from immersim.orchestrator.remote import _portable, _rebuild
+
+    back = _rebuild(_portable(exc))
+    assert type(back) is type(exc)
+    assert str(back) == str(exc)
+
+
+def test_an_error_of_no_known_module_becomes_a_runtime_error_naming_its_type():
+    from immersim.orchestrator.remote import _rebuild
+
+    back = _rebuild(("somepkg.mod", "Oddity", "went odd", {}))
+    assert type(back) is RuntimeError and str(back) == "Oddity: went odd"
