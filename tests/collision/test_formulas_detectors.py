@@ -106,3 +106,54 @@ def test_fcl_far_pair_gap_is_a_lower_bound_of_the_exact_gap(gap):
     assert r.distance == 0.5 and not r.in_contact
     g = be._far_gap(0, be.pairs[0])
     assert g is not None and gap - 1e-6 <= g <= gap
+
+
+@pytest.mark.parametrize("c, contact", [(1.6, False), (1.5, False), (1.45, True)])
+def test_basis_point_contact_offset_is_the_sampling_distance_of_the_overlap_region(c, contact):
+    """Two 2 m cubes turned 45 deg about z, the second at (c, c, 0): two faces face each other
+    across the gap sqrt(2) c - 2 (0.263, 0.121, 0.051 m), and the world boxes overlap over
+    [c - sqrt(2), sqrt(2)]^2 x [-1, 1]. Sampling distance SD = extent / DN (eq. 5-7), so the
+    contact offset eps (the larger SD across a scan direction, §5.5.3) is at most 2 / DN.
+    Contact iff the gap is within eps; the distance is the exact (fcl) gap."""
+    import math
+
+    from immersim.models.collision.basis_point import scan_counts
+
+    scene = parse_scene("box:name=a,sx=2,sy=2,sz=2,dynamic=1;box:name=b,sx=2,sy=2,sz=2,dynamic=1")
+    exact, bp = make_backend("fcl", scene, "b vs a"), make_backend("basis_point", scene, "b vs a")
+    poses = [[0, 0, 0, 0, 0, math.pi / 4], [c, c, 0, 0, 0, math.pi / 4]]
+    gap = math.sqrt(2) * c - 2
+    eps = 2.0 / scan_counts(bp.config.st, bp.config.dn_rule)
+    assert (gap <= eps) == contact                   # the cases straddle the offset
+    e, b = exact.query(poses).pairs[0], bp.query(poses).pairs[0]
+    assert e.distance == pytest.approx(gap, abs=1e-9)
+    assert b.in_contact == contact
+    assert b.distance == pytest.approx(gap, abs=1e-6)
+
+
+@pytest.mark.parametrize("offset, axis", [((1.45, 1.3, 1.1), 0), ((1.3, 1.45, 1.1), 1), ((1.1, 1.3, 1.45), 2)])
+def test_honeycomb_reports_the_normal_of_the_axis_with_the_smallest_gap(offset, axis):
+    """Two unit balls apart by ``offset`` (|offset| - 2 = 0.237 m), their world boxes overlapping
+    on every axis, so each of the three projections runs. Along axis w the balls' surfaces are
+    at best min over the common disc of c_w - sqrt(1 - |p - c_uv|^2) - sqrt(1 - |p|^2) apart:
+    0.40, 0.47 and 0.64 m across the largest, middle and smallest offset component (worked out
+    here on a grid). The reported gap is the smallest section gap, between the exact 0.237 m
+    and that 0.40 m, and the normal is the depth axis it was found on."""
+    scene = parse_scene("sphere:name=a,r=1,subdiv=3,dynamic=1;sphere:name=b,r=1,subdiv=3,dynamic=1")
+    c = np.array(offset)
+    gaps = []
+    for w in range(3):
+        u, v = [k for k in range(3) if k != w]
+        g = np.linspace(-1.0, 2.5, 701)
+        U, V = np.meshgrid(g, g)
+        ra, rb = 1 - U**2 - V**2, 1 - (U - c[u])**2 - (V - c[v])**2
+        both = (ra >= 0) & (rb >= 0)
+        gaps.append(float((c[w] - np.sqrt(rb[both]) - np.sqrt(ra[both])).min()))
+    assert int(np.argmin(gaps)) == axis and sorted(gaps)[1] - min(gaps) > 0.05
+    hc = make_backend("honeycomb", scene, "b vs a")
+    poses = [[0, 0, 0, 0, 0, 0], [*offset, 0, 0, 0]]
+    hc.query(poses)
+    r = hc.query(poses).pairs[0]          # at rest: threshold distance 0
+    assert not r.in_contact
+    assert np.linalg.norm(c) - 2 - 0.01 <= r.distance <= min(gaps) + 0.01
+    assert np.abs(r.normal) == pytest.approx(np.eye(3)[axis])
