@@ -123,3 +123,51 @@ def test_a_fault_is_active_from_its_own_time_on():
 
     f = Fault(FaultSpec("m", "x_other", 330_000_000, float("nan")))
     assert not f.active(329_999_999) and f.active(330_000_000) and f.active(10 ** 12)
+
+
+def _feedthrough_pair(tmp_path, extrapolation):
+    from pathlib import Path
+
+    fmu = Path(__file__).resolve().parents[1] / "conformance" / "reference-fmus" / "fmi2" / "Feedthrough.fmu"
+    sine = 'kind = "sine"\namplitude = 1.0\nfrequency = 0.7\n'
+    p = tmp_path / f"feed_{extrapolation}.toml"
+    p.write_text(f'''[simulation]
+stop = 0.8
+step = 0.1
+extrapolation = "{extrapolation}"
+[[units]]
+name = "a"
+fmu = "{fmu}"
+[[units]]
+name = "b"
+fmu = "{fmu}"
+[[inputs]]
+target = "a.Float64_discrete_input"
+{sine}
+[[inputs]]
+target = "a.Float64_continuous_input"
+{sine}
+[[connections]]
+from = "a.Float64_discrete_output"
+to = "b.Float64_continuous_input"
+[[connections]]
+from = "a.Float64_continuous_output"
+to = "b.Float64_discrete_input"
+''')
+    out = tmp_path / f"feed_{extrapolation}.mcap"
+    run_scenario(p, out)
+    return read_series(out, ["a.Float64_discrete_output", "b.Float64_continuous_input", "b.Float64_discrete_input"])
+
+
+def test_a_discrete_source_is_held_under_linear_extrapolation(tmp_path):
+    """The Reference FMU Feedthrough's ``Float64_discrete_output`` (variability discrete) feeds
+    b under ``extrapolation = "linear"``: a discrete value is piecewise constant, so it is held
+    (the zoh run's input at every step, each a value a output), while the continuous output of
+    the same sine, on the other connection, is extrapolated (differs from the zoh run)."""
+    lin, zoh = _feedthrough_pair(tmp_path, "linear"), _feedthrough_pair(tmp_path, "zoh")
+    held = lin["b.Float64_continuous_input"][1]
+    np.testing.assert_array_equal(held, zoh["b.Float64_continuous_input"][1])
+    assert set(held.tolist()) <= set(lin["a.Float64_discrete_output"][1].tolist())
+    assert np.ptp(held) > 0.5
+    extrapolated = lin["b.Float64_discrete_input"][1] - zoh["b.Float64_discrete_input"][1]
+    assert np.abs(extrapolated).max() > 0.05
