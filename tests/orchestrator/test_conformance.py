@@ -194,6 +194,22 @@ def test_array_variables_connected_whole_and_driven_by_element(tmp_path):
             assert b[k][1][f"u[{i}]"] == 0.5 * (a[k - 1][1][f"y[{i}]"] + a[k][1][f"y[{i}]"])
 
 
+def test_a_scenario_input_on_a_whole_array_drives_every_element(tmp_path):
+    """``target = "a.u"`` (the whole input vector) with one constant signal: each element u[i]
+    is 0.5, so a.y is FMPy's for u = (0.5, 0.5, 0.5) at every step."""
+    fmu = ROOT / "fmi3" / "StateSpace.fmu"
+    scn = tmp_path / "whole.toml"
+    scn.write_text(STATESPACE.format(fmu=fmu).replace('target = "a.u[2]"', 'target = "a.u"'))
+    out = tmp_path / "whole.mcap"
+    run_scenario(scn, out)
+    a, _ = log_rows(out, "a")
+    A = [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    ref = fmpy.simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=0.5, output_interval=0.1,
+                            start_values={"A": sum(A, []), "u": [0.5, 0.5, 0.5]}, output=["y"])
+    assert all(r[f"u[{i}]"] == 0.5 for _, r in a for i in (1, 2, 3))
+    np.testing.assert_array_equal([[r[f"y[{i}]"] for i in (1, 2, 3)] for _, r in a], ref["y"])
+
+
 def test_array_sizes_follow_structural_parameters():
     """The elements of an array are those its structural parameters give (start values by
     default, a scenario's values otherwise). Note: the Reference FMUs 0.0.41 StateSpace refuses
