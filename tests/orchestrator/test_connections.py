@@ -63,3 +63,25 @@ gain = 3.0
 def test_bad_gain(tmp_path, test_fmus):
     with pytest.raises(ScenarioError, match=r"connections\[0\].gain: expected a number, got 'big'"):
         run_scenario(scenario(tmp_path, test_fmus["oscillator"], 'gain = "big"'))
+
+
+@pytest.mark.parametrize("workers, chained", [((1, 1), ["m2"]), ((1, 2), [])])
+def test_a_unit_fed_fresh_only_by_its_worker_mate_is_chained_to_it(tmp_path, test_fmus, workers, chained):
+    """Gauss-Seidel over the two coupled oscillators (order m1, m2; m2 reads m1.x fresh, m1 reads
+    m2.x delayed): with both units in one worker, m2's every input comes fresh from m1, posted
+    in that worker, so m2 is chained to it; in another worker it is not. Either way the log is
+    the one-process log bit for bit."""
+    from immersim.orchestrator.execution import Execution
+
+    from .helpers import oscillator_scenario
+
+    scn = oscillator_scenario(tmp_path, test_fmus["oscillator"], step=0.01, stop=0.5, algorithm="gauss-seidel")
+    here, there = tmp_path / "here.mcap", tmp_path / "there.mcap"
+    run_scenario(scn, here)
+    ex = Execution(scn, there, overrides={"m1:process": workers[0], "m2:process": workers[1]})
+    ex.run()
+    assert [s.name for s in ex.master._chained] == chained
+    a, b = read_series(here, ["m1.x", "m2.x"]), read_series(there, ["m1.x", "m2.x"])
+    for k in a:
+        np.testing.assert_array_equal(a[k][0], b[k][0])
+        np.testing.assert_array_equal(a[k][1], b[k][1])
