@@ -54,7 +54,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from .errors import ScenarioError
 
         raise ScenarioError(f"--realtime {args.realtime:g}: the factor must be a finite number > 0")
-    live = _live_server(args.live)
+    live = _live_server(args.live, args.live_rate)
     try:
         res = execute(args.scenario, overrides, args.output, progress=not args.quiet,
                       realtime=args.realtime, live=live, replay=args.replay)
@@ -85,16 +85,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _live_server(address: Optional[str]):
-    """The live view's server for ``--live [HOST:PORT]`` (None without the flag); its address
-    goes to stderr before the run starts."""
+def _live_server(address: Optional[str], rate: float = 60.0):
+    """The live view's server for ``--live [HOST:PORT]`` (None without the flag), streaming at
+    most ``rate`` messages per channel and wall second (0: all); its address goes to stderr
+    before the run starts."""
     if address is None:
         return None
     from .errors import ScenarioError
     from .live import LiveServer, parse_address
 
     try:
-        server = LiveServer(*parse_address(address or None))
+        if not (math.isfinite(rate) and rate >= 0):
+            raise ValueError(f"--live-rate {rate:g}: must be a finite number >= 0")
+        server = LiveServer(*parse_address(address or None), max_rate=rate or None)
     except (ValueError, OSError) as exc:
         raise ScenarioError(str(exc)) from None
     sys.stderr.write(f"immersim: live view at {server.url} (Foxglove: Open connection, Foxglove WebSocket)\n")
@@ -268,6 +271,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--live", nargs="?", const="", default=None, metavar="HOST:PORT",
                    help="serve every logged channel live over the Foxglove WebSocket protocol "
                         "(default localhost, a free port, printed at start); clients may drive [[live_inputs]]")
+    r.add_argument("--live-rate", type=float, default=60.0, metavar="N",
+                   help="stream at most N messages per channel and wall second (default 60; 0: every step)")
     r.add_argument("--replay", default=None, metavar="LOG",
                    help="drive [[live_inputs]] with the values recorded in an earlier run's MCAP log")
     r.set_defaults(fn=_cmd_run)

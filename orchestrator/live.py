@@ -18,6 +18,7 @@ import json
 import logging
 import math
 import threading
+import time
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
@@ -222,12 +223,17 @@ class LiveServer:
     ----------
     host, port : str, int
         Where to listen (port 0: a free port, see :attr:`port`).
+    max_rate : float or None
+        At most this many messages per channel and wall second are streamed (a channel's first
+        message always is): a run going 100x real time makes 3000 steps a wall second, far more
+        than a viewer draws, and streaming them all costs the run CPU on the cores it shares with
+        the server. None or 0: every message (a run paced at real time makes 30 a second).
 
     Clients may publish (client-publish capability); what they send reaches unit inputs only
     through the :class:`LiveInputs` given to :meth:`listen`.
     """
 
-    def __init__(self, host: str = DEFAULT_HOST, port: int = 0) -> None:
+    def __init__(self, host: str = DEFAULT_HOST, port: int = 0, max_rate: Optional[float] = 60.0) -> None:
         import foxglove
         from foxglove.websocket import Capability
 
@@ -243,7 +249,10 @@ class LiveServer:
         self.host, self.port = host, self.server.port
         self._schemas: Dict[int, Any] = {}
         self._channels: Dict[int, Any] = {}
-        self.messages = 0
+        self._period = 1.0 / max_rate if max_rate else 0.0
+        self._last: Dict[int, float] = {}   # channel id -> wall time of its last streamed message
+        self.messages = 0   # streamed
+        self.skipped = 0    # not streamed (max_rate)
 
     def listen(self, inputs: LiveInputs) -> None:
         """Route what clients publish to ``inputs``."""
@@ -265,12 +274,19 @@ class LiveServer:
 
     def step(self, log_time: int, items: Sequence[Tuple[int, bytes]]) -> None:
         """The messages of one step, ``(channel id, data)`` at ``log_time`` ns."""
-        channels = self._channels
+        channels, last, period = self._channels, self._last, self._period
+        now = time.perf_counter() if period else 0.0
         for cid, data in items:
             ch = channels.get(cid)
-            if ch is not None:
-                ch.log(bytes(data), log_time=log_time)
-        self.messages += len(items)
+            if ch is None:
+                continue
+            if period:
+                if now - last.get(cid, -math.inf) < period:
+                    self.skipped += 1
+                    continue
+                last[cid] = now
+            ch.log(bytes(data), log_time=log_time)
+            self.messages += 1
 
     @property
     def url(self) -> str:

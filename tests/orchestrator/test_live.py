@@ -79,7 +79,7 @@ def _log(path):
 
 def _run_live(scen, out, publish=None, realtime=None):
     """Run with a live view and one client; the client has subscribed before step 1."""
-    server = LiveServer(port=0)
+    server = LiveServer(port=0, max_rate=None)   # every message, to compare them all
     client = Client(server.url, publish)
     client.start()
     ex = Execution(scen, out, live=server, realtime=realtime)
@@ -200,3 +200,22 @@ def test_teleop_scenario_a_person_drives_the_avatar_and_the_platform_feels_it(tm
     replayed = tmp_path / "replay.mcap"
     Execution(scen, replayed, replay=out).run()
     assert _log(replayed)[1] == logged
+
+
+def test_a_fast_run_streams_at_most_max_rate_messages_per_channel_and_second():
+    server = LiveServer(port=0, max_rate=50.0)
+    try:
+        server.schema(1, "a", "jsonschema", b"{}")
+        server.channel(1, "a", "json", 1)
+        server.channel(2, "b", "json", 1)
+        t0 = time.perf_counter()
+        for k in range(3000):
+            server.step(k, [(1, b"{}"), (2, b"{}")])
+        elapsed = time.perf_counter() - t0
+        per_channel = server.messages / 2
+        assert server.messages + server.skipped == 6000
+        assert 1 <= per_channel <= 1 + 50.0 * elapsed + 1   # the first, then one per 20 ms at most
+        server.step(3000, [(3, b"{}")])   # a channel it does not know: nothing
+        assert server.messages + server.skipped == 6000
+    finally:
+        server.stop()
