@@ -117,6 +117,8 @@ class World:
         self.eturn = rng.uniform(-0.2, 0.2, E)   # rad/s
         self.ez = np.full(E, cfg.entity_radius)
         self.separated = 0         # avatar-entity overlaps removed so far (see _separate)
+        # inverse masses (1/kg) of the avatar-entity contacts (response.py), fixed by the config
+        self._w_entity, self._w_avatar = float(inverse_mass(cfg.entity_mass)), float(inverse_mass(cfg.avatar_mass))
         self._fixed_key = None     # see at_fixed_point
         self._ksteer_memo = None   # (steering bytes, steering gains tan(steer max) / wheelbase)
         self._turn_memo = {}       # (sub-step h, turn rates) -> decay, cos and sin of the entities' turn per sub-step
@@ -516,17 +518,16 @@ class World:
         d = self.epos[ei] - self.apos[ai]
         dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
         n = d / dist[:, None]     # from the avatar to the entity
-        cfg = self.cfg
-        w_e, w_a = inverse_mass(np.full(len(ai), cfg.entity_mass)), inverse_mass(np.full(len(ai), cfg.avatar_mass))
+        w_e, w_a = self._w_entity, self._w_avatar
         # the entity leaves the overlap (the avatar keeps its position: its contacts with the
         # static scene are the collision unit's, which this model does not know)
-        self._separate(ai, ei, n, r - dist, w_e, np.zeros(len(ai)))
+        self._separate(ei, n, r - dist)
         avel = self.avel
         rel = np.einsum("ij,ij->i", avel[ai] - self.evel[ei], n)
         keep = rel > 0
-        ai, ei, n, w_e, w_a = ai[keep], ei[keep], n[keep], w_e[keep], w_a[keep]
-        dv, dva = impulse(w_e, w_a, self.evel[ei], avel[ai], n, cfg.restitution)
-        if w_a.any():     # a finite avatar mass: the avatar's share, at once (its master responds)
+        ai, ei, n = ai[keep], ei[keep], n[keep]
+        dv, dva = impulse(w_e, w_a, self.evel[ei], avel[ai], n, self.cfg.restitution)
+        if w_a:     # a finite avatar mass: the avatar's share, at once (its master responds)
             c, s = np.cos(self.yaw[ai]), np.sin(self.yaw[ai])
             along = dva[:, 0] * c + dva[:, 1] * s
             for g, dsp in zip(ai.tolist(), along.tolist()):
@@ -537,22 +538,18 @@ class World:
                 self.jolt[g] += abs(dsp)
         return ai, ei, dv
 
-    def _separate(self, ai, ei, n, depth, w_e, w_a) -> None:
-        """Remove the overlaps ``depth`` (k,) m of avatar-entity pairs ``ai``, ``ei`` along the
-        unit normals ``n`` (k, 2) (avatar to entity), split by the inverse masses ``w_e``, ``w_a``
-        (:func:`separation`; ``w_a = 0``: the entity moves); ``separated`` counts the pairs moved."""
+    def _separate(self, ei, n, depth) -> None:
+        """Move entities ``ei`` out of their avatar-entity overlaps ``depth`` (k,) m along the
+        unit normals ``n`` (k, 2) (avatar to entity); the avatar stays (:func:`separation` with
+        its inverse mass 0); ``separated`` counts the pairs moved."""
         over = depth > 0.0
         if not over.any():
             return
-        dx_e, dx_a = separation(w_e[over], w_a[over], n[over], depth[over])
+        dx_e, _ = separation(self._w_entity, 0.0, n[over], depth[over])
         S = self.cfg.scene_size      # (a wall does not give way: nobody is pushed through it)
         self.epos = self.epos.copy()
         np.add.at(self.epos, ei[over], dx_e)
         np.clip(self.epos, 0.0, S, out=self.epos)
-        if w_a.any():
-            self.apos = self.apos.copy()
-            np.add.at(self.apos, ai[over], dx_a)
-            np.clip(self.apos, 0.0, S, out=self.apos)
         self.separated += int(over.sum())
 
     def _change_avatar_velocity(self, g: int, dv) -> float:
