@@ -130,7 +130,7 @@ def load_sweep(path: Path | str) -> SweepSpec:
     """
     path = Path(path)
     data, _ = schema.read_toml(path, "sweep file")
-    schema.validate(schema.SweepFile, data, path)   # keys, types and ranges; the rest below
+    schema.validate(schema.SweepFile, data, path)   # keys, types and ranges: the parsers below rely on it
     scenario = _parse_scenario_path(data.get("scenario"), path)
     grid = _parse_grid(data.get("grid", {}), path)
     explicit = _parse_variants(data.get("variants", []), path)
@@ -144,9 +144,7 @@ def load_sweep(path: Path | str) -> SweepSpec:
     return SweepSpec(path, scenario, keys, variants, metrics, plots)
 
 
-def _parse_scenario_path(value: Any, path: Path) -> Path:
-    if not isinstance(value, str) or not value:
-        raise _err(path, "'scenario' must be the path of a scenario file (relative to the sweep file)")
+def _parse_scenario_path(value: str, path: Path) -> Path:
     scenario = (path.parent / value).resolve()
     if not scenario.exists():
         raise _err(path, f"scenario: {value!r} does not exist (looked for {scenario})")
@@ -172,34 +170,22 @@ def _check_override_key(key: str, where: str, path: Path) -> None:
                          "or 'unit:fmu')")
 
 
-def _parse_grid(grid: Any, path: Path) -> Dict[str, List[Any]]:
-    if not isinstance(grid, dict):
-        raise _err(path, "[grid] must be a table of override key -> list of values")
-    for key, values in grid.items():
+def _parse_grid(grid: Dict[str, List[Any]], path: Path) -> Dict[str, List[Any]]:
+    for key in grid:
         _check_override_key(key, f"grid key {key!r}", path)
-        if not isinstance(values, list) or not values:
-            raise _err(path, f"grid key {key!r} must be a non-empty list of values, got {values!r}")
     return {k: list(v) for k, v in grid.items()}
 
 
-def _parse_variants(raw: Any, path: Path) -> List[Tuple[str, Dict[str, Any]]]:
-    if not isinstance(raw, list):
-        raise _err(path, "'variants' must be an array of tables ([[variants]])")
+def _parse_variants(raw: List[Dict[str, Any]], path: Path) -> List[Tuple[str, Dict[str, Any]]]:
     out: List[Tuple[str, Dict[str, Any]]] = []
     for i, v in enumerate(raw):
         where = f"variants[{i}]"
-        if not isinstance(v, dict):
-            raise _err(path, f"{where} must be a table")
         name = v.get("name", f"variant{i}")
-        if not isinstance(name, str) or not name.strip():
-            raise _err(path, f"{where}: 'name' must be a non-empty string, got {name!r}")
         if any(n == name for n, _ in out):
             raise _err(path, f"{where}: duplicate variant name {name!r}")
         overrides = {k: x for k, x in v.items() if k != "name"}
-        for key, value in overrides.items():
+        for key in overrides:
             _check_override_key(key, f"{where} ({name}) key {key!r}", path)
-            if isinstance(value, (dict, list)):
-                raise _err(path, f"{where} ({name}) key {key!r}: expected a single value, got {value!r}")
         out.append((name, overrides))
     return out
 
@@ -285,9 +271,7 @@ def _check_variants(variants: Sequence[Variant], scenario: Path, path: Path) -> 
             raise _err(path, f"variant {v.id} {v.overrides}: {exc}") from None
 
 
-def _parse_metrics(raw: Any, path: Path, keys: Sequence[str]) -> List[MetricSpec]:
-    if not isinstance(raw, dict):
-        raise _err(path, "[metrics] must be a table of name -> {signal, reduce} or a built-in name")
+def _parse_metrics(raw: Dict[str, Any], path: Path, keys: Sequence[str]) -> List[MetricSpec]:
     taken = set(FIXED_COLUMNS) | set(TAIL_COLUMNS) | set(keys)
     out: List[MetricSpec] = []
     for name, m in raw.items():
@@ -300,11 +284,6 @@ def _parse_metrics(raw: Any, path: Path, keys: Sequence[str]) -> List[MetricSpec
                                  f"{', '.join(BUILTIN_METRICS)}, or a table {{signal, reduce}})")
             out.append(MetricSpec(name, builtin=m))
             continue
-        if not isinstance(m, dict):
-            raise _err(path, f"{where} must be a built-in name or a table {{signal, reduce}}")
-        extra = set(m) - {"signal", "reduce", "after"}
-        if extra:
-            raise _err(path, f"{where}: unknown key {sorted(extra)[0]!r} (expected signal, reduce, after)")
         # keys and types were checked by schema.MetricTable
         out.append(MetricSpec(name, None, m["signal"], m.get("reduce", "max"), float(m.get("after", -math.inf))))
     return out
@@ -321,27 +300,19 @@ def _names(value: Any, where: str, path: Path, columns: Sequence[str]) -> Tuple[
 
 
 def _parse_plots(raw: Any, path: Path, columns: Sequence[str]) -> List[PlotSpec]:
+    """``raw``: a [plot] table or an array of them, keys and types checked by schema.PlotTable."""
     tables = [raw] if isinstance(raw, dict) else raw
-    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
-        raise _err(path, "[plot] must be a table or an array of tables")
     cols = list(columns) + list(FIXED_COLUMNS[3:])
     plots: List[PlotSpec] = []
     for i, t in enumerate(tables):
         where = f"plot[{i}]" if isinstance(raw, list) else "plot"
-        extra = set(t) - {"x", "y", "hue", "logx", "logy", "name"}
-        if extra:
-            raise _err(path, f"{where}: unknown key {sorted(extra)[0]!r} (expected x, y, hue, logx, logy, name)")
-        if "x" not in t or "y" not in t:
-            raise _err(path, f"{where}: needs 'x' and 'y'")
         x = _names(t["x"], f"{where}.x", path, cols)
         if len(x) != 1:
             raise _err(path, f"{where}.x must be one column, got {t['x']!r}")
         y = _names(t["y"], f"{where}.y", path, cols)
         hue = _names(t["hue"], f"{where}.hue", path, cols) if "hue" in t else None
-        name = t.get("name", "")
-        if not isinstance(name, str):
-            raise _err(path, f"{where}.name must be a string")
-        plots.append(PlotSpec(x[0], y, hue, bool(t.get("logx", False)), bool(t.get("logy", False)), name))
+        plots.append(PlotSpec(x[0], y, hue, bool(t.get("logx", False)), bool(t.get("logy", False)),
+                              t.get("name", "")))
     return plots
 
 
