@@ -111,6 +111,19 @@ def unit_sources(unit_dir: Path) -> UnitSources:
     return UnitSources(script, files)
 
 
+def fmu_target(name: str, dest_dir: Path | str | None, digest: str, force: bool) -> tuple:
+    """``(fmu, stamp, current)``: the path of ``dest_dir/<name>.fmu`` (``dest_dir`` created,
+    :func:`default_build_dir` by default), of its sha256 stamp, and whether the FMU is up to
+    date with the inputs' ``digest`` (never when ``force``)."""
+    dest_dir = Path(dest_dir) if dest_dir is not None else default_build_dir()
+    dest_dir.mkdir(parents=True, exist_ok=True)
+    fmu, stamp = dest_dir / f"{name}.fmu", dest_dir / f"{name}.fmu.sha256"
+    current = not force and fmu.exists() and stamp.exists() and stamp.read_text().strip() == digest
+    if current:
+        log.info("unit %s: up to date (%s)", name, fmu)
+    return fmu, stamp, current
+
+
 def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: bool = False) -> Path:
     """Build ``unit_dir`` into ``dest_dir/<unit>.fmu`` unless it is up to date.
 
@@ -121,14 +134,10 @@ def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: 
     from .fmu import forget_python_code
 
     unit_dir = Path(unit_dir).resolve()
-    dest_dir = Path(dest_dir) if dest_dir is not None else default_build_dir()
-    dest_dir.mkdir(parents=True, exist_ok=True)
     sources = unit_sources(unit_dir)
     digest = sources.digest()
-    fmu = dest_dir / f"{unit_dir.name}.fmu"
-    stamp = dest_dir / f"{unit_dir.name}.fmu.sha256"
-    if not force and fmu.exists() and stamp.exists() and stamp.read_text().strip() == digest:
-        log.info("unit %s: up to date (%s)", unit_dir.name, fmu)
+    fmu, stamp, current = fmu_target(unit_dir.name, dest_dir, digest, force)
+    if current:
         return fmu
     package, script_name = packed_names(unit_dir.name, digest)
     with tempfile.TemporaryDirectory(prefix=f"immersim_build_{unit_dir.name}_") as tmp:

@@ -269,14 +269,11 @@ def build_native(dest_dir: Path | str | None = None, force: bool = False) -> Pat
     """
     from immersim.models.platform.codegen import CFLAGS, compiler
 
-    from .build import default_build_dir
+    from .build import fmu_target
 
-    dest_dir = Path(dest_dir) if dest_dir is not None else default_build_dir()
-    dest_dir.mkdir(parents=True, exist_ok=True)
-    fmu, stamp = dest_dir / f"{NAME}.fmu", dest_dir / f"{NAME}.fmu.sha256"
     digest = _inputs_digest()
-    if not force and fmu.exists() and stamp.exists() and stamp.read_text().strip() == digest:
-        log.info("unit %s: up to date (%s)", NAME, fmu)
+    fmu, stamp, current = fmu_target(NAME, dest_dir, digest, force)
+    if current:
         return fmu
     folder = _platform_folder()
     missing = [n for n in ("fmi2_platform.c", "platform_model.c", "washout.c") if not (native_dir() / n).exists()]
