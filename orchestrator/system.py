@@ -16,7 +16,7 @@ from typing import Any, Dict, List, Optional, Set
 from .errors import FmuLoadError, ScenarioError
 from .fmu import FmuInstance, VarInfo, read_model
 from .patterns import matches
-from .scenario import Connection, Scenario
+from .scenario import Connection, Scenario, seconds_to_ns
 
 log = logging.getLogger(__name__)
 
@@ -77,13 +77,13 @@ def apply_default_experiment(scenario: Scenario, paths: Dict[str, Path]) -> None
         return
     f = scenario.file
     if "start" in found:
-        scenario.start_ns = int(round(found["start"] * 1e9))
+        scenario.start_ns = seconds_to_ns(found["start"])
     if "step" in found:
-        scenario.step_ns = int(round(found["step"] * 1e9))
+        scenario.step_ns = seconds_to_ns(found["step"])
         if scenario.step_ns <= 0:
             raise ScenarioError(f"{f}: the DefaultExperiment's stepSize {found['step']!r} s must be > 0")
     if "stop" in found:
-        scenario.stop_ns = int(round(found["stop"] * 1e9))
+        scenario.stop_ns = seconds_to_ns(found["stop"])
     elif "stop" not in given:
         scenario.stop_ns = scenario.start_ns + 10 * scenario.step_ns
     if "tolerance" in found:
