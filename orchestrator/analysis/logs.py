@@ -13,11 +13,17 @@ from typing import Dict, Iterable, List, Optional, Sequence
 import numpy as np
 
 from ..mcapio import LogReadError, _messages, channel_schema
+from ..observers import _ros1_kind
 from ..patterns import matches
 
-#: numpy dtype of each JSON schema type in a ros1 message (little endian, packed: the
-#: ``struct`` codes ``d``, ``i``, ``?`` of :data:`~immersim.orchestrator.observers._ROS1`)
-_ROS1_DTYPE = {"number": "<f8", "integer": "<i4", "boolean": "?"}
+
+def _ros1_dtype(prop: Dict) -> str:
+    """numpy dtype of a variable in a ros1 message: the little-endian ``struct`` code the log
+    writer packs it with (:func:`~immersim.orchestrator.observers.ros1_struct`, FMI 3.0 widths
+    included)."""
+    return "<" + _ros1_kind(prop)[1]
+
+
 #: dtype of each JSON schema type read from JSON messages
 _JSON_DTYPE = {"number": np.float64, "integer": np.int64, "boolean": np.bool_, "string": object}
 SIGNAL_TYPES = tuple(_JSON_DTYPE)
@@ -34,7 +40,8 @@ class ChannelData:
     t_ns : ndarray of int64, shape (n,)
         Log time of each message (simulation time in ns).
     values : dict of str -> ndarray, shape (n,)
-        Per variable: float64 (Real), int32/int64 (Integer), bool (Boolean) or object (String).
+        Per variable: float64 (Real), int32/int64 (Integer; an FMI 3.0 type at its own width),
+        bool (Boolean) or object (String).
     units, types : dict of str -> str
         Per variable: its unit ("" when none) and JSON schema type (number, integer, boolean, string).
     """
@@ -61,7 +68,7 @@ def _decode(topic: str, channel, datas: List[bytes], t_ns: np.ndarray, wanted: S
     out = ChannelData(topic, t_ns, units={v: props[v].get("unit", "") for v in wanted},
                       types={v: props[v]["type"] for v in wanted})
     if channel.message_encoding == "ros1":
-        dtype = np.dtype([(f"f{i}", _ROS1_DTYPE[p["type"]]) for i, p in enumerate(props.values())])
+        dtype = np.dtype([(f"f{i}", _ros1_dtype(p)) for i, p in enumerate(props.values())])
         rec = np.frombuffer(b"".join(datas), dtype=dtype, count=len(datas))
         index = {name: f"f{i}" for i, name in enumerate(props)}
         for v in wanted:
@@ -75,6 +82,8 @@ def _decode(topic: str, channel, datas: List[bytes], t_ns: np.ndarray, wanted: S
         kind = props[v]["type"]
         if kind == "number":
             out.values[v] = np.array([np.nan if x is None else x for x in col], dtype=np.float64)
+        elif kind == "integer" and props[v].get("fmiType"):   # an FMI 3.0 width (UInt64 beyond int64)
+            out.values[v] = np.array(col, dtype=_ros1_dtype(props[v]))
         else:
             out.values[v] = np.array(col, dtype=_JSON_DTYPE[kind])
     return out

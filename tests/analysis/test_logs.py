@@ -75,3 +75,32 @@ def test_convert_to_csv_and_parquet_reads_back_bit_for_bit(osc_log, tmp_path, ca
     assert main(["convert", str(osc_log), "-o", str(tmp_path / "run.xlsx")]) == 2
     assert capsys.readouterr().err == \
         f"immersim: error: {tmp_path / 'run.xlsx'}: unknown output format '.xlsx' (use .csv or .parquet)\n"
+
+
+def test_fmi3_widths_read_back_in_both_encodings(tmp_path):
+    """An FMI 3.0 log (the reference Feedthrough: UInt64 beyond int64, Float32, Int8 ...) reads
+    back with each variable at the width the log writer packed it: the ros1 and JSON logs give
+    the same values, and the values of read_series."""
+    from pathlib import Path
+
+    from immersim.orchestrator.execution import run_scenario
+
+    root = Path(__file__).resolve().parents[1]
+    fmu = root / "conformance" / "reference-fmus" / "fmi3" / "Feedthrough.fmu"
+    toml = tmp_path / "feed.toml"
+    logs = {}
+    for enc in ("json", "ros1"):
+        toml.write_text(f'[simulation]\nstep = 0.1\nstop = 0.3\n[[units]]\nname = "u"\nfmu = "{fmu.as_posix()}"\n'
+                        '[units.parameters]\nUInt64_input = 18000000000000000000\nInt8_input = -7\n'
+                        f'[log]\nencoding = "{enc}"\nexclude = ["u.String_*", "u.Binary_*"]\n')
+        logs[enc] = tmp_path / f"{enc}.mcap"
+        run_scenario(toml, logs[enc])
+    a, b = immersim.read_channels(logs["json"])["u"], immersim.read_channels(logs["ros1"])["u"]
+    series = read_series(logs["ros1"], ["u.*"])
+    assert b.values["UInt64_output"].dtype == np.uint64 and b.values["Float32_continuous_output"].dtype == np.float32
+    assert a.values.keys() == b.values.keys() and len(a.values) == 28
+    for k in a.values:
+        assert np.array_equal(a.values[k].astype(np.float64), b.values[k].astype(np.float64)), k
+        assert np.array_equal(b.values[k].astype(np.float64), series[f"u.{k}"][1]), k
+    assert b.values["UInt64_output"][-1] == 18_000_000_000_000_000_000
+    assert b.values["Int8_output"][-1] == -7
