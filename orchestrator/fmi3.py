@@ -280,39 +280,32 @@ class Reader:
 
         #: (function, its arguments, the converter of its buffer, function name) per type
         self._calls = [(g.fn, g.arguments(inst), g.converter(), g.function) for g in self._groups]
-        if len(self._calls) == 1:   # one type (e.g. Float64 only): straight-line code
-            self.read = self._read_one()
+        self.read = self._reader()
 
-    def _read_one(self) -> Callable[[], List[Any]]:
-        (fn, args, convert, name), = self._calls
-        inst, check, n_real, isfinite = self.inst, self.check_finite, self.n_real, math.isfinite
+    def _reader(self) -> Callable[[], List[Any]]:
+        """The :meth:`read` closure: every look-up bound once, one pre-built call per type."""
+        calls, inst, isfinite = self._calls, self.inst, math.isfinite
+        n_real = self.n_real if self.check_finite else 0
 
         def read() -> List[Any]:
-            try:
-                status = fn(*args)
-            except Exception as exc:
-                raise inst._raised(name, exc) from None
-            if status > 1:
-                inst._check(name, status)
-            out = convert()
-            if check and n_real and not isfinite(sum(out)):
+            out: List[Any] = []
+            for fn, args, convert, name in calls:
+                try:
+                    status = fn(*args)
+                except Exception as exc:
+                    raise inst._raised(name, exc) from None
+                if status > 1:
+                    inst._check(name, status)
+                out += convert()
+            if n_real and not isfinite(sum(out[:n_real])):
                 self._raise_nonfinite(out)
             return out
         return read
 
     def read(self) -> List[Any]:
-        inst, out = self.inst, []
-        for fn, args, convert, name in self._calls:
-            try:
-                status = fn(*args)
-            except Exception as exc:
-                raise inst._raised(name, exc) from None
-            if status > 1:
-                inst._check(name, status)
-            out += convert()
-        if self.check_finite and self.n_real and not math.isfinite(sum(out[:self.n_real])):
-            self._raise_nonfinite(out)
-        return out
+        """Current values, in the order of ``self.names`` (replaced by the :meth:`_reader`
+        closure at construction)."""
+        raise NotImplementedError
 
 
 class Setter:
