@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Dict, Optional, Tuple
 
 from .errors import ScenarioError
+from .schema import _show
 
 #: range of each FMI integer type (FMI 2.0 ``Integer`` and ``Enumeration`` are 32-bit)
 INT_RANGES: Dict[str, Tuple[int, int]] = {
@@ -30,11 +31,6 @@ REAL_TYPES = ("Real", "Float64", "Float32")
 #: the largest finite Float32 (a larger value would become inf)
 FLOAT32_MAX = 3.4028234663852886e38
 Bounds = Tuple[Optional[int], Optional[int]]
-
-
-def _show(x: Any) -> str:
-    text = repr(x)
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def check_value(value: Any, fmi_type: str, bounds: Bounds = (None, None), non_finite: bool = False) -> Optional[str]:
