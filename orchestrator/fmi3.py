@@ -187,6 +187,9 @@ class _Group:
         self.sizes = (ctypes.c_size_t * size)() if type_ == "Binary" else None
         self._keep: Dict[int, Any] = {}   # the bytes a String/Binary buffer points into, by position
         self.fn = inst._fast_function(self.function)
+        #: the arguments of the call, pre-built (Binary: with the sizes)
+        self.args = ((inst._c_component, self.vrs, self.nvr, self.buf, self.n) if self.sizes is None
+                     else (inst._c_component, self.vrs, self.nvr, self.sizes, self.buf, self.n))
         if setter:   # elements not set by the caller keep their start values (arrays move whole)
             by_pos = {}
             for v in inst.variables.values():
@@ -235,18 +238,9 @@ class _Group:
             return lambda: [pick(raw())]
         return lambda: list(pick(raw()))
 
-    def arguments(self, inst: "FmuInstance") -> tuple:
-        """The arguments of the call, pre-built."""
-        if self.sizes is None:
-            return (inst._c_component, self.vrs, self.nvr, self.buf, self.n)
-        return (inst._c_component, self.vrs, self.nvr, self.sizes, self.buf, self.n)
-
     def call(self, inst: "FmuInstance") -> None:
         try:
-            if self.sizes is None:
-                status = self.fn(inst._c_component, self.vrs, self.nvr, self.buf, self.n)
-            else:
-                status = self.fn(inst._c_component, self.vrs, self.nvr, self.sizes, self.buf, self.n)
+            status = self.fn(*self.args)
         except Exception as exc:
             raise inst._raised(self.function, exc) from None
         if status > 1:
@@ -279,7 +273,7 @@ class Reader:
         self._raise_nonfinite = ValueReader._raise_nonfinite.__get__(self)
 
         #: (function, its arguments, the converter of its buffer, function name) per type
-        self._calls = [(g.fn, g.arguments(inst), g.converter(), g.function) for g in self._groups]
+        self._calls = [(g.fn, g.args, g.converter(), g.function) for g in self._groups]
         self.read = self._reader()
 
     def _reader(self) -> Callable[[], List[Any]]:
