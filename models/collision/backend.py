@@ -52,6 +52,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .exit import Footprints
 from .geometry import pose_rows
 from .scene import Scene, SceneError
 
@@ -280,6 +281,7 @@ class CollisionBackend(ABC):
         self._prev_is_T = True  # the current query is the first: prev_T = T (no motion)
         self._poses_pending = False
         # per mesh: local vertices, bounding-sphere centre and radius (eq. 5-1)
+        self._footprints = Footprints(scene)  # ground-plane parts of (horizontal) contacts (.exit)
         self._local: Dict[str, Tuple[np.ndarray, np.ndarray, float]] = {}
         for key, mesh in scene.meshes.items():
             v = np.asarray(mesh.vertices, float)
@@ -688,13 +690,11 @@ class CollisionBackend(ABC):
     def _horizontal_exit(self, pair: PairSpec):
         """Depth (m) and unit normal (2,) of the shortest ground-plane exit of ``pair.a`` from
         the members whose AABB overlaps its own (:mod:`.exit`), or None without overlap."""
-        from .exit import Footprints
-
-        if getattr(self, "_footprints", None) is None:
-            self._footprints = Footprints(self.scene)
         a = pair.a
         near = pair.members[self.aabb_gap(a, pair.members) <= 0.0].tolist()
-        members = [(b, np.array(self._rows(b)), not self._is_dyn_list[b]) for b in near]
+        # a static body's transform is its row of T as it is (its footprint is kept after the first use)
+        members = [(b, np.array(self._rows(b)), False) if self._is_dyn_list[b] else (b, self._T[b], True)
+                   for b in near]
         return self._footprints.exit(a, np.array(self._rows(a)), members) if members else None
 
     def _closing_speed(self, a: int, res: PairResult, dt: float) -> float:
