@@ -93,11 +93,8 @@ def shipped_scenario(task, local: Dict[str, Path]):
     """The task's scenario, parsed from its text under the client's file name, each unit
     given its local FMU copy (``UnitSpec.path``) and the client's path as its name (``fmu``)."""
     from ..scenario import parse_scenario
+    from ..schema import tomllib
 
-    try:
-        import tomllib
-    except ImportError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
     sc = parse_scenario(tomllib.loads(task.text), Path(task.scenario), task.text, task.overrides)
     for u in sc.units:
         if u.name not in task.fmus:
