@@ -285,7 +285,7 @@ def _fast_writer_class():
             stats.message_count += len(items)
             cb.num_messages += len(items)
             counts, indices = stats.channel_message_counts, cb.message_indices
-            pos = buf.tell()
+            pos = start = buf.tell()
             write = buf.write
             for cid, data in items:
                 counts[cid] += 1
@@ -299,7 +299,7 @@ def _fast_writer_class():
                 write(data)
             if self.journal is not None:
                 with buf.getbuffer() as view:
-                    self.journal.append(view[pos - sum(31 + len(d) for _, d in items):pos])
+                    self.journal.append(view[start:pos])
             if pos > self._Writer__chunk_size:
                 self._Writer__finalize_chunk()
 
