@@ -110,17 +110,16 @@ class Journal:
         CRUMB[JOURNAL] = 0
 
     def append(self, data: Any) -> None:
-        """Add the bytes of a step's records (a bytes-like object)."""
-        n = len(data)
-        end = self.size + n
+        """Add the bytes of a step's records (a bytes-like object); nothing once full."""
+        if self.full:
+            return
+        end = self.size + len(data)
         if end > JOURNAL_BYTES:   # a chunk beyond the mapping: the repair says the tail is lost
             self.full = True
             CRUMB[JOURNAL] = -1
             return
         _journal_map[self.size:end] = data
-        self.size = end
-        if not self.full:
-            CRUMB[JOURNAL] = end
+        self.size = CRUMB[JOURNAL] = end
 
     def committed(self) -> None:
         """The chunk was written: flush the file, empty the journal."""
