@@ -167,7 +167,7 @@ fmi2Status platform_setup(inst_t* m) {
 
 /* one macro step (PlatformSim.step_packed); a failure leaves the state as it was */
 fmi2Status platform_step(inst_t* m, double t, double h) {
-  char b1[32], b2[32];
+  char b1[32];
   int k, any = 0, rc;
   for (k = 0; k < PLATFORM_NIN; ++k) {
     m->s[k] = m->st.r[PLATFORM_IN_VR[k]];
@@ -215,7 +215,6 @@ fmi2Status platform_step(inst_t* m, double t, double h) {
             PLATFORM_VARS[PLATFORM_OUT_VR[k]].name, pf_repr(m->out[k], b1), t + h);
       return fmi2Discard;
     }
-  (void) b2;
   memcpy(m->st.state, m->next, sizeof m->next);
   memcpy(m->st.out, m->out, sizeof m->out);
   m->st.rest = m->out[PLATFORM_OUT_AT_REST] != 0.0;
