@@ -67,10 +67,12 @@ def apply_default_experiment(scenario: Scenario, paths: Dict[str, Path]) -> None
         return
     found = {}
     for key, attr in (("start", "startTime"), ("stop", "stopTime"), ("step", "stepSize"), ("tolerance", "tolerance")):
+        if key in given:
+            continue
         for u in scenario.units:
             de = read_model(paths[u.name], u.name)[0].defaultExperiment
             value = getattr(de, attr, None) if de is not None else None
-            if key not in given and value not in (None, ""):
+            if value not in (None, ""):
                 found[key] = float(value)
                 break
     if not found:
