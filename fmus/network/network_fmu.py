@@ -13,7 +13,7 @@ from operator import itemgetter
 from immersim.fmus.common import OUTPUTS_UNCHANGED, TableSlave, Var
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.world import World
-from immersim.models.network.config import OWNERSHIP_RULES, TOPOLOGIES
+from immersim.models.network.config import OWNERSHIP_FOCI, OWNERSHIP_RULES, TOPOLOGIES
 
 CAPACITY = 4
 N_ENTITY_OUT = 16
@@ -112,7 +112,7 @@ class network(TableSlave):
             raise self._param_error("topology", f"must be one of {', '.join(TOPOLOGIES)}")
         if v["ownership"] not in OWNERSHIP_RULES:
             raise self._param_error("ownership", f"must be one of {', '.join(OWNERSHIP_RULES)}")
-        if v["ownership_foci"] not in ("reach", "frame"):
+        if v["ownership_foci"] not in OWNERSHIP_FOCI:
             raise self._param_error("ownership_foci", "must be reach or frame")
         if v["prediction_order"] not in (0, 1, 2):
             raise self._param_error("prediction_order", "must be 0, 1 or 2")

@@ -7,6 +7,7 @@ from typing import Dict
 
 TOPOLOGIES = ("hybrid_p2p", "client_server", "full_mesh")
 OWNERSHIP_RULES = ("mahalanobis", "euclidean", "none")
+OWNERSHIP_FOCI = ("frame", "reach")   # readings of eq. 3-12 (consistency.ellipsoid_axes)
 JITTER_DISTRIBUTIONS = ("exponential", "uniform", "normal")
 
 
@@ -141,7 +142,7 @@ class NetworkConfig:
             (self.ownership in OWNERSHIP_RULES, f"ownership {self.ownership!r} not in {OWNERSHIP_RULES}"),
             (self.prediction_order in (0, 1, 2), f"prediction_order = {self.prediction_order} must be 0, 1 or 2"),
             (self.scene_size > 0, f"scene_size = {self.scene_size} must be > 0"),
-            (self.ownership_foci in ("frame", "reach"), f"ownership_foci {self.ownership_foci!r} not in ('frame', 'reach')"),
+            (self.ownership_foci in OWNERSHIP_FOCI, f"ownership_foci {self.ownership_foci!r} not in {OWNERSHIP_FOCI}"),
             (self.avatar_start in ("cluster", "uniform"), f"avatar_start {self.avatar_start!r} not in ('cluster', 'uniform')"),
             (self.avatar_mass > 0 and self.entity_mass > 0 and math.isfinite(self.entity_mass),
              f"avatar_mass = {self.avatar_mass}, entity_mass = {self.entity_mass} must be > 0 (entity finite)"),
