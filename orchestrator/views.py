@@ -58,16 +58,22 @@ class MeshEntity:
             size, T = self.box
             return {"cubes": [{"pose": _pose(T), "size": dict(zip("xyz", map(float, size))), "color": color}]}
         pts = np.asarray(self.vertices, dtype=float)
-        return {"triangles": [{"pose": _pose(np.eye(4)), "points": [dict(zip("xyz", p)) for p in pts.tolist()],
+        return {"triangles": [{"pose": _identity_pose(), "points": [dict(zip("xyz", p)) for p in pts.tolist()],
                                "color": color, "colors": [],
                                "indices": np.asarray(self.faces, dtype=np.int64).ravel().tolist()}]}
 
 
 def line_list(points: Any, color: Sequence[float], thickness: float = 0.02) -> dict:
     """A Foxglove LinePrimitive of type LINE_LIST (segments between points 0-1, 2-3, ...)."""
-    return {"type": 2, "pose": _pose(np.eye(4)), "thickness": thickness, "scale_invariant": False,
+    return {"type": 2, "pose": _identity_pose(), "thickness": thickness, "scale_invariant": False,
             "points": [dict(zip("xyz", p)) for p in np.asarray(points, dtype=float).tolist()],
             "color": dict(zip("rgba", color)), "colors": [], "indices": []}
+
+
+def _identity_pose() -> dict:
+    """The pose of :func:`_pose` for the identity (no rotation call: a platform's rods are
+    redrawn every step)."""
+    return {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
 
 
 def _pose(T: np.ndarray) -> dict:
