@@ -13,8 +13,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from .errors import ImmersimError
-from .analysis.logs import read_channels
-from .analysis.runs import RunSet, collect_runs
+from .analysis.runs import RunSet, collect_runs, run_series
 
 _STYLES = ("-", "--", ":", "-.")
 
@@ -25,12 +24,8 @@ class TooManySignals(ImmersimError, ValueError):
 
 def _series(runs: RunSet, patterns: Sequence[str]) -> Dict[str, List[Optional[tuple]]]:
     """``unit.variable -> per run (t in s, values, unit, type) or None``, signals in log order."""
-    out: Dict[str, List[Optional[tuple]]] = {}
-    for i, run in enumerate(runs.runs):
-        for topic, ch in read_channels(run.path, patterns).items():
-            for v, y in ch.values.items():
-                out.setdefault(f"{topic}.{v}", [None] * len(runs.runs))[i] = (ch.t, y, ch.units[v], ch.types[v])
-    return out
+    return {name: [per_run.get(i) for i in range(len(runs.runs))]
+            for name, per_run in run_series(runs, patterns).items()}
 
 
 def _levels(per_run: List[Optional[tuple]]) -> Optional[List[str]]:

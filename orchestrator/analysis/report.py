@@ -16,11 +16,10 @@ import json
 import math
 from functools import lru_cache
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import List, Optional, Sequence
 
 from ..mcapio import read_info
-from .logs import read_channels
-from .runs import Run, RunSet, collect_runs
+from .runs import Run, RunSet, collect_runs, run_series
 
 #: at most this many overlaid signal panels (more: an error asking for narrower patterns)
 MAX_SIGNALS = 24
@@ -179,13 +178,7 @@ def _trace_figure(runs: RunSet, patterns: List[str], styles: List[dict]):
 
     from ..plotting import TooManySignals
 
-    series: Dict[str, Dict[int, tuple]] = {}
-    for i, run in enumerate(runs.runs):
-        if not run.path.exists():
-            continue
-        for topic, ch in read_channels(run.path, patterns).items():
-            for v, y in ch.values.items():
-                series.setdefault(f"{topic}.{v}", {})[i] = (ch.t, y, ch.units[v], ch.types[v])
+    series = run_series(runs, patterns, skip_missing=True)
     if len(series) > MAX_SIGNALS:
         raise TooManySignals(f"{len(series)} signals match {' '.join(patterns)}: a report overlays at most "
                              f"{MAX_SIGNALS}; choose them with --signals")

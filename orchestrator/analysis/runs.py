@@ -89,6 +89,22 @@ class RunSet:
         return ""
 
 
+def run_series(runs: RunSet, patterns: Sequence[str], skip_missing: bool = False) -> Dict[str, Dict[int, tuple]]:
+    """``unit.variable -> {run index: (t in s, values, unit, JSON schema type)}``, signals in
+    log order (:func:`~immersim.orchestrator.analysis.logs.read_channels` of each run's log;
+    with ``skip_missing`` a run without a log, e.g. a failed sweep run, is left out)."""
+    from .logs import read_channels
+
+    out: Dict[str, Dict[int, tuple]] = {}
+    for i, run in enumerate(runs.runs):
+        if skip_missing and not run.path.exists():
+            continue
+        for topic, ch in read_channels(run.path, patterns).items():
+            for v, y in ch.values.items():
+                out.setdefault(f"{topic}.{v}", {})[i] = (ch.t, y, ch.units[v], ch.types[v])
+    return out
+
+
 @lru_cache(maxsize=8)
 def _channels(path: Path, mtime_ns: int) -> dict:
     """The channels of a log (cached per file version: a report asks once per metric)."""
