@@ -10,6 +10,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 import numpy as np
 
 from .errors import ImmersimError
+from .patterns import matches
 
 log = logging.getLogger(__name__)
 
@@ -151,21 +152,43 @@ _SCALAR = ("number", "integer", "boolean")
 def read_series(path: Path | str, patterns: List[str]) -> Dict[str, Tuple[np.ndarray, np.ndarray, str]]:
     """Time series of every ``unit.variable`` matching a glob pattern (brackets are literal).
 
-    The numbers (a unit's Real, Integer, Boolean; not a String, nor the arrays of a 3D view's
-    /tf and /scene) of :func:`~immersim.orchestrator.analysis.logs.read_channels`, as floats.
-
     Returns
     -------
     dict of ``unit.variable`` -> (t in s, shape (n,); values, shape (n,); unit string)
     """
-    from .analysis.logs import channels_matching
-
     path = Path(path)
-    channels = channels_matching(path, list(patterns), _SCALAR)
-    if not channels:
-        info = read_info(path)
-        avail = [f"{t}.{v}" for t, c in info.channels.items() if not t.endswith("/parameters") for v in c.signals]
+    msgs, _, _ = _messages(path)   # one pass: the channels' schemas from their first messages, then the values
+    channels: Dict[str, Tuple[Dict, Callable[[bytes], Dict]]] = {}
+    for schema, channel, _ in msgs:
+        if channel.topic not in channels:
+            channels[channel.topic] = channel_schema(schema, channel)
+    wanted: Dict[str, List[str]] = {}
+    for topic, (js, _) in channels.items():
+        if topic.endswith("/parameters"):
+            continue
+        for var, prop in js.get("properties", {}).items():
+            # signals are numbers (a unit's Real, Integer, Boolean): not the arrays of a 3D view's
+            # /tf and /scene, nor a String
+            if prop.get("type") in _SCALAR and matches(f"{topic}.{var}", patterns):
+                wanted.setdefault(topic, []).append(var)
+    if not wanted:
+        avail = [f"{t}.{v}" for t, (js, _) in channels.items() if not t.endswith("/parameters")
+                 for v in js.get("properties", {})]
         raise LogReadError(f"{path}: no signal matches {' '.join(patterns)} "
                            f"(signals: {', '.join(avail[:12])}{' ...' if len(avail) > 12 else ''})")
-    return {f"{topic}.{v}": (ch.t_ns * 1e-9, y.astype(np.float64), ch.units[v])
-            for topic, ch in channels.items() for v, y in ch.values.items()}
+    times: Dict[str, List[int]] = {t: [] for t in wanted}
+    vals: Dict[Tuple[str, str], List[float]] = {(t, v): [] for t, vs in wanted.items() for v in vs}
+    for _, channel, message in msgs:
+        names = wanted.get(channel.topic)
+        if names is None:
+            continue
+        obj = channels[channel.topic][1](message.data)
+        times[channel.topic].append(message.log_time)
+        for v in names:
+            x = obj.get(v)
+            vals[(channel.topic, v)].append(np.nan if x is None else float(x))
+    out = {}
+    for (topic, v), series in vals.items():
+        out[f"{topic}.{v}"] = (np.asarray(times[topic], dtype=np.int64) * 1e-9, np.asarray(series),
+                               channels[topic][0]["properties"][v].get("unit", ""))
+    return out

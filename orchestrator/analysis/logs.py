@@ -109,14 +109,6 @@ def read_channels(path: Path | str, patterns: Iterable[str] = ("*",)) -> Dict[st
         The file is missing or unreadable, or no signal matches.
     """
     path, patterns = Path(path), list(patterns)
-    out = channels_matching(path, patterns, SIGNAL_TYPES)
-    if not out:
-        raise LogReadError(f"{path}: no signal matches {' '.join(patterns)}")
-    return out
-
-
-def channels_matching(path: Path, patterns: List[str], types: Sequence[str]) -> Dict[str, ChannelData]:
-    """:func:`read_channels` for the variables of JSON schema ``types`` only; empty when none matches."""
     msgs, _, _ = _messages(path)
     meta: Dict[str, tuple] = {}
     datas: Dict[str, List[bytes]] = {}
@@ -129,15 +121,18 @@ def channels_matching(path: Path, patterns: List[str], types: Sequence[str]) -> 
                 continue
             props = channel_schema(schema, channel)[0].get("properties", {})
             wanted = [v for v, p in props.items()
-                      if p.get("type") in types and matches(f"{topic}.{v}", patterns)]
+                      if p.get("type") in SIGNAL_TYPES and matches(f"{topic}.{v}", patterns)]
             meta[topic] = (channel, props, wanted) if wanted else None
             datas[topic], times[topic] = [], []
         if meta[topic] is None:
             continue
         datas[topic].append(message.data)
         times[topic].append(message.log_time)
-    return {topic: _decode(topic, m[0], datas[topic], np.asarray(times[topic], dtype=np.int64), m[2], m[1])
-            for topic, m in meta.items() if m is not None}
+    out = {topic: _decode(topic, m[0], datas[topic], np.asarray(times[topic], dtype=np.int64), m[2], m[1])
+           for topic, m in meta.items() if m is not None}
+    if not out:
+        raise LogReadError(f"{path}: no signal matches {' '.join(patterns)}")
+    return out
 
 
 def read_log(path: Path | str, patterns: Iterable[str] = ("*",), frame: bool = True):
