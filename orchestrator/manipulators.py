@@ -13,7 +13,10 @@ from .signals import signal_function
 
 
 def signal(spec: InputSpec) -> Callable[[float], float]:
-    """The time function ``u(t)`` of a scenario input (:func:`.signals.signal_function`)."""
+    """The time function ``u(t)`` of a scenario input (:func:`.signals.signal_function`; a live
+    input, :func:`.live.attach_live_inputs`, brings its own)."""
+    if spec.kind == "live":
+        return spec.params["signal"]
     return signal_function(spec.kind, spec.params)
 
 

@@ -20,8 +20,6 @@ def signal_function(kind: str, params: Dict[str, Any]) -> Callable[[float], floa
     outside the range).
     """
     p = params
-    if kind == "live":   # a live input (orchestrator/live.py) brings its own function
-        return p["signal"]
     if kind == "constant":
         v = float(p["value"])
         return lambda t: v
