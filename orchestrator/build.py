@@ -205,14 +205,15 @@ def builtin_names() -> List[str]:
 def build_all(units: Optional[Iterable[str]] = None, dest_dir: Path | str | None = None,
               force: bool = False) -> List[Path]:
     """Build the named built-in units (all by default, the native ones included)."""
-    from immersim.models.platform.codegen import compiler
-
     from .native_build import build_native
 
     names = list(units) if units else builtin_names()
-    if not units and compiler() is None:
-        log.warning("no C compiler ($CC, gcc or cc): the native units %s are not built", ", ".join(NATIVE_UNITS))
-        names = unit_names()
+    if not units:   # (codegen imports casadi: only when every unit is asked for)
+        from immersim.models.platform.codegen import compiler
+
+        if compiler() is None:
+            log.warning("no C compiler ($CC, gcc or cc): the native units %s are not built", ", ".join(NATIVE_UNITS))
+            names = unit_names()
     known = builtin_names()
     for name in names:
         if name not in known:
