@@ -531,14 +531,13 @@ class NetworkModel:
             P = w.positions()
             pl = self._positions_list(P)
         moved = w.separated
-        ai, ei, dv = w.contacts(etree, pl)
+        ai, ei, dv = w.contacts(etree, pl, online_g)
         if w.separated != moved:   # overlaps were removed: positions (and their index) changed
             etree = w.entity_index() if etree is not None else None
             if lazy:
                 P = w.positions()
                 pl = self._positions_list(P)
         if len(ai):
-            ai, ei, dv = ai[online_g[ai]], ei[online_g[ai]], dv[online_g[ai]]
             self.metrics.contacts += len(ai)
             local = self.owner[G + ei] == ai
             for e, d in zip(ei[local], dv[local]):

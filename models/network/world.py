@@ -472,10 +472,11 @@ class World:
         k-d tree is built only on a frame with a contact candidate."""
         return PointIndex(self.epos)
 
-    def contacts(self, etree=None, pos_list=None):
+    def contacts(self, etree=None, pos_list=None, online=None):
         """Approaching avatar-entity pairs in contact: (avatar, entity, dv of entity (k, 2)).
         ``pos_list``: every position (avatars, then entities) as a list of ``[x, y]`` when the
-        caller has it (the tiny scenes' pre-check reads it)."""
+        caller has it (the tiny scenes' pre-check reads it). ``online`` (G,) bool: only these
+        avatars take part (an offline avatar neither pushes entities nor takes an impulse)."""
         G, E = len(self.speed), len(self.evel)
         if G == 0 or E == 0:
             return _NO_CONTACTS
@@ -513,6 +514,9 @@ class World:
         else:
             sd = cKDTree(self.apos).sparse_distance_matrix(etree, r, output_type="ndarray")
             ai, ei = sd["i"].astype(int), sd["j"].astype(int)
+        if online is not None:
+            on = online[ai]
+            ai, ei = ai[on], ei[on]
         if len(ai) == 0:
             return ai, ei, np.zeros((0, 2))
         d = self.epos[ei] - self.apos[ai]

@@ -89,6 +89,21 @@ def test_an_entity_inside_an_avatar_is_pushed_out_whole():
         assert w.epos[0, 0] == pytest.approx(101.0 + 2.0 * share)
 
 
+def test_an_offline_avatar_neither_pushes_an_entity_nor_takes_an_impulse():
+    """An avatar without a master (offline) takes no part in avatar-entity contacts: the entity
+    it overlaps stays where it is, and neither body's velocity changes."""
+    m = NetworkModel(NetworkConfig(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0,
+                                   scene_size=200.0, avatar_mass=300.0, entity_mass=100.0))
+    w = m.world
+    w.apos[0], w.epos[0] = (100.0, 100.0), (101.0, 100.0)     # 2 m overlap, approaching
+    w.yaw[0], w.speed[0], w.evel[0] = 0.0, 8.0, (-2.0, 0.0)
+    ai, ei, dv = w.contacts(online=np.array([False]))
+    assert len(ai) == len(ei) == len(dv) == 0
+    assert tuple(w.epos[0]) == (101.0, 100.0) and w.speed[0] == 8.0 and w.jolt[0] == 0.0
+    ai, ei, dv = w.contacts(online=np.array([True]))   # the same pair online: pushed and bounced
+    assert list(ai) == [0] and w.epos[0, 0] == pytest.approx(103.0) and w.speed[0] < 8.0
+
+
 def test_entity_collision_with_finite_masses_gains_no_energy():
     m = NetworkModel(NetworkConfig(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0,
                                    scene_size=200.0, avatar_mass=300.0, entity_mass=100.0))
