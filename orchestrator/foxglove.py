@@ -311,14 +311,19 @@ class FoxgloveObserver:
             rotation["x"], rotation["y"], rotation["z"], rotation["w"] = poses[o + 3:o + 7]
         return self._tf, orjson.dumps(self._msg)
 
-    def scene_due(self, k: int, t_ns: int) -> None:
-        """``/scene`` at the first step and then once per ``scene_period_s`` (with the meshes once
-        and the parts redrawn every step)."""
-        if self._steps:   # parts redrawn every step
+    def step_items(self, k: int, t_ns: int) -> List[Tuple[int, bytes]]:
+        """``(channel id, data)`` of step ``k``'s view messages: ``/tf`` and the parts redrawn
+        every step (the log writer writes them with the step's other messages)."""
+        items = [self.transforms(k, t_ns)]
+        if self._steps:
             stamp = dict(zip(("sec", "nsec"), divmod(t_ns, 1_000_000_000)))
             for cid, (part, getters) in zip(self._step_channels, self._steps):
-                data = {"deletions": [], "entities": part.entities([g() for g in getters], stamp)}
-                self.mcap.writer.add_message(cid, log_time=t_ns, publish_time=t_ns, sequence=k, data=orjson.dumps(data))
+                items.append((cid, orjson.dumps({"deletions": [],
+                                                 "entities": part.entities([g() for g in getters], stamp)})))
+        return items
+
+    def scene_due(self, k: int, t_ns: int) -> None:
+        """``/scene`` at the first step and then once per ``scene_period_s`` (with the meshes once)."""
         if self._next_scene is None and self._meshes is not None:   # the meshes: once, at the start
             from .views import meshes_message
 

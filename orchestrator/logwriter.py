@@ -173,12 +173,13 @@ class LogWriter:
 
     def write(self, k: int, t_ns: int) -> None:
         """Log step ``k`` ending at ``t_ns`` from the sources' current values: the units'
-        messages and the 3D view's ``/tf`` as one step, then ``/scene`` when due."""
+        messages and the 3D view's ``/tf`` (and parts redrawn every step) as one step, then
+        ``/scene`` when due."""
         items = [(cid, encoder.encode(src.cur if pick is None else pick(src.cur)))
                  for cid, encoder, src, _, pick in self._plan]
         view = self._view
         if view is not None:
-            items.append(view.transforms(k, t_ns))
+            items += view.step_items(k, t_ns)
         self.mcap.write_step(t_ns, k, items)
         if view is not None:
             view.scene_due(k, t_ns)
@@ -201,8 +202,8 @@ class LogWriter:
         body += ["try:", f"    items = [{', '.join(items)}]", "except TypeError:", "    return GENERAL(k, t_ns)"]
         view = self._view
         if view is not None:
-            gen.ns.update(TF=view.transforms, SCENE=view.scene_due)
-            body.append("items.append(TF(k, t_ns))")
+            gen.ns.update(VIEW=view.step_items, SCENE=view.scene_due)
+            body.append("items += VIEW(k, t_ns)")
         body.append("WRITE_STEP(t_ns, k, items)")
         if view is not None:
             body.append("SCENE(k, t_ns)")
