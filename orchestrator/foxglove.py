@@ -68,6 +68,12 @@ class Body:
         return [r for r in (*self.position, *self.euler) if isinstance(r, str)]
 
 
+def time_stamp(t_ns: int) -> Dict[str, int]:
+    """A Foxglove ``Time`` of ``t_ns`` nanoseconds: ``{"sec": ..., "nsec": ...}``."""
+    sec, nsec = divmod(t_ns, 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
 def _axis_quat(axis: int, angle: float) -> Tuple[float, float, float, float]:
     s, c = math.sin(angle / 2), math.cos(angle / 2)
     q = [0.0, 0.0, 0.0, c]
@@ -316,7 +322,7 @@ class FoxgloveObserver:
         every step (the log writer writes them with the step's other messages)."""
         items = [self.transforms(k, t_ns)]
         if self._steps:
-            stamp = dict(zip(("sec", "nsec"), divmod(t_ns, 1_000_000_000)))
+            stamp = time_stamp(t_ns)
             for cid, (part, getters) in zip(self._step_channels, self._steps):
                 items.append((cid, orjson.dumps({"deletions": [],
                                                  "entities": part.entities([g() for g in getters], stamp)})))
@@ -331,7 +337,7 @@ class FoxgloveObserver:
                                          data=orjson.dumps(meshes_message(self.meshes, t_ns)))
         if self._next_scene is None or t_ns >= self._next_scene:
             self._next_scene = t_ns + self._period_ns
-            stamp = dict(zip(("sec", "nsec"), divmod(t_ns, 1_000_000_000)))
+            stamp = time_stamp(t_ns)
             self.mcap.writer.add_message(self._scene, log_time=t_ns, publish_time=t_ns, sequence=k,
                                          data=orjson.dumps({"deletions": [], "entities": self._entities(stamp)}))
 

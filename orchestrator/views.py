@@ -195,7 +195,9 @@ def unit_view(units: Sequence[Tuple[str, str, dict]], mesh_triangles: int
 
 def meshes_message(meshes: Sequence[MeshEntity], t_ns: int) -> dict:
     """The ``/scene/meshes`` SceneUpdate: one frame-locked entity per mesh, never expiring."""
-    stamp = dict(zip(("sec", "nsec"), divmod(t_ns, 1_000_000_000)))
+    from .foxglove import time_stamp
+
+    stamp = time_stamp(t_ns)
     return {"deletions": [], "entities": [
         {"timestamp": stamp, "frame_id": m.frame_id, "id": m.id, "frame_locked": True,
          "lifetime": {"sec": 0, "nsec": 0}, **m.primitive()} for m in meshes]}
