@@ -19,6 +19,9 @@ from .test_conformance import ROOT as REFERENCE, log_rows
 
 SCENARIOS = sorted((Path(__file__).resolve().parents[2] / "scenarios").glob("*.toml"))
 SHORT = {"simulation.stop": 0.2}
+#: scenarios whose round trip runs over their full length (a few seconds each); the others stop
+#: at 0.2 s (their full length is compared by ``benchmarks/bench_ssp.py``)
+FULL = {"teleop"}
 
 
 def messages(path: Path):
@@ -32,15 +35,20 @@ def messages(path: Path):
 @pytest.mark.parametrize("toml", SCENARIOS, ids=lambda p: p.stem)
 def test_round_trip_gives_the_scenario_log_bit_for_bit(tmp_path, toml):
     """``run scenario.toml`` and ``run exported.ssp``: every message (topic, times, bytes) and
-    the run's settings and status are the same; only the file names differ (scenario, FMUs)."""
+    the run's settings and status are the same; only the file names differ (scenario, FMUs).
+    The scenarios of ``FULL`` run to their own stop time (every step of the run compared)."""
     ssp = tmp_path / f"{toml.stem}.ssp"
-    args = ["--set", "simulation.stop=0.2"]
+    full = toml.stem in FULL
+    args = [] if full else ["--set", "simulation.stop=0.2"]
     assert main(["export", str(toml), "-o", str(ssp)] + args) == 0
-    run_scenario(toml, tmp_path / "a.mcap", overrides=SHORT)
+    res = run_scenario(toml, tmp_path / "a.mcap", overrides=None if full else SHORT)
     run_scenario(ssp, tmp_path / "b.mcap")
     a, meta_a = messages(tmp_path / "a.mcap")
     b, meta_b = messages(tmp_path / "b.mcap")
     assert len(a) > 0 and a == b
+    if full:   # the whole run: every step to the scenario's stop time
+        assert res.status == "completed" and res.t_ns == load_scenario(toml).stop_ns
+        assert meta_a["run"]["steps_done"] == meta_a["run"]["steps_total"] == str(res.steps_done)
     assert meta_a["immersim"] == meta_b["immersim"] and meta_a["run"] == meta_b["run"]
     assert meta_a["scenario"]["text"] == meta_b["scenario"]["text"]
     assert [h.split(" sha256=")[1] for h in meta_a["fmus"].values()] == \
