@@ -29,7 +29,6 @@ from __future__ import annotations
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 __all__ = ["convex_parts", "polygon", "edge_normals", "overlaps", "exit_2d", "Footprints"]
 
@@ -54,6 +53,8 @@ def convex_parts(mesh) -> List[np.ndarray]:
 def polygon(points: np.ndarray) -> np.ndarray:
     """Convex hull (counter-clockwise vertices, (m, 2)) of 2-D ``points`` (k, 2); fewer than
     three points or collinear ones: the points themselves."""
+    from scipy.spatial import ConvexHull, QhullError  # (scipy.spatial: ~0.3 s to import, only on a contact)
+
     try:
         h = ConvexHull(points)
     except (QhullError, ValueError):

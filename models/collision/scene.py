@@ -48,12 +48,14 @@ import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
+from typing import TYPE_CHECKING, Dict, List, Optional, Tuple
 
 import numpy as np
-import trimesh
 
 from .geometry import pose_matrix
+
+if TYPE_CHECKING:  # trimesh (~0.5 s to import) is imported where a mesh is built or loaded
+    import trimesh
 
 log = logging.getLogger(__name__)
 
@@ -168,6 +170,8 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     MeshError
         The file is missing, unreadable, or holds no triangles (message names the file).
     """
+    import trimesh
+
     path = Path(path)
     if not path.is_file():
         raise MeshError(f"mesh file {str(path)!r} does not exist")
@@ -200,6 +204,8 @@ def grid_box(extents, counts) -> trimesh.Trimesh:
 
     Triangle count ``4 (nx ny + ny nz + nz nx)``.
     """
+    import trimesh
+
     ext = np.asarray(extents, float) / 2
     n = [int(c) for c in counts]
     verts, faces = [], []
@@ -235,6 +241,8 @@ def make_tank(tris: int = 5442) -> trimesh.Trimesh:
     turret, cylinder barrel along +x and a cone antenna, all closed. Origin at the centre of
     the hull's bottom face; about 8.3 m x 3.4 m x 3.9 m.
     """
+    import trimesh
+
     tris = int(tris)
     if tris < 400:
         raise SceneError(f"tank: tris = {tris} is below the minimum of 400 triangles")
@@ -263,6 +271,8 @@ def make_tank(tris: int = 5442) -> trimesh.Trimesh:
 
 def make_missile(length: float = 3.0, radius: float = 0.15, sections: int = 32) -> trimesh.Trimesh:
     """A missile along +x centred at the origin: cylinder body plus cone nose (closed parts)."""
+    import trimesh
+
     body_len, nose_len = 0.85 * length, 0.15 * length
     body = _place(trimesh.creation.cylinder(radius=radius, height=body_len, sections=sections),
                   (-length / 2 + body_len / 2, 0, 0, 0, math.pi / 2, 0))
@@ -357,6 +367,8 @@ def _add_item(scene: Scene, item: _Item, counter: Dict[str, int]) -> None:
         mesh = scene.meshes.get(key) or make_missile(length, radius)
         scene.add(Body(str(item.get("name", default_name)), key, item.flag("dynamic", True), item.pose(), "missile"), mesh)
     elif kind in ("box", "sphere", "cylinder"):
+        import trimesh
+
         if kind == "box":
             size = (item.num("sx", 1.0), item.num("sy", 1.0), item.num("sz", 1.0))
             if min(size) <= 0:
