@@ -39,6 +39,10 @@ _CTYPE = {
     "Enumeration": (ctypes.c_int64, "Int64"), "Boolean": (ctypes.c_bool, "Boolean"),
     "String": (ctypes.c_char_p, "String"), "Binary": (ctypes.c_void_p, "Binary"),
 }
+#: ``(address, size) -> bytes``, a copy of the FMU's memory (the C API's PyBytes_FromStringAndSize:
+#: ``ctypes.string_at`` without its Python wrapper)
+_bytes_at = ctypes.PYFUNCTYPE(ctypes.py_object, ctypes.c_void_p, ctypes.c_ssize_t)(
+    ("PyBytes_FromStringAndSize", ctypes.pythonapi))
 #: the order of type families in a read (Reals first: the finite check looks at a prefix)
 _FAMILY_ORDER = {"float": 0, "int": 1, "bool": 2, "string": 3, "binary": 4}
 
@@ -221,14 +225,17 @@ class _Group:
     def converter(self) -> Callable[[], List[Any]]:
         """A function returning :meth:`values` (made once: no branch on the type per call)."""
         buf, sizes, positions = self.buf, self.sizes, self.positions
+        # a ctypes array is sliced to a list first: iterating it item by item (the sequence
+        # protocol, ended by an IndexError) costs more than the copy
         if self.type == "String":
             def raw():
-                return [b.decode("utf-8", "replace") if b is not None else "" for b in buf]
+                return [b.decode("utf-8", "replace") if b is not None else "" for b in buf[:]]
         elif self.type == "Binary":
-            string_at = ctypes.string_at
-
             def raw():
-                return [string_at(p, n) if p else b"" for p, n in zip(buf, sizes)]
+                ptrs = buf[:]
+                if None in ptrs:   # a NULL value (none of its bytes): b""
+                    return [_bytes_at(p, n) if p else b"" for p, n in zip(ptrs, sizes[:])]
+                return list(map(_bytes_at, ptrs, sizes[:]))
         else:
             raw = functools.partial(operator.getitem, buf, slice(None))   # buf[:]: a list
         if self.identity:
