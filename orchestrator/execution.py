@@ -20,11 +20,12 @@ from .fmu import ENDED, forget_python_code
 from . import supervisor
 from .supervisor import DeferredSigint
 from .errors import FmuCallError, FmuLoadError, ImmersimError, LogWriteError, ScenarioError
-from .master import Master, Slot
+from .master import Master
 from .live import attach_live_inputs
 from .logwriter import LogPlan, LogProcess, LogWriter
 from .pacing import Pacer
 from .scenario import Scenario, load_scenario
+from .stepping import Slot
 from .system import System, check_system, fmu_hashes
 
 log = logging.getLogger(__name__)
@@ -163,10 +164,10 @@ class Execution:
             real_in += [s.var for s in sc.inputs if s.unit == name]
             real_in += [f.var for f in sc.faults if f.unit == name and inst.var(f.var).family == "float"
                         and inst.var(f.var).causality == "input"]
-            slot.real_inputs = list(dict.fromkeys(real_in))
-            if slot.real_inputs:
-                slot.setter = inst.real_setter(slot.real_inputs)
-                slot.in_vals = [float(inst.var(n).start or 0.0) for n in slot.real_inputs]
+            names = slot.inputs.names = list(dict.fromkeys(real_in))
+            if names:
+                slot.inputs.setter = inst.real_setter(names)
+                slot.inputs.values = [float(inst.var(n).start or 0.0) for n in names]
             slots[name] = slot
         self._initialize(slots, conns)
         master = Master(sc, slots, conns)

@@ -126,7 +126,7 @@ class System:
     logged: Dict[str, List[str]]
     instances: Dict[str, FmuInstance] = field(default_factory=dict)
     hashes: Dict[str, str] = field(default_factory=dict)
-    workers: Dict[int, Any] = field(default_factory=dict)   # process number -> remote.WorkerProcess
+    workers: Dict[int, Any] = field(default_factory=dict)   # process number -> transport.WorkerProcess
 
     def origin(self, unit: str) -> str:
         """The FMU file of ``unit`` as the log names it: the resolved file, or for a unit given
@@ -140,9 +140,9 @@ class System:
 
     def instantiate(self, unzip_root: Optional[Path] = None) -> None:
         """Load every needed unit: a unit with ``process = N >= 1`` in worker process N
-        (:mod:`~immersim.orchestrator.remote`), the others here. Workers load while this
+        (:mod:`~immersim.orchestrator.transport`), the others here. Workers load while this
         process loads its own units."""
-        from .remote import RemoteInstance, WorkerProcess
+        from .transport import RemoteInstance, WorkerProcess
 
         where = {name: self.scenario.unit(name).process for name in self.needed}
         for name in self.needed:

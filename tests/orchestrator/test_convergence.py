@@ -58,15 +58,15 @@ def test_angle_extrapolation_takes_the_short_way_round():
     Away from a wrap it equals linear to rounding."""
     import math
 
-    from immersim.orchestrator.master import Master, Slot
+    from immersim.orchestrator.stepping import FloatFeed, Slot, gather as gather_inputs
 
     def gather(mode, cur, prev, stepped):
         src = Slot("src", None, ["yaw"])
         src.cur, src.prev, src.stepped = [cur], [prev], stepped
         dst = Slot("dst", None, [])
-        dst.in_vals = [0.0]
-        dst.float_feeds = [(0, src, 0, not stepped, 1.0, 0.0, mode)]
-        return Master._gather(None, dst, 0)[0][0]
+        dst.inputs.values = [0.0]
+        dst.inputs.float_feeds = [FloatFeed(0, src, 0, not stepped, 1.0, 0.0, mode)]
+        return gather_inputs(dst.inputs, 0)[0][0]
 
     turn = 2 * math.pi - 6.2
     assert gather(2, -3.1, 3.1, True) == pytest.approx(3.1 + turn / 2, abs=1e-15)     # mid-step: ~pi

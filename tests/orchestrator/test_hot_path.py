@@ -89,7 +89,7 @@ value = 0.5
 def test_a_changed_zero_sign_or_a_fault_sets_the_inputs_again():
     """``_apply`` compares with the last step's inputs bit for bit (0.0 and -0.0 differ) and
     sets everything again after a step in which a fault forced an input."""
-    from immersim.orchestrator.master import Master, Slot
+    from immersim.orchestrator.stepping import Slot, Stepper
 
     calls = []
 
@@ -105,7 +105,7 @@ def test_a_changed_zero_sign_or_a_fault_sets_the_inputs_again():
 
     slot = Slot("u", Recorder("inst"), [])
     slot.inst.set_values = Recorder("forced").set
-    slot.setter, slot.other_setter = Recorder("real"), Recorder("discrete")
+    slot.inputs.setter, slot.inputs.other_setter = Recorder("real"), Recorder("discrete")
     steps = [((1.0, 0.0), (True,), ()),
              ((1.0, 0.0), (True,), ()),            # the same: nothing set
              ((1.0, -0.0), (True,), ()),           # -0.0 is not 0.0 for a model
@@ -113,7 +113,7 @@ def test_a_changed_zero_sign_or_a_fault_sets_the_inputs_again():
              ((1.0, -0.0), (False,), (("x", 2.0),)),
              ((1.0, -0.0), (False,), ())]          # after a forced step: everything again
     for inputs in steps:
-        Master._apply(None, slot, inputs)
+        Stepper._apply(slot, inputs)
     assert calls == [("real", (1.0, 0.0)), ("discrete", (True,)),
                      ("real", (1.0, -0.0)),
                      ("discrete", (False,)),

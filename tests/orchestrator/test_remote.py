@@ -145,7 +145,7 @@ def test_chained_unit_steps_in_its_worker_to_the_same_log(tmp_path, monkeypatch)
     run_scenario(scen, here, overrides={**ov, "net:process": 0})
     ex = Execution(scen, chained, overrides={**ov, "plat:process": 1})
     ex.run()
-    assert [s.name for s in ex.master._chained] == ["plat"] and ex.master.slots["plat"].chained
+    assert [s.name for s in ex.master._chained] == ["plat"] and ex.master.slots["plat"].links.chained
     assert _same_logs(here, chained) > 300
     monkeypatch.setattr(Master, "CHAIN", False)
     ex = Execution(scen, unchained, overrides={**ov, "plat:process": 1})
@@ -160,7 +160,7 @@ def test_a_worker_unit_is_posted_before_its_last_reply_is_taken(tmp_path, monkey
     next step is posted as soon as the collision unit has stepped, while net's own reply of
     the step may still be outstanding (two posts in flight, two shared buffers in turn); never
     more than two."""
-    from immersim.orchestrator.remote import RemoteInstance
+    from immersim.orchestrator.transport import RemoteInstance
 
     in_flight = []
     post_step = RemoteInstance.post_step
@@ -242,7 +242,7 @@ def test_bad_process_number_is_refused(tmp_path, test_fmus):
 def test_replies_are_routed_to_their_unit(tmp_path, test_fmus):
     """Two units of one worker posted as one batch and collected in the other order: each gets
     its own outputs (a reply read for another unit is kept for it)."""
-    from immersim.orchestrator.remote import RemoteInstance, WorkerProcess
+    from immersim.orchestrator.transport import RemoteInstance, WorkerProcess
 
     w = WorkerProcess(1)
     try:
@@ -275,7 +275,7 @@ def test_mailbox_keeps_the_order_and_wakes_a_blocked_worker(tmp_path, test_fmus)
     import pickle
     import time
 
-    from immersim.orchestrator.remote import RemoteConfig, RemoteInstance, WorkerProcess
+    from immersim.orchestrator.transport import RemoteConfig, RemoteInstance, WorkerProcess
 
     w = WorkerProcess(1, RemoteConfig(spin_s=0.001))
     insts = {n: RemoteInstance(n, test_fmus["oscillator"], tmp_path / n, w) for n in ("a", "b")}
@@ -313,21 +313,21 @@ def test_mailbox_keeps_the_order_and_wakes_a_blocked_worker(tmp_path, test_fmus)
 
 
 def test_without_shared_memory_the_socket_gives_the_same_log(tmp_path, monkeypatch):
-    """Where the machine does not keep the order of stores (``remote.STORE_ORDERED`` False: ARM,
+    """Where the machine does not keep the order of stores (``shm.STORE_ORDERED`` False: ARM,
     POWER) no shared-memory channel is made: the messages and outputs go through the socket,
     and campus_drive with delayed contacts (net in a worker, posted ahead) logs the same to 4.5 s."""
-    from immersim.orchestrator import remote
+    from immersim.orchestrator.transport import shm
 
     ov = {"simulation.stop": 4.5}
     scen = _campus_parallel(tmp_path)
     run_scenario(scen, tmp_path / "shm.mcap", overrides=ov)
-    monkeypatch.setattr(remote, "STORE_ORDERED", False)
+    monkeypatch.setattr(shm, "STORE_ORDERED", False)
 
     def refuse(self, *args):
         raise AssertionError("a shared-memory channel was made")
 
-    monkeypatch.setattr(remote._Mailbox, "__init__", refuse)
-    monkeypatch.setattr(remote._SharedValues, "__init__", refuse)
+    monkeypatch.setattr(shm.Mailbox, "__init__", refuse)
+    monkeypatch.setattr(shm.SharedValues, "__init__", refuse)
     res = run_scenario(scen, tmp_path / "socket.mcap", overrides=ov)
     assert res.remote_units == ["net"]
     assert _same_logs(tmp_path / "shm.mcap", tmp_path / "socket.mcap") > 300
@@ -338,15 +338,15 @@ def test_without_shared_memory_the_socket_gives_the_same_log(tmp_path, monkeypat
 def test_a_builtin_error_from_a_worker_keeps_its_type_and_message(exc):
     """The documented rule of the pipe: a builtin exception comes back as the same builtin type
     with the same text (KeyError's quoting included), not as a RuntimeError naming it."""
-    from immersim.orchestrator.remote import _portable, _rebuild
+    from immersim.orchestrator.transport.process import portable, rebuild
 
-    back = _rebuild(_portable(exc))
+    back = rebuild(portable(exc))
     assert type(back) is type(exc)
     assert str(back) == str(exc)
 
 
 def test_an_error_of_no_known_module_becomes_a_runtime_error_naming_its_type():
-    from immersim.orchestrator.remote import _rebuild
+    from immersim.orchestrator.transport.process import rebuild
 
-    back = _rebuild(("somepkg.mod", "Oddity", "went odd", {}))
+    back = rebuild(("somepkg.mod", "Oddity", "went odd", {}))
     assert type(back) is RuntimeError and str(back) == "Oddity: went odd"
