@@ -33,7 +33,6 @@ import orjson
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Sequence, Tuple, Union
 
-from .codegen import Generated
 
 Ref = Union[str, float]
 SHAPES = {"cube": "cubes", "sphere": "spheres", "cylinder": "cylinders"}
@@ -234,12 +233,12 @@ class FoxgloveObserver:
         self._next_scene = None
         w = mcap.writer
         # every frame's translation and quaternion, 7 numbers each, in /tf's order; the moving
-        # bodies' update (:meth:`_compile`) rewrites theirs every step (both encodings)
+        # bodies' update (:meth:`_update`) rewrites theirs every step (both encodings)
         tfs = self._msg["transforms"]
         self._poses = [v for t in tfs for v in (*t["translation"].values(), *t["rotation"].values())]
         index = {id(t["translation"]): i for i, t in enumerate(tfs)}
-        self._update = self._compile([(7 * index[id(translation)], moves, spin, order)
-                                      for translation, moves, _, spin, order in self._moving])
+        self._updates = [(7 * index[id(translation)], moves, spin, order)
+                         for translation, moves, _, spin, order in self._moving]
         #: the JSON message's dicts of the moving bodies, with their offset in the poses
         self._moved = [(translation, rotation, 7 * index[id(translation)])
                        for translation, _, rotation, _, _ in self._moving]
@@ -268,40 +267,24 @@ class FoxgloveObserver:
         return ({"x": v[0] + body.offset[0], "y": v[1] + body.offset[1], "z": v[2] + body.offset[2]},
                 {"x": qx, "y": qy, "z": qz, "w": qw})
 
-    @staticmethod
-    def _compile(moving: Sequence[tuple]) -> Callable[[List[float]], None]:
-        """One function writing every moving body's translation (position + offset) and
-        quaternion into ``poses`` (``moving``: (offset in poses, (getters, offsets) or None,
-        spin, order) per body): Python source generated once, so a step runs straight-line
-        code. A signal whose getter has ``source`` and ``index`` (the log's slots) is read as
-        ``source.cur[index]`` without a call; a constant position plus its offset is not
-        written (``poses`` holds it from the start); about one axis the quaternion is the sine and cosine
-        of half the angle, else :func:`euler_quaternion`."""
-        gen = Generated(sin=math.sin, cos=math.cos, euler_quaternion=euler_quaternion)
-        body: List[str] = []
-
-        def read(g: Any) -> str:
-            src = getattr(g, "source", None)
-            if src is not None:   # its values as a local: s0, s1, ... (read at the call)
-                return f"{gen.obj(src).lower()}[{int(g.index)}]"
-            return f"{gen.const(g)}()" if callable(g) else gen.const(g)
-
-        for o, moves, spin, order in moving:
+    def _update(self, poses: List[float]) -> None:
+        """Write every moving body's translation (position + offset) and quaternion into
+        ``poses``: about one axis the quaternion is the sine and cosine of half the angle, else
+        :func:`euler_quaternion`; a constant position plus its offset is there from the start."""
+        for o, moves, spin, order in self._updates:
             if moves is not None:
-                (px, py, pz), offsets = moves
-                for j, (g, off) in enumerate(zip((px, py, pz), offsets)):
-                    if callable(g):   # a constant's sum with its offset is in poses from the start
-                        body.append(f"poses[{o + j}] = {read(g)} + {gen.const(off)}")
+                for j, (g, off) in enumerate(zip(*moves)):
+                    if callable(g):
+                        poses[o + j] = g() + off
             if spin is None:
                 continue
             if len(spin) == 2:
                 axis, get = spin
-                body += [f"half = 0.5 * {read(get)}", f"poses[{o + 3 + axis}] = sin(half)", f"poses[{o + 6}] = cos(half)"]
+                half = 0.5 * get()
+                poses[o + 3 + axis] = math.sin(half)
+                poses[o + 6] = math.cos(half)
             else:
-                args = ", ".join(read(e) for e in spin)
-                body.append(f"poses[{o + 3}:{o + 7}] = euler_quaternion({args}, {order!r})")
-        head = [f"{n.lower()} = {n}.cur" for n in gen.objects]
-        return gen.function("update(poses)", head + body + ["return None"], "foxglove poses")
+                poses[o + 3:o + 7] = euler_quaternion(*[e() if callable(e) else e for e in spin], order)
 
     def transforms(self, k: int, t_ns: int) -> Tuple[int, bytes]:
         """``(channel id, data)`` of step ``k``'s ``/tf`` message (the log writer puts it with the

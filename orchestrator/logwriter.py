@@ -35,7 +35,6 @@ from pickle import dumps, loads
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from .child import start_child
-from .codegen import Generated
 from .errors import LogWriteError
 from .observers import McapObserver, write_parameters
 
@@ -149,12 +148,11 @@ class LogWriter:
             sources = [_Values() for _ in range(1 + max([c[2] for c in plan.channels]
                                                         + [s for s, _ in plan.refs.values()], default=-1))]
         self._sources = sources
-        #: (channel id, encoder, source, positions of its values in the source's, picker or None: all)
+        #: (channel id, its encoder's encode, source, picker of its values or None: all)
         self._plan: List[tuple] = []
         for topic, infos, slot, idx in plan.channels:
             cid, encoder = obs.add_channel(topic, infos)
-            positions = range(len(infos)) if idx is None else idx
-            self._plan.append((cid, encoder, sources[slot], positions, _picker(idx)))
+            self._plan.append((cid, encoder.encode, sources[slot], _picker(idx)))
         for unit, infos, values, t_ns in plan.parameters:
             write_parameters(obs, unit, infos, values, t_ns)
         self._view = None   # the 3D view (FoxgloveObserver): /tf with each step, /scene when due
@@ -165,7 +163,6 @@ class LogWriter:
                 return _Signal(sources[plan.refs[ref][0]], plan.refs[ref][1])
 
             self._view = FoxgloveObserver(obs, plan.bodies, lookup, meshes=plan.meshes, steps=plan.view_steps)
-        self.write = self._compile_write()   # the method below is its general form
 
     @property
     def closed(self) -> bool:
@@ -175,39 +172,13 @@ class LogWriter:
         """Log step ``k`` ending at ``t_ns`` from the sources' current values: the units'
         messages and the 3D view's ``/tf`` (and parts redrawn every step) as one step, then
         ``/scene`` when due."""
-        items = [(cid, encoder.encode(src.cur if pick is None else pick(src.cur)))
-                 for cid, encoder, src, _, pick in self._plan]
+        items = [(cid, encode(src.cur if pick is None else pick(src.cur))) for cid, encode, src, pick in self._plan]
         view = self._view
         if view is not None:
             items += view.step_items(k, t_ns)
         self.mcap.write_step(t_ns, k, items)
         if view is not None:
             view.scene_due(k, t_ns)
-
-    def _compile_write(self) -> Callable[[int, int], None]:
-        """:meth:`write` as straight-line code generated for this log: each channel's message
-        encoded in place from its source's values (a dict display for orjson, the ROS 1
-        packer's arguments; a long channel zipped or unpacked), with no per-step loop over the
-        channels and no encoder call. A value the JSON encoder refuses (``TypeError``) sends
-        that step through :meth:`write` (its template fallback); the bytes are the same either
-        way (``tests/orchestrator/test_mcap_writer.py``)."""
-        gen = Generated(WRITE_STEP=self.mcap.write_step, GENERAL=LogWriter.write.__get__(self))
-        body, items, local = [], [], {}
-        for cid, encoder, src, positions, _ in self._plan:
-            name = gen.obj(src)
-            if name not in local:   # one local per source: its current values
-                local[name] = f"c{len(local)}"
-                body.append(f"{local[name]} = {name}.cur")
-            items.append(f"({cid}, {encoder.source(gen, local[name], positions)})")
-        body += ["try:", f"    items = [{', '.join(items)}]", "except TypeError:", "    return GENERAL(k, t_ns)"]
-        view = self._view
-        if view is not None:
-            gen.ns.update(VIEW=view.step_items, SCENE=view.scene_due)
-            body.append("items += VIEW(k, t_ns)")
-        body.append("WRITE_STEP(t_ns, k, items)")
-        if view is not None:
-            body.append("SCENE(k, t_ns)")
-        return gen.function("write(k, t_ns)", body, "log step")
 
     def step(self, k: int, t_ns: int, values: Sequence[Sequence[Any]]) -> None:
         """:meth:`write` with ``values[i]``, the current values of slot ``i``."""

@@ -11,7 +11,7 @@ Layout of the file (see ``immersim info``):
   steps, last time, reason).
 
 Messages are JSON objects with the variable names as keys, encoded by orjson (the same text
-as ``json.dumps`` for these values, several times faster), or, with ``[log] encoding = "ros1"``,
+as ``json.dumps`` for these values), or, with ``[log] encoding = "ros1"``,
 packed ROS 1 messages (:func:`ros1_struct`, :func:`ros1_definition`; the JSON schema rides
 along as channel metadata). The logging cost of a step is one encoding per channel and one
 write of the step's records into the current chunk (:meth:`McapObserver.write_step`).
@@ -102,50 +102,16 @@ class ChannelEncoder:
         except TypeError:  # orjson.JSONEncodeError subclasses TypeError
             return (self._template % tuple(_json_value(v) for v in values)).encode()
 
-    def source(self, gen: Any, values: str, positions: Sequence[int]) -> str:
-        """A Python expression for :meth:`encode` of ``values[i] for i in positions`` (``values``:
-        the expression of a sequence), for a generated step writer (``gen``: a
-        :class:`~immersim.orchestrator.codegen.Generated`): orjson on a dict display, or on
-        ``dict(zip(...))`` for a long channel (the faster from a few tens of values); the same bytes. It
-        raises ``TypeError`` where :meth:`encode` falls back to its template."""
-        dumps = gen.const(self._dumps)
-        if len(positions) <= _DISPLAY_MAX:
-            return f"{dumps}({{{', '.join(f'{n!r}: {values}[{i}]' for n, i in zip(self.names, positions))}}})"
-        return f"{dumps}(dict(zip({gen.const(self.names)}, {_picked(gen, values, positions)})))"
-
-
-#: a generated encoder spells out at most this many values (a dict display or the packer's
-#: arguments); a longer channel is zipped or unpacked from its sequence
-_DISPLAY_MAX = 32
-
-
-def _picked(gen: Any, values: str, positions: Sequence[int]) -> str:
-    """The expression of ``values`` itself when ``positions`` are all of them in order, else of
-    the tuple of the picked values (an ``itemgetter``)."""
-    from operator import itemgetter
-
-    if list(positions) == list(range(len(positions))):
-        return values
-    return f"{gen.const(itemgetter(*positions))}({values})" if len(positions) > 1 else f"({values}[{positions[0]}],)"
-
 
 class Ros1Encoder:
     """Packs one unit's values into a ROS 1 message (:func:`ros1_struct`)."""
 
-    def __init__(self, packer: struct.Struct) -> None:
+    def __init__(self, packer: Any) -> None:
         self._pack = packer.pack
 
     def encode(self, values: Sequence[Any]) -> bytes:
         """The packed message; ``values`` in the order of the channel's variables."""
         return self._pack(*values)
-
-    def source(self, gen: Any, values: str, positions: Sequence[int]) -> str:
-        """A Python expression for :meth:`encode` of ``values[i] for i in positions`` (see
-        :meth:`ChannelEncoder.source`)."""
-        pack = gen.const(self._pack)
-        if len(positions) <= _DISPLAY_MAX:
-            return f"{pack}({', '.join(f'{values}[{i}]' for i in positions)})"
-        return f"{pack}(*{_picked(gen, values, positions)})"
 
 
 #: ROS 1 field type and ``struct`` code of each JSON schema type ("ros1" encoding); a
@@ -157,20 +123,78 @@ _ROS1_FMI3 = {"Float32": ("float32", "f"), "Int8": ("int8", "b"), "UInt8": ("uin
               "Int64": ("int64", "q"), "UInt64": ("uint64", "Q")}
 
 
-def _ros1_kind(prop: Dict[str, Any]) -> Optional[Tuple[str, str]]:
+#: an FMI 3.0 Binary (JSON: base64 text): a ROS 1 ``uint8[]``, no ``struct`` code (variable length)
+_ROS1_BINARY = ("uint8[]", None)
+
+
+def _ros1_kind(prop: Dict[str, Any]) -> Optional[Tuple[str, Optional[str]]]:
+    if prop.get("contentEncoding") == "base64":
+        return _ROS1_BINARY
     return _ROS1_FMI3.get(prop.get("fmiType")) or _ROS1.get(prop["type"])
 
 
-def ros1_struct(schema: Dict[str, Any]) -> Optional[struct.Struct]:
+class Ros1Packer:
+    """``pack(*values)`` and ``unpack(data)`` of a ROS 1 message with ``uint8[]`` fields (FMI
+    3.0 Binary values, ``bytes``), as ROS 1 serialises them: a little-endian uint32 length,
+    then the bytes; the runs of fixed-size fields between them packed by ``struct``.
+
+    Parameters
+    ----------
+    codes : sequence of str or None
+        Per field, its ``struct`` code, or None for a ``uint8[]``.
+    """
+
+    _LENGTH = struct.Struct("<I")
+
+    def __init__(self, codes: Sequence[Optional[str]]) -> None:
+        #: (struct of a run of fixed-size fields, or None for one uint8[]; first field; end)
+        self.runs: List[Tuple[Optional[struct.Struct], int, int]] = []
+        start = 0
+        for k, code in enumerate(list(codes) + [None]):
+            if code is None:
+                if k > start:
+                    self.runs.append((struct.Struct("<" + "".join(codes[start:k])), start, k))
+                if k < len(codes):
+                    self.runs.append((None, k, k + 1))
+                start = k + 1
+
+    def pack(self, *values: Any) -> bytes:
+        parts = []
+        for run, a, b in self.runs:
+            if run is None:
+                parts += (self._LENGTH.pack(len(values[a])), bytes(values[a]))
+            else:
+                parts.append(run.pack(*values[a:b]))
+        return b"".join(parts)
+
+    def unpack(self, data: bytes) -> tuple:
+        out: List[Any] = []
+        at = 0
+        for run, _, _ in self.runs:
+            if run is None:
+                (n,) = self._LENGTH.unpack_from(data, at)
+                out.append(bytes(data[at + 4:at + 4 + n]))
+                at += 4 + n
+            else:
+                out += run.unpack_from(data, at)
+                at += run.size
+        return tuple(out)
+
+
+def ros1_struct(schema: Dict[str, Any]) -> Optional[Any]:
     """How a channel's messages are packed in the "ros1" encoding: the variables of its JSON
-    schema (:func:`json_schema`) in order, little-endian, as ROS 1 serialises a message of
-    fixed-size fields. None when some variable has no fixed-size ROS 1 type."""
+    schema (:func:`json_schema`) in order, little-endian, as ROS 1 serialises them. A
+    ``struct.Struct`` for fixed-size fields only, a :class:`Ros1Packer` when there are FMI 3.0
+    Binary variables (``uint8[]``). None when some variable has no ROS 1 field here (a String:
+    its channel, as every unit's parameters channel with one, is written as JSON)."""
     codes = []
     for prop in schema["properties"].values():
         kind = _ros1_kind(prop)
         if kind is None:
             return None
         codes.append(kind[1])
+    if None in codes:
+        return Ros1Packer(codes)
     return struct.Struct("<" + "".join(codes))
 
 

@@ -1,25 +1,14 @@
 """A supervising parent for ``immersim run``: a unit that crashes the process still ends the run
 with one line and a complete log.
 
-A pythonfmu FMU, or any FMU's native code, runs in the master's process; a segfault or an abort
-there ends the process before Python can close the log. ``immersim run`` therefore forks
-(:func:`supervise`) before it loads anything: the child runs the command, the parent waits.
-Child and parent share two anonymous memory mappings made when this module is imported:
-
-* the *crumb* (:data:`CRUMB`, eight int64): the phase of the run, the unit last called and the
-  simulation time of that call (written by :class:`~immersim.orchestrator.fmu.FmuInstance`
-  before each ``doStep``: two stores), the completed steps, and a JSON blob with the unit
-  names and the log's path (written once, at set-up);
-* the *journal* (:class:`Journal`): the records of the MCAP chunk that is not on disk yet, as
-  the writer adds them to the chunk (a copy of a few kB per step); emptied when the chunk is
-  written and flushed.
-
-When the child dies by a signal the parent rebuilds the log (:func:`repair_log`: the complete
-records on disk, then the journal; ``run`` metadata status ``failed`` with the unit and the
-time), removes the child's temporary files and prints one line; exit status 1. SIGINT, SIGTERM
-and SIGHUP sent to the parent are passed on to the child, which stops between steps; if the
-parent is killed the child is killed too (``PR_SET_PDEATHSIG``), and the next run removes the
-temporary files left by runs whose process is gone (:func:`remove_stale`).
+``immersim run`` forks (:func:`supervise`) before it loads anything: the child runs the command,
+the parent waits. They share two anonymous mappings: the *crumb* (:data:`CRUMB`: phase, the unit
+last called and the time of that call, completed steps, unit names and log path) and the
+*journal* (:class:`Journal`: the records of the MCAP chunk not on disk yet). When the child dies
+by a signal the parent rebuilds the log (:func:`repair_log`; ``run`` status ``failed`` naming
+unit and time), removes the child's temporary files and prints one line (exit status 1). Signals
+sent to the parent are passed on to the child; a killed parent takes the child with it
+(``PR_SET_PDEATHSIG``), and the next run removes what such runs left (:func:`remove_stale`).
 """
 from __future__ import annotations
 

@@ -57,11 +57,10 @@ def test_step_writes_equal_message_writes():
         assert sorted(ci.message_index_offsets) == [1, 2, 3]
 
 
-def _log(path, encoding, rows, general):
+def _log(path, encoding, rows):
     """Write ``rows`` (values per step of three sources) through a LogWriter whose channels log
     all of source 0, positions [2, 0] of source 1, all of source 1, and all and 36 reordered
-    positions of source 2 (40 values: past the generated code's display of each value); with
-    ``general`` through the general :meth:`LogWriter.write` instead of the generated one."""
+    positions of source 2 (40 values). Returns the messages by topic."""
     from immersim.orchestrator.fmu import VarInfo
     from immersim.orchestrator.logwriter import LogPlan, LogWriter, _Values
 
@@ -71,29 +70,46 @@ def _log(path, encoding, rows, general):
     a = infos(("x", "Real"), ("n", "Integer"), ("on", "Boolean"))
     b = infos(("we\"ird name", "Real"), ("y", "Real"), ("z", "Real"))
     long = infos(*[(f"v{i}", "Real") for i in range(40)])
-    picked = [(7 * i) % 40 for i in range(36)]
     plan = LogPlan(str(path), encoding=encoding,
                    channels=[("a", a, 0, None), ("b_picked", [b[2], b[0]], 1, [2, 0]), ("b", b, 1, None),
-                             ("long", long, 2, None), ("long_picked", [long[i] for i in picked], 2, picked)])
+                             ("long", long, 2, None), ("long_picked", [long[i] for i in PICKED], 2, PICKED)])
     sources = [_Values(), _Values(), _Values()]
     w = LogWriter(plan, sources=sources)
     for k, (va, vb) in enumerate(rows):
         sources[0].cur, sources[1].cur, sources[2].cur = va, vb, [k + 0.01 * i for i in range(40)]
-        (LogWriter.write(w, k, k * 33_000_000) if general else w.write(k, k * 33_000_000))
+        w.write(k, k * 33_000_000)
     w.close({"status": "completed"})
-    return path.read_bytes()
+    out = {}
+    with open(path, "rb") as fh:
+        for _, channel, msg in make_reader(fh).iter_messages():
+            out.setdefault(channel.topic, []).append(msg.data)
+    return out
 
 
-def test_generated_log_step_writes_the_general_bytes(tmp_path):
-    """The log step generated per LogWriter (encoding in place, positions picked) writes the
-    same file as the general method, for JSON and ROS 1, including non-finite Reals and a
-    value orjson refuses (an integer beyond 64 bits: that step takes the template fallback)."""
+PICKED = [(7 * i) % 40 for i in range(36)]
+
+
+def test_log_step_writes_each_channel_s_picked_values(tmp_path):
+    """Each channel's message holds its source's values at its positions, in both encodings,
+    including non-finite Reals (JSON ``null``) and a value orjson refuses (an integer beyond
+    64 bits: that message takes the template fallback)."""
+    import math
+    import struct
+
     rows = [([0.1 * k, k, k % 2 == 0], [k * 1.5, float("nan") if k == 3 else -k, 1e300 * k]) for k in range(50)]
-    for encoding in ("json", "ros1"):
-        assert _log(tmp_path / "g.mcap", encoding, rows, False) == _log(tmp_path / "w.mcap", encoding, rows, True)
     rows[7] = ([0.7, 2 ** 70, True], rows[7][1])
-    gen, general = _log(tmp_path / "g.mcap", "json", rows, False), _log(tmp_path / "w.mcap", "json", rows, True)
-    assert gen == general
-    data = [m[2].data for m in make_reader(io.BytesIO(gen)).iter_messages(topics=["a"])]
-    assert json.loads(data[7]) == {"x": 0.7, "n": 2 ** 70, "on": True}
-    assert json.loads(data[3]) == {"x": 0.30000000000000004, "n": 3, "on": False}
+    msgs = _log(tmp_path / "j.mcap", "json", rows)
+    for k, (va, vb) in enumerate(rows):
+        assert json.loads(msgs["a"][k]) == {"x": va[0], "n": va[1], "on": va[2]}
+        assert json.loads(msgs["b_picked"][k]) == {"z": vb[2], 'we"ird name': vb[0]}
+        assert json.loads(msgs["b"][k])["y"] == (None if k == 3 else vb[1])
+        assert list(json.loads(msgs["long_picked"][k]).values()) == [k + 0.01 * i for i in PICKED]
+    assert json.loads(msgs["a"][3]) == {"x": 0.30000000000000004, "n": 3, "on": False}
+    rows[7] = ([0.7, 7, True], rows[7][1])   # ROS 1: a 32-bit Integer field
+    msgs = _log(tmp_path / "r.mcap", "ros1", rows)
+    for k, (va, vb) in enumerate(rows):
+        assert struct.unpack("<di?", msgs["a"][k]) == tuple(va)
+        assert struct.unpack("<dd", msgs["b_picked"][k]) == (vb[2], vb[0])
+        y = struct.unpack("<ddd", msgs["b"][k])[1]
+        assert math.isnan(y) if k == 3 else y == vb[1]
+        assert struct.unpack("<36d", msgs["long_picked"][k]) == tuple(k + 0.01 * i for i in PICKED)
