@@ -81,8 +81,8 @@ class RawPair:
     """Raw python-fcl on one pair: collide, then distance if apart (same BVHs)."""
 
     def __init__(self, fcl_backend, a, b):
-        self.oa = fcl.CollisionObject(fcl_backend.geoms[fcl_backend.scene.bodies[a].mesh_key], fcl.Transform())
-        self.ob = fcl.CollisionObject(fcl_backend.geoms[fcl_backend.scene.bodies[b].mesh_key],
+        self.oa = fcl.CollisionObject(fcl_backend.fclo.geoms[fcl_backend.scene.bodies[a].mesh_key], fcl.Transform())
+        self.ob = fcl.CollisionObject(fcl_backend.fclo.geoms[fcl_backend.scene.bodies[b].mesh_key],
                                       fcl_transform(fcl_backend.T[b]))
         self.creq = fcl.CollisionRequest(num_max_contacts=32, enable_contact=True)
         self.dreq = fcl.DistanceRequest(enable_nearest_points=True)
@@ -100,10 +100,10 @@ class RawField:
     def __init__(self, fcl_backend, a):
         be = fcl_backend
         self.manager = fcl.DynamicAABBTreeCollisionManager()
-        self.manager.registerObjects([fcl.CollisionObject(be.geoms[be.scene.bodies[i].mesh_key],
-                                                          fcl_transform(be.T[i])) for i in be.static_idx])
+        self.manager.registerObjects([fcl.CollisionObject(be.fclo.geoms[be.scene.bodies[i].mesh_key],
+                                                          fcl_transform(be.T[i])) for i in be.fclo.static_idx])
         self.manager.setup()
-        self.obj = fcl.CollisionObject(be.geoms[be.scene.bodies[a].mesh_key], fcl.Transform())
+        self.obj = fcl.CollisionObject(be.fclo.geoms[be.scene.bodies[a].mesh_key], fcl.Transform())
         self.creq = fcl.CollisionRequest(num_max_contacts=32, enable_contact=True)
         self.dreq = fcl.DistanceRequest(enable_nearest_points=True)
 
@@ -737,6 +737,77 @@ def campus_main(log, baseline, baseline_max_distance=FMU_MAX_DISTANCE, run_outpu
     print("\n".join(text))
 
 
+
+# -- A/B against another tree's model (one run, interleaved) ----------------------------------------
+def _package_at(path, name):
+    """Import the ``models/collision`` folder ``path`` of another checkout as package ``name``
+    (self-contained: relative imports only)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, Path(path) / "__init__.py",
+                                                  submodule_search_locations=[str(path)])
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def bench_ab(tree, reps=10, rest_reps=500):
+    """This tree's model against the one of checkout ``tree`` on the 5040-tank field (26.4k
+    triangles, missile vs any tank): per step thread CPU time of each variant and of raw
+    python-fcl, all interleaved step by step; and the cost of a step in which nothing moves.
+    Returns header and rows (medians in ms; ratios of medians)."""
+    base = _package_at(Path(tree) / "models" / "collision", "collision_ab_base")
+    spec = "tanks:n=5040,tris=26.4k;missile:z=8"
+    scenes = {"this tree": parse_scene(spec), "baseline": base.parse_scene(spec)}
+    traj = field_trajectory(scenes["this tree"], 30)
+    configs = (("ccd off", dict(ccd=False)), ("ccd on", {}), (f"max_distance={FMU_MAX_DISTANCE:g}", dict(max_distance=FMU_MAX_DISTANCE)))
+    models = {}
+    for tag, mod, make in (("this tree", None, make_backend), ("baseline", base, base.make_backend)):
+        cfg = BackendConfig if mod is None else mod.BackendConfig
+        for label, kw in configs:
+            models[(tag, label)] = make("fcl", scenes[tag], "missile vs any tank", cfg(**kw))
+    raw = RawField(models[("this tree", "ccd off")], len(scenes["this tree"].bodies) - 1)
+    times = {k: [] for k in list(models) + ["raw"]}
+    clock = time.thread_time
+    order = list(models.items()) + [("raw", raw)]
+    for r in range(reps):
+        for p in traj:
+            for key, m in (order if r % 2 == 0 else order[::-1]):  # take turns at going first
+                t = clock(); m.query([p]); times[key].append(clock() - t)
+    rest = {"this tree": [], "baseline": []}
+    for tag in rest:
+        models[(tag, "ccd off")].query([traj[-1]])
+    for r in range(rest_reps):
+        for tag in (("this tree", "baseline") if r % 2 == 0 else ("baseline", "this tree")):
+            m = models[(tag, "ccd off")]
+            t = clock(); m.query([traj[-1]]); rest[tag].append(clock() - t)
+    med = {k: float(np.median(v)) * 1e3 for k, v in times.items()}
+    rows = []
+    for label, _ in configs:
+        a, b = med[("this tree", label)], med[("baseline", label)]
+        rows.append([f"5040-tank field step, {label}", a, b, a / b, a / med["raw"], b / med["raw"]])
+    a, b = (float(np.median(rest[t])) * 1e3 for t in ("this tree", "baseline"))
+    rows.append(["cached step (nothing moved)", a, b, a / b, "", ""])
+    rows.append(["raw python-fcl step (same queries)", med["raw"], med["raw"], 1.0, 1.0, 1.0])
+    header = ["figure (thread CPU time, median)", "this tree ms", "baseline ms", "this / baseline",
+              "this / raw", "baseline / raw"]
+    return header, rows, len(traj) * reps
+
+
+def ab_main(tree, baseline_name):
+    commit, ncpu, cpu, py, _ = machine()
+    header, rows, n = bench_ab(tree)
+    write_csv("ab.csv", header, rows)
+    text = ["# collision model A/B", "",
+            f"Command: `python benchmarks/bench_collision.py --ab CHECKOUT` with CHECKOUT a work tree of "
+            f"`{baseline_name}`. Commit `{commit}` against `{baseline_name}`, {ncpu} CPUs ({cpu}), Python {py}. "
+            f"{n} steps per variant, all variants and raw python-fcl interleaved step by step (taking turns at "
+            "going first); thread CPU time; the machine is shared, so only ratios within this run are compared.", "",
+            md_table(header, rows)]
+    (OUT / "ab.md").write_text("\n".join(text))
+    print("\n".join(text))
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer sizes and poses (about 2 minutes)")
@@ -746,10 +817,16 @@ def main():
                     help="with --campus: the output of the `immersim run` that wrote LOG (its loop timing is quoted)")
     ap.add_argument("--baseline-max-distance", type=float, default=FMU_MAX_DISTANCE,
                     help="with --baseline: the max_distance of the baseline model (m; its FMU default)")
+    ap.add_argument("--ab", metavar="CHECKOUT",
+                    help="only: this tree's model against CHECKOUT's on the 5040-tank field (-> ab.md)")
+    ap.add_argument("--ab-name", default="baseline", help="with --ab: how the baseline is named in ab.md")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     warnings.simplefilter("ignore")
     OUT.mkdir(parents=True, exist_ok=True)
+    if args.ab:
+        ab_main(args.ab, args.ab_name)
+        return
     if args.campus:
         campus_main(args.campus, args.baseline, args.baseline_max_distance, args.run_output)
         return

@@ -45,15 +45,16 @@ from __future__ import annotations
 import fnmatch
 import logging
 import math
-import struct
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .bounds import Bounds
 from .exit import Footprints
-from .geometry import pose_rows
+from .far import FarSkip
+from .poses import PoseArrays, Poses
 from .scene import Scene, SceneError
 
 log = logging.getLogger(__name__)
@@ -255,8 +256,7 @@ class CollisionBackend(ABC):
 
     name = "abstract"
     #: the backend reports a pair whose members' AABB gaps are all >= ``max_distance`` as far
-    #: (distance = max_distance, no candidate, no narrow-phase test) and sets ``_last_gap``
-    #: in ``_evaluate`` (the smallest member AABB gap, or None), enabling the far-pair skip
+    #: and sets ``_last_gap`` in ``_evaluate`` (the smallest member AABB gap, or None)
     FAR_SKIP = False
     #: m of slack in the far-pair skip (covers the rounding of computed AABBs)
     FAR_MARGIN = 1e-9
@@ -269,76 +269,24 @@ class CollisionBackend(ABC):
         self.dyn = np.asarray(scene.dynamic, dtype=int)
         self.is_dynamic = np.zeros(self.n, bool)
         self.is_dynamic[self.dyn] = True
-        # the arrays behind the properties poses / T / prev_T: their dynamic rows are written
-        # from the list forms (_dyn_poses, _T_rows, _prev_rows) only when read (_sync_rows)
-        self._poses = scene.poses()
-        self._T = scene.transforms(self._poses)
-        self._prev_T = self._T.copy()
-        self._qn = 0  # queries so far (the clock of the lazy rows)
-        self._row_at = [0] * self.n  # query at which a body's T / prev_T rows were last written
-        self._moved_at = [-1] * self.n  # query in which a body last moved
-        self._same_rotation_at = [-1] * self.n  # query in which it last moved keeping its rotation
-        self._prev_is_T = True  # the current query is the first: prev_T = T (no motion)
-        self._poses_pending = False
-        # per mesh: local vertices, bounding-sphere centre and radius (eq. 5-1)
+        #: the poses and transforms (one representation), their array forms and the bounds
+        self.frames = Poses(scene)
+        self.arrays = PoseArrays(self.frames)
+        self.bounds = Bounds(scene, self.frames, self.arrays)
         self._footprints = Footprints(scene)  # ground-plane parts of (horizontal) contacts (.exit)
-        self._local: Dict[str, Tuple[np.ndarray, np.ndarray, float]] = {}
-        for key, mesh in scene.meshes.items():
-            v = np.asarray(mesh.vertices, float)
-            c = (v.min(0) + v.max(0)) / 2
-            # the AABB of a rotated mesh is that of its convex hull's vertices (fewer to rotate)
-            try:
-                hull = np.asarray(mesh.convex_hull.vertices, float) if len(v) > 64 else v
-            except Exception:  # degenerate (flat) meshes: qhull fails, keep every vertex
-                hull = v
-            self._local[key] = (hull, c, float(np.linalg.norm(v - c, axis=1).max()))
-        self.aabb = np.zeros((self.n, 2, 3))
-        self.sphere_c = np.zeros((self.n, 3))
-        self.sphere_r = np.array([self._local[b.mesh_key][2] for b in scene.bodies])
-        self._aabb_cache: Dict[tuple, np.ndarray] = {}
-        #: per dynamic body its last rotated local box: (rotation key, box, box as lists)
-        self._dyn_box: Dict[int, tuple] = {}
-        self._static_lists: Dict[int, tuple] = {}  # static bodies' AABBs as (lo, hi) lists
-        self._static_rows: Dict[int, list] = {}  # static bodies' transforms as nested lists
-        self._stale = np.zeros(self.n, bool)
-        self._sphere_stale = np.zeros(self.n, bool)  # AABB current, bounding-sphere centre not
-        self._is_dyn_list = self.is_dynamic.tolist()
-        self._rot_key: Dict[int, Optional[bytes]] = {}
-        self._update_bounds(np.arange(self.n))
-        # dynamic bodies each pair depends on (for the skip rule)
-        self._pair_dyn = [np.flatnonzero(self.is_dynamic[np.append(p.members, p.a)]) for p in self.pairs]
-        self._pair_dyn = [set(np.append(p.members, p.a)[idx].tolist()) for p, idx in zip(self.pairs, self._pair_dyn)]
-        self._dyn_list = self.dyn.tolist()
-        self._n6 = 6 * len(self._dyn_list)
-        #: each dynamic body with the start of its pose in a flat tuple of poses
-        self._dyn_six = list(zip(self._dyn_list, range(0, self._n6, 6)))
-        self._dyn_poses = {i: tuple(self._poses[i].tolist()) for i in self._dyn_list}
-        self._cache: List[Optional[PairResult]] = [None] * len(self.pairs)
-        self._previous: Optional[PairResult] = None
-        self._last: Optional[QueryResult] = None
-        # far-pair skip (FAR_SKIP backends): per body the largest distance of a hull vertex
-        # from the body origin, and the running sum of per-step bounds on how far any face of
-        # its AABB moved; per pair (smallest member gap, that sum over its bodies) when far
-        self._rmax = [float(np.linalg.norm(self._local[b.mesh_key][0], axis=1).max()) if len(self._local[b.mesh_key][0])
-                      else 0.0 for b in scene.bodies]
-        self._shift = [0.0] * self.n
-        # the transforms of the dynamic bodies as nested lists (current, and before this
-        # query's move for the bodies that moved in it): scalar code for the per-step bounds
-        self._T_rows: Dict[int, list] = {i: self._T[i].tolist() for i in self._dyn_list}
-        self._prev_rows: Dict[int, list] = {}
-        #: per body that moved in this query: (|t1 - t0|, ||R1 - R0||_F) of its move (_move)
-        self._step_motion: Dict[int, Tuple[float, float]] = {}
-        # per dynamic body: the bits of the (roll, pitch, yaw) its _T_rows rotation was made of
-        self._rot_key = {i: _PACK3(*self._poses[i, 3:].tolist()) for i in self._dyn_list}
-        self._toi_need: Dict[int, bool] = {}  # _needs_toi's answers in the current query
+        # the dynamic bodies of each pair (a pair none of them moved keeps its result)
+        self._pair_dyn = [{int(i) for i in np.append(p.members, p.a) if self.is_dynamic[i]} for p in self.pairs]
         self._pair_bodies = [sorted(d) for d in self._pair_dyn]
-        self._far: List[Optional[Tuple[float, float]]] = [None] * len(self.pairs)
+        self._cache: List[Optional[PairResult]] = [None] * len(self.pairs)
+        self._previous: Optional[PairResult] = None  # the evaluated pair's result of the last step
+        self._last: Optional[QueryResult] = None
+        self._toi_need: Dict[int, bool] = {}  # _needs_toi's answers in the current query
         self._last_gap: Optional[float] = None
         self._setup()
-        #: the far-pair skip is on (set after ``_setup``: a backend may decide FAR_SKIP there)
-        self._far_skip = bool(self.FAR_SKIP and math.isfinite(self.config.max_distance))
-        #: m; a far pair's members' AABB gaps are at least this (max_distance and the slack)
-        self._far_limit = self.config.max_distance + self.FAR_MARGIN
+        # (after _setup: a backend may decide FAR_SKIP there)
+        self.far = FarSkip(self.bounds.local, [b.mesh_key for b in scene.bodies], self._pair_bodies,
+                           self.config.max_distance, self.FAR_MARGIN,
+                           bool(self.FAR_SKIP and math.isfinite(self.config.max_distance)))
 
     # -- to implement -------------------------------------------------------------------
     def _setup(self) -> None:
@@ -346,315 +294,122 @@ class CollisionBackend(ABC):
 
     @abstractmethod
     def _evaluate(self, pair: PairSpec, dt: float) -> Tuple[PairResult, int, int]:
-        """Evaluate one pair at the current transforms (``self.prev_T`` holds the start of the
-        step). Returns the result, the number of candidate pairs and of narrow-phase tests.
+        """Evaluate one pair at the current transforms (``prev_T`` holds the start of the
+        step). Returns the result, the number of candidate pairs and of narrow-phase tests."""
 
-        The rows of ``_T`` / ``_prev_T`` of the pair's dynamic bodies are current (the query
-        has called :meth:`_sync_rows` for them); other bodies' rows are read through the
-        properties ``T`` / ``prev_T``."""
-
-    # -- transforms -----------------------------------------------------------------------
+    # -- poses, transforms, bounds (array forms) -------------------------------------------
     @property
     def T(self) -> np.ndarray:
         """World transforms of all bodies, shape (n, 4, 4) (at the current query's poses)."""
-        self._sync_rows(self._dyn_list)
-        return self._T
+        return self.arrays.T()
 
     @property
     def prev_T(self) -> np.ndarray:
-        """World transforms at the start of the current query's step, shape (n, 4, 4) (the
-        first query's and a rest step's equal ``T``)."""
-        self._sync_rows(self._dyn_list)
-        return self._prev_T
+        """World transforms at the start of the current query's step, shape (n, 4, 4)."""
+        return self.arrays.prev_T()
 
     @property
     def poses(self) -> np.ndarray:
         """Poses ``(x, y, z, roll, pitch, yaw)`` of all bodies, shape (n, 6) (m, rad)."""
-        if self._poses_pending:
-            self._poses_pending = False
-            dyn_poses = self._dyn_poses
-            for i in self._dyn_list:
-                self._poses[i] = dyn_poses[i]
-        return self._poses
+        return self.arrays.poses()
 
-    def _sync_rows(self, bodies) -> None:
-        """Write the rows of ``_T`` / ``_prev_T`` of ``bodies`` from the list forms where they
-        lag behind: a body that moved since its rows were written, or moved in the query that
-        wrote them (its ``prev_T`` row is its ``T`` row in every later query until it moves)."""
-        qn, at, moved_at = self._qn, self._row_at, self._moved_at
-        for i in bodies:
-            s = at[i]
-            if s == qn or s > moved_at[i]:
-                continue
-            rows = self._T_rows[i]
-            self._T[i] = rows
-            self._prev_T[i] = rows if self._prev_is_T else self._prev_rows.get(i, rows)
-            at[i] = qn
+    @property
+    def aabb(self) -> np.ndarray:
+        """World AABBs, shape (n, 2, 3) (lo, hi; m): rows current after :meth:`ensure_bounds`."""
+        return self.bounds.aabb
 
-    def _rows(self, i: int) -> list:
-        """The transform of body ``i`` as nested lists (a static body's converted once)."""
-        rows = self._T_rows.get(i)
-        if rows is None:
-            rows = self._static_rows.get(i)
-            if rows is None:
-                rows = self._static_rows[i] = self._T[i].tolist()
-        return rows
+    @property
+    def sphere_c(self) -> np.ndarray:
+        return self.bounds.sphere_c
 
-    def _prev_rows_of(self, i: int) -> list:
-        """The transform of body ``i`` at the start of the current query's step as nested
-        lists: the numbers of its ``prev_T`` row (:meth:`_sync_rows`)."""
-        rows = self._rows(i)
-        return rows if self._prev_is_T else self._prev_rows.get(i, rows)
+    @property
+    def sphere_r(self) -> np.ndarray:
+        return self.bounds.sphere_r
 
-    def _move(self, changed: List[Tuple[int, tuple]]) -> List[int]:
-        """The dynamic bodies of ``changed`` (body, new pose) move: returns the bodies moved.
-
-        Each gets its new transform as nested lists in ``_T_rows`` (its old one in
-        ``_prev_rows``; the rotation of the old one when roll, pitch and yaw are the same bits:
-        the same numbers :func:`pose_rows` would compute), the move's translation and rotation
-        change ``(|t1 - t0|, ||R1 - R0||_F)`` in ``_step_motion`` (a cheap bound for the
-        fast-mover test, :meth:`_needs_toi`) and, with the far-pair skip, the face-shift bound
-        (:func:`_face_shift`). One loop for all bodies: this runs every step for every body."""
-        dyn_poses, T_rows, prev_rows, motion = self._dyn_poses, self._T_rows, self._prev_rows, self._step_motion
-        rot_key, same_at, moved_at, stale, qn = self._rot_key, self._same_rotation_at, self._moved_at, self._stale, self._qn
-        shift, rmax, far_skip = self._shift, self._rmax, self._far_skip
-        moved = []
-        for i, row in changed:
-            dyn_poses[i] = row
-            old = prev_rows[i] = T_rows[i]
-            key = _PACK3(row[3], row[4], row[5])
-            if key == rot_key[i]:
-                r0, r1, r2 = old[0], old[1], old[2]
-                x, y, z = float(row[0]), float(row[1]), float(row[2])
-                T_rows[i] = [[r0[0], r0[1], r0[2], x], [r1[0], r1[1], r1[2], y], [r2[0], r2[1], r2[2], z],
-                             [0.0, 0.0, 0.0, 1.0]]
-                same_at[i] = qn
-                # _face_shift's terms (its arithmetic): the rotation's is exactly 0
-                dx, dy, dz = x - r0[3], y - r1[3], z - r2[3]
-                t, f = math.sqrt(dx * dx + dy * dy + dz * dz), 0.0
-            else:
-                M = T_rows[i] = pose_rows(row)
-                rot_key[i] = key
-                t, f = _face_shift(old, M)
-            motion[i] = (t, f)
-            if far_skip:
-                shift[i] += t + f * rmax[i]
-            moved_at[i] = qn
-            stale[i] = True
-            moved.append(i)
-        return moved
-
-    # -- bounds ---------------------------------------------------------------------------
     def ensure_bounds(self, idx) -> None:
-        """Bring ``aabb`` / ``sphere_c`` of bodies ``idx`` up to date (they are lazy)."""
-        idx = np.asarray(idx, dtype=int).ravel()
-        stale = idx[self._stale[idx] | self._sphere_stale[idx]]
-        if len(stale):
-            self._update_bounds(stale)
-
-    def _update_bounds(self, idx, spheres: bool = True) -> None:
-        """World AABBs (and, with ``spheres``, bounding-sphere centres) of bodies ``idx`` at
-        their current transforms; without ``spheres`` the centres stay stale (``ensure_bounds``
-        brings them up to date)."""
-        self._stale[idx] = False
-        self._sphere_stale[idx] = not spheres
-        self._sync_rows(idx)
-        dynamic, rot_key = self._is_dyn_list, self._rot_key
-        for i in idx:
-            key = self.scene.bodies[i].mesh_key
-            v, c, _ = self._local[key]
-            T = self._T[i]
-            # static bodies share rotated boxes by rotation; a dynamic body keeps its last one
-            # (a body that only translates never rotates its vertices again: its rotation is
-            # named by the bits of its roll, pitch and yaw, or by its own bits after set_state)
-            if dynamic[i]:
-                rkey = rot_key.get(i) or T[:3, :3].tobytes()
-                last = self._dyn_box.get(i)
-                box = last[1] if last is not None and last[0] == rkey else None
-            else:
-                rkey = (key, T[:3, :3].round(12).tobytes())
-                box = self._aabb_cache.get(rkey)
-            if box is None:
-                pts = v @ T[:3, :3].T
-                box = np.empty((2, 3))  # (lo, hi): the reductions written in place
-                np.minimum.reduce(pts, 0, out=box[0])
-                np.maximum.reduce(pts, 0, out=box[1])
-                if dynamic[i]:
-                    self._dyn_box[i] = (rkey, box, box.tolist())
-                else:
-                    self._aabb_cache[rkey] = box
-            self.aabb[i] = box + T[:3, 3]
-            if spheres:
-                self.sphere_c[i] = T[:3, :3] @ c + T[:3, 3]
-
-    def _aabb_lists(self, i: int) -> Tuple[list, list]:
-        """Body ``i``'s world AABB as ``(lo, hi)`` lists: the numbers of ``aabb[i]`` brought up
-        to date. A dynamic body that moved keeping the rotation of its last box gets them in
-        scalar code, ``box + t`` per coordinate (what :meth:`_update_bounds` computes; its
-        ``aabb`` row stays stale, written when read); a static body's are listed once."""
-        if not self._is_dyn_list[i]:
-            box = self._static_lists.get(i)
-            if box is None:
-                box = self._static_lists[i] = tuple(self.aabb[i].tolist())
-            return box
-        if self._stale[i]:
-            last = self._dyn_box.get(i)
-            if last is not None and last[0] == self._rot_key.get(i):
-                rows = self._T_rows[i]
-                (l0, l1, l2), (h0, h1, h2) = last[2]
-                t0, t1, t2 = rows[0][3], rows[1][3], rows[2][3]
-                return [l0 + t0, l1 + t1, l2 + t2], [h0 + t0, h1 + t1, h2 + t2]
-            self._update_bounds([i], spheres=False)
-        return self.aabb[i].tolist()
+        """Bring ``aabb`` / ``sphere_c`` of bodies ``idx`` up to date."""
+        self.bounds.ensure(idx)
 
     def aabb_gap(self, a: int, members: np.ndarray) -> np.ndarray:
         """Euclidean gap between the AABB of ``a`` and those of ``members`` (0 if overlapping)."""
-        if self._stale[a]:
-            self._update_bounds([a])
-        if self._stale[members].any():
-            self.ensure_bounds(members)
-        lo = np.maximum(self.aabb[members, 0] - self.aabb[a, 1], 0)
-        hi = np.maximum(self.aabb[a, 0] - self.aabb[members, 1], 0)
-        return np.linalg.norm(np.maximum(lo, hi), axis=1)
+        return self.bounds.gaps(a, members)
 
     # -- the query ----------------------------------------------------------------------
-    def _changed(self, poses) -> List[Tuple[int, tuple]]:
-        """The dynamic bodies whose pose differs from their last one, with the new pose as a
-        6-tuple (scene order); every pose checked finite.
-
-        A flat tuple of ``6 n_dynamic`` numbers (what the FMU passes) is sliced as it is when
-        its sum is finite (then every entry is: an infinite or NaN entry makes the sum infinite
-        or NaN); anything else (other forms, or a sum that overflows) goes through numpy."""
-        dyn_poses = self._dyn_poses
-        if type(poses) is tuple and len(poses) == self._n6:
-            try:
-                fast = math.isfinite(sum(poses))
-            except (TypeError, ValueError, OverflowError):
-                fast = False
-            if fast:
-                return [(i, row) for i, k in self._dyn_six if (row := poses[k:k + 6]) != dyn_poses[i]]
-        arr = np.asarray(poses, dtype=float).reshape(len(self.dyn), 6)
-        if not math.isfinite(float(arr.sum())) and not np.isfinite(arr).all():  # (a finite sum: all are)
-            i, k = np.argwhere(~np.isfinite(arr))[0]
-            raise ValueError(f"pose of dynamic body {self.scene.bodies[self.dyn[i]].name!r} "
-                             f"({'x y z roll pitch yaw'.split()[k]}) = {arr[i, k]} is not finite")
-        return [(i, row) for i, row in zip(self._dyn_list, map(tuple, arr.tolist())) if row != dyn_poses[i]]
-
     def query(self, poses: Sequence[Sequence[float]], dt: float = 0.033) -> QueryResult:
         """Advance to new poses of the dynamic bodies and evaluate every monitored pair.
 
         Parameters
         ----------
-        poses : array_like, shape (n_dynamic, 6)
+        poses : array_like, shape (n_dynamic, 6), or a flat tuple of 6 n_dynamic numbers
             ``(x, y, z, roll, pitch, yaw)`` of each dynamic body, scene order (m, rad).
         dt : float
             Step length (s): time of impact and closing speed refer to it.
         """
-        changed = self._changed(poses)
-        self._qn += 1
-        self._prev_rows = {}
-        self._step_motion = {}
+        frames = self.frames
+        changed = frames.changed(poses)
+        frames.begin()
         if self._last is not None and not changed:
             # nothing moved: the last contacts hold, nothing was tested, nothing is closing
-            # (prev_T = T: no body moved in this query)
-            rest = [_at_rest(r) for r in self._last.pairs]
-            self._last = QueryResult(rest, self.n, 0, 0, True)
+            self._last = QueryResult([_at_rest(r) for r in self._last.pairs], self.n, 0, 0, True)
             return self._last
-        # the first query's poses are the initial poses: the move from the scene spec's
-        # pose to them is no motion (no time of impact, closing speed or honeycomb threshold)
-        self._prev_is_T = self._last is None
+        # the first query's poses are the initial poses: no motion
         self._toi_need = {}
-        moved = self._move(changed)
-        self._poses_pending = True
-        far_skip = self._far_skip
-        if not far_skip:  # every moved pair is evaluated: write the rows at once
-            self._sync_rows(moved)
+        moved = frames.move(changed, self._last is None)
+        self.bounds.moved(moved)
+        far = self.far
+        if far.on:
+            far.moved(moved, frames.motion)
         moved_set = set(moved)
         out, n_cand, n_narrow = [], 0, 0
-        cache, pair_dyn, far = self._cache, self._pair_dyn, self._far
+        cache, pair_dyn = self._cache, self._pair_dyn
         for k, pair in enumerate(self.pairs):
             cached = cache[k]
-            self._previous = cached  # the pair's result at the start of the step (for _evaluate)
+            self._previous = cached
             if cached is not None and moved_set.isdisjoint(pair_dyn[k]):
-                # its at-rest form becomes the cached result (the same in every field the next
-                # evaluation reads: contact, distance, partner, normal): the steps at rest that
-                # follow return that one object (no new result; the FMU skips a result it has written)
+                # its at-rest form becomes the cached result: later steps at rest return that
+                # one object (the FMU skips a result it has written)
                 rest = cache[k] = _at_rest(cached)
                 out.append(rest)
                 continue
-            if far_skip and far[k] is not None and self._far_holds(k, pair, moved_set):
-                out.append(cached)  # the far result: no candidate, no test (class docstring)
+            if far.on and far.records[k] is not None and far.holds(
+                    k, lambda: pair.a in moved_set and self._fast(pair.a),
+                    (lambda: self._far_gap(k, pair)) if self._far_gap_known else None):
+                out.append(cached)  # the far result: no candidate, no test
                 continue
             self._last_gap = None
-            self._sync_rows(self._pair_bodies[k])
             if len(pair.members) == 0:
                 res, c, m = PairResult(), 0, 0
             else:
                 res, c, m = self._evaluate(pair, dt)
                 self._report_normal(pair, res, cached)
             res.closing_speed = self._closing_speed(pair.a, res, dt)
-            self._cache[k] = res
-            if far_skip:
-                self._far[k] = self._far_record(k, res, c, m)
+            cache[k] = res
+            if far.on:
+                far.record(k, self._last_gap, not (c or m or res.in_contact or res.partner >= 0 or res.toi >= 0))
             out.append(res)
             n_cand += c
             n_narrow += m
         self._last = QueryResult(out, self.n, n_cand, n_narrow, False)
         return self._last
 
-    # -- far-pair skip ------------------------------------------------------------------
-    def _far_record(self, k: int, res: PairResult, n_cand: int, n_narrow: int) -> Optional[Tuple[float, float]]:
-        """What the far-pair skip of pair ``k`` needs after a full evaluation: (smallest member
-        AABB gap, sum of the face-shift bounds of the pair's bodies), or None when the result
-        is not the plain far one (a contact, a partner, a time of impact, any candidate)."""
-        gap = self._last_gap
-        if (gap is None or n_cand or n_narrow or res.in_contact or res.partner >= 0 or res.toi >= 0
-                or not gap >= self.config.max_distance):
-            return None
-        shift = self._shift
-        return float(gap), sum(shift[i] for i in self._pair_bodies[k])
-
-    def _far_holds(self, k: int, pair: PairSpec, moved: set) -> bool:
-        """The far result of pair ``k`` still holds: every member's AABB gap is still at least
-        ``max_distance``, and the first body does not need a time of impact (:meth:`_needs_toi`).
-
-        The gap is known without any bounds when it shrank by less than the slack: by at most
-        ``sqrt(3)`` times the sum of the face shifts of both boxes (each axis' separation moves
-        by at most that sum). Otherwise the backend's :meth:`_far_gap` (the members' AABB gaps
-        themselves, what the evaluation would compute) decides, and becomes the new record."""
-        gap, shift0 = self._far[k]
-        now = sum(map(self._shift.__getitem__, self._pair_bodies[k]))
-        limit = self._far_limit
-        close = gap - _SQRT3 * (now - shift0) < limit
-        if close and not self._far_gap_known:
-            return False
-        a = pair.a
-        if a in moved:
-            need = self._toi_need.get(a)  # decided already in this query (a body in two pairs)
-            if need is None:
-                need = self._toi_need[a] = self._needs_toi(a)
-            if need:
-                return False
-        if close:
-            exact = self._far_gap(k, pair)
-            if exact is None or not exact >= limit:
-                return False
-            self._far[k] = (exact, now)
-        return True
-
     #: the backend implements :meth:`_far_gap`
     _far_gap_known = False
 
     def _far_gap(self, k: int, pair: PairSpec) -> Optional[float]:
         """The smallest AABB gap (m) of pair ``k``'s members to its first body, as ``_evaluate``
-        would compute it at the current transforms, or None when the backend cannot tell
-        without evaluating (the far-pair skip then evaluates)."""
+        would compute it, or None when the backend cannot tell without evaluating."""
         return None
 
+    def _fast(self, a: int) -> bool:
+        """:meth:`_needs_toi` of ``a``, once per query."""
+        need = self._toi_need.get(a)
+        if need is None:
+            need = self._toi_need[a] = self._needs_toi(a)
+        return need
+
     def _needs_toi(self, a: int) -> bool:
-        """Whether the motion of ``a`` (moved in this query: ``_prev_rows[a]`` is its transform
-        before, ``_T_rows[a]`` after) calls for a time of impact with no contact at either end
-        (backends with continuous collision override it)."""
+        """Whether the move of ``a`` in this query calls for a time of impact with no contact
+        at either end (backends with continuous collision override it)."""
         return False
 
     def _report_normal(self, pair: PairSpec, res: PairResult, prev: Optional[PairResult]) -> None:
@@ -667,7 +422,6 @@ class CollisionBackend(ABC):
                 res.distance, res.partner = float(md), -1
                 res.point, res.normal = np.zeros(3), np.zeros(3)
             return
-        # scalar code on the three components (the numbers of the array expressions)
         n = [-x for x in np.asarray(res.normal, float).tolist()]
         if (res.in_contact and prev is not None and prev.partner == res.partner
                 and prev.normal.any()):
@@ -690,21 +444,22 @@ class CollisionBackend(ABC):
     def _horizontal_exit(self, pair: PairSpec):
         """Depth (m) and unit normal (2,) of the shortest ground-plane exit of ``pair.a`` from
         the members whose AABB overlaps its own (:mod:`.exit`), or None without overlap."""
-        a = pair.a
+        a, rows = pair.a, self.frames.rows
         near = pair.members[self.aabb_gap(a, pair.members) <= 0.0].tolist()
-        # a static body's transform is its row of T as it is (its footprint is kept after the first use)
-        members = [(b, np.array(self._rows(b)), False) if self._is_dyn_list[b] else (b, self._T[b], True)
+        # a static body's footprint is kept after its first use
+        members = [(b, np.array(rows[b]), False) if self.is_dynamic[b] else (b, self.arrays.T_of(b), True)
                    for b in near]
-        return self._footprints.exit(a, np.array(self._rows(a)), members) if members else None
+        return self._footprints.exit(a, np.array(rows[a]), members) if members else None
 
     def _closing_speed(self, a: int, res: PairResult, dt: float) -> float:
+        """m/s; minus the relative translation of ``a`` over the step along the normal, / dt."""
         if res.partner < 0 or dt <= 0:
             return 0.0
         b = res.partner
         if not (self.is_dynamic[a] or self.is_dynamic[b]):
             return 0.0
-        # scalar code on the list forms of the T / prev_T rows (the same numbers)
-        A1, A0, B1, B0 = self._rows(a), self._prev_rows_of(a), self._rows(b), self._prev_rows_of(b)
+        rows, prev = self.frames.rows, self.frames.prev
+        A1, A0, B1, B0 = rows[a], prev[a], rows[b], prev[b]
         n = res.normal.tolist()  # from b to a: approaching when a moves against it
         r0 = (A1[0][3] - A0[0][3]) - (B1[0][3] - B0[0][3])
         r1 = (A1[1][3] - A0[1][3]) - (B1[1][3] - B0[1][3])
@@ -713,55 +468,20 @@ class CollisionBackend(ABC):
 
     # -- state (FMI get/set FMU state) ----------------------------------------------------
     def get_state(self) -> dict:
-        """Everything that changes from step to step (poses, caches, last result)."""
+        """Everything that changes from step to step (poses, bounds, cached results)."""
         import copy
 
-        return copy.deepcopy({"poses": self.poses, "T": self.T, "prev_T": self.prev_T,
-                              "aabb": self.aabb, "sphere_c": self.sphere_c,
+        return copy.deepcopy({"frames": self.frames.state(), "bounds": self.bounds.state(),
                               "cache": self._cache, "last": self._last})
 
     def set_state(self, state: dict) -> None:
         import copy
 
         state = copy.deepcopy(state)
-        self._poses, self._T, self._prev_T = state["poses"], state["T"], state["prev_T"]
-        self._poses_pending = False
-        self.aabb, self.sphere_c = state["aabb"], state["sphere_c"]
-        self._stale[self.dyn] = True
+        self.frames.restore(state["frames"])
+        self.bounds.restore(state["bounds"])
         self._cache, self._last = state["cache"], state["last"]
-        self._dyn_poses = {i: tuple(self._poses[i].tolist()) for i in self._dyn_list}
-        self._T_rows = {i: self._T[i].tolist() for i in self._dyn_list}
-        self._rot_key = {i: None for i in self._dyn_list}
-        self._prev_rows = {}
-        self._step_motion = {}
-        # the arrays hold the state's rows now; the next query writes them again (as if the
-        # bodies had moved now, in a query number of their own: prev_T = T unless they move;
-        # a backend's structures tagged with the query of a body's last move are stale)
-        self._qn += 1
-        for i in self._dyn_list:
-            self._row_at[i] = self._moved_at[i] = self._qn
-        self._far = [None] * len(self.pairs)
-
-
-_SQRT3 = math.sqrt(3.0)
-#: the bits of (roll, pitch, yaw): the key of a body's last rotation (``-0.0`` is not ``0.0``)
-_PACK3 = struct.Struct("3d").pack
-
-
-def _face_shift(T0: list, T1: list) -> Tuple[float, float]:
-    """The two terms of a bound on how far any face of a body's world AABB moves from pose
-    ``T0`` to ``T1`` (4x4 nested lists): ``|t1 - t0|`` and ``||R1 - R0||_F`` (m, 1); the bound
-    is ``|t1 - t0| + ||R1 - R0||_F rmax``. A face coordinate is ``max_v (R v)_k + t_k`` over
-    the hull vertices ``v`` (``|v| <= rmax``), and ``|((R1 - R0) v)_k| <= ||R1 - R0||_2 |v| <=
-    ||R1 - R0||_F rmax``. (The fcl backend's pair distance cache bounds a body's motion with
-    the same two terms.) Scalar code, the sums in row order, unrolled: this runs per moved body
-    and step."""
-    (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = T0[0], T0[1], T0[2]
-    (p0, p1, p2, p3), (q0, q1, q2, q3), (r0, r1, r2, r3) = T1[0], T1[1], T1[2]
-    d3, e3, f3 = p3 - a3, q3 - b3, r3 - c3
-    d0, d1, d2, e0, e1, e2, f0, f1, f2 = p0 - a0, p1 - a1, p2 - a2, q0 - b0, q1 - b1, q2 - b2, r0 - c0, r1 - c1, r2 - c2
-    return (math.sqrt(d3 * d3 + e3 * e3 + f3 * f3),
-            math.sqrt(d0 * d0 + d1 * d1 + d2 * d2 + e0 * e0 + e1 * e1 + e2 * e2 + f0 * f0 + f1 * f1 + f2 * f2))
+        self.far.reset()
 
 
 def _at_rest(r: PairResult) -> PairResult:

@@ -112,10 +112,10 @@ def test_chunked_distance_within_a_bound_equals_the_full_order():
 
     be = make_backend("fcl", parse_scene(SPEC), "box vs t", BackendConfig(max_distance=2.0))
     t, box = 0, 1
-    chunks = be._body_chunks[t]
+    chunks = be.shapes.chunks[t]
     tf_t = fcl_transform(be.T[t])
-    obj = fcl.CollisionObject(be.dgeoms[be.scene.bodies[box].mesh_key], fcl.Transform())
-    other_box = (be._hull[box], be._box_c[box], be._box_h[box])
+    obj = fcl.CollisionObject(be.fclo.dgeoms[be.scene.bodies[box].mesh_key], fcl.Transform())
+    other_box = (be.shapes.hull[box], be.shapes.box_c[box], be.shapes.box_h[box])
     req = fcl.DistanceRequest(enable_nearest_points=True)
     rng = np.random.default_rng(8)
     subsets = 0
@@ -142,7 +142,7 @@ def test_chunked_distance_within_a_bound_equals_the_full_order():
     T0 = [9.0, 0.3, 2.5, 0, 0, 0.6]
     for k in range(25):
         pose = [[T0[0] - 0.12 * k, 0.3 + 0.01 * k, 2.5, 0, 0, 0.6 + 0.03 * k]] + [[30.0, 0, 0, 0, 0, 0], [0, 30.0, 0, 0, 0, 0]]
-        before = be._since(box, t)
+        before = be.exact.since(box, t)
         r = be.query(pose).pairs[0]
         if before is not None and 0 < r.distance < 2.0:
             assert r.distance <= before[1]
@@ -195,7 +195,7 @@ def test_chunk_transform_cache_and_state_roll_back_change_no_output():
 
     out, snapshot = [], None
     for k in range(40):
-        for chunks in fresh._chunked.values():
+        for chunks in fresh.shapes.chunked.values():
             chunks.tag = [None] * len(chunks)
         rc, rf = cached.query(poses(k)).pairs[0], fresh.query(poses(k)).pairs[0]
         assert _same(rc, rf)

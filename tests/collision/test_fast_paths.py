@@ -54,7 +54,7 @@ def test_the_far_pair_skip_changes_no_output(scene):
     traj = _trajectory()
     fast = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
     full = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
-    full._far_skip = False  # every pair whose bodies moved is evaluated
+    full.far.on = False  # every pair whose bodies moved is evaluated
     evaluated = []
     real = fast._evaluate
     fast._evaluate = lambda pair, dt: evaluated.append(pair.label) or real(pair, dt)
@@ -119,8 +119,8 @@ def test_the_travel_of_a_far_skipped_body_is_that_of_its_poses(scene):
     be.query(tuple(x for p in p2 for x in p))
     assert evaluated == []  # far: the rows of the avatar were not written by an evaluation
     T1, T2 = pose_matrix(p1[0]), pose_matrix(p2[0])
-    expected = np.linalg.norm(T2[:3, 3] - T1[:3, 3]) + rotation_angle(T2[:3, :3] @ T1[:3, :3].T) * be._radius[0]
-    assert be._travel(0) == expected
+    expected = np.linalg.norm(T2[:3, 3] - T1[:3, 3]) + rotation_angle(T2[:3, :3] @ T1[:3, :3].T) * be.shapes.radius[0]
+    assert be.toi.travel(0) == expected
 
 
 def test_the_fast_mover_test_from_the_step_motion_is_that_of_the_travel(scene):
@@ -128,7 +128,7 @@ def test_the_fast_mover_test_from_the_step_motion_is_that_of_the_travel(scene):
     answers as ``_travel(a) > ccd_fast * thin`` does, on moves around the threshold."""
     be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
     rng = np.random.default_rng(7)
-    threshold = be._toi_threshold[0]  # the avatar box: 0.5 x its 2 m thinnest extent
+    threshold = be.toi.threshold[0]  # the avatar box: 0.5 x its 2 m thinnest extent
     ball = (40.0, 0.0, 1.0, 0.0, 0.0, 0.0)
     decided = 0
     for _ in range(300):
@@ -139,9 +139,9 @@ def test_the_fast_mover_test_from_the_step_motion_is_that_of_the_travel(scene):
         p1 = tuple(np.add(p0[:3], step * d / np.linalg.norm(d)).tolist()) + tuple(np.add(p0[3:], turn).tolist())
         be.query(p0 + ball)
         be.query(p1 + ball)
-        t, f = be._step_motion[0]
-        decided += t + 1.111 * f * be._radius_list[0] < be._toi_clear[0]
-        assert be._needs_toi(0) == bool(be._travel(0) > threshold)
+        t, f = be.frames.motion[0]
+        decided += t + 1.111 * f * be.shapes.radius[0] < be.toi.clear[0]
+        assert be.toi.needs(0) == bool(be.toi.travel(0) > threshold)
     assert 50 < decided < 300  # the first test settles part of the moves, not all
 
 
@@ -158,7 +158,7 @@ def test_the_scalar_aabb_is_the_arrays(scene):
     be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
     for poses in _trajectory(30):
         be.query(tuple(x for p in poses for x in p))
-        lists = [be._aabb_lists(i) for i in range(be.n)]
+        lists = [be.bounds.lists(i) for i in range(be.n)]
         be.ensure_bounds(np.arange(be.n))
         assert [tuple(map(list, box)) for box in lists] == [tuple(r) for r in be.aabb.tolist()]
 

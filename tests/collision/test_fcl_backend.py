@@ -186,20 +186,20 @@ def test_advancement_speed_bounds_every_surface_point_and_is_tighter_than_the_ra
     be = make_backend("fcl", scene, "av vs m")
     rng = np.random.default_rng(2)
     for i in (0, 1):
-        hull = be._hull[i]
+        hull = be.shapes.hull[i]
         for _ in range(40):
             T0 = pose_matrix(np.r_[rng.normal(0, 3, 3), rng.uniform(-3, 3, 3)])
             T1 = pose_matrix(np.r_[rng.normal(0, 3, 3), rng.uniform(-3, 3, 3)])
             path = Slerp(T0, T1)
-            mu = be._speed(i, path, T0, T1)
-            assert mu <= np.linalg.norm(T1[:3, 3] - T0[:3, 3]) + path.ang * be._radius[i] + 1e-12
+            mu = be.toi.speed(i, path, T0, T1)
+            assert mu <= np.linalg.norm(T1[:3, 3] - T0[:3, 3]) + path.ang * be.shapes.radius[i] + 1e-12
             for s1, s2 in rng.uniform(0, 1, (5, 2)):
                 P1 = hull @ path.at(s1)[:3, :3].T + path.at(s1)[:3, 3]
                 P2 = hull @ path.at(s2)[:3, :3].T + path.at(s2)[:3, 3]
                 assert np.linalg.norm(P2 - P1, axis=1).max() <= mu * abs(s2 - s1) * (1 + 1e-9) + 1e-12
     T0, T1 = pose_matrix([0, 0, 2.5, 0, 0, 0.67]), pose_matrix([0.1, 0, 2.5, 0, 0, 0.67 - math.pi / 2])
-    assert be._speed(0, Slerp(T0, T1), T0, T1) == pytest.approx(0.1 + math.pi / 2 * math.sqrt(5), rel=1e-12)
-    assert math.sqrt(5) < be._radius[0]
+    assert be.toi.speed(0, Slerp(T0, T1), T0, T1) == pytest.approx(0.1 + math.pi / 2 * math.sqrt(5), rel=1e-12)
+    assert math.sqrt(5) < be.shapes.radius[0]
 
 
 def test_time_of_impact_of_a_turning_box_is_the_first_contact():
@@ -233,7 +233,7 @@ def test_time_of_impact_of_a_turning_box_is_the_first_contact():
 def test_skip_rules_and_rest():
     scene = parse_scene("tanks:n=100,tris=5.4k;missile:z=30;sphere:name=drone,r=0.5,dynamic=1,z=40")
     be = make_backend("fcl", scene, "missile vs any tank; tank_0 vs tank_1; drone vs scene")
-    assert len(be.geoms) == 3  # one BVH for all 100 tanks
+    assert len(be.fclo.geoms) == 3  # one BVH for all 100 tanks
     r0 = be.query([[0, 0, 30, 0, 0, 0], [0, 0, 40, 0, 0, 0]])
     assert r0.n_bodies == 102
     # the far missile: the tree hands out only the nearest tanks, not all 100
@@ -296,7 +296,7 @@ def test_distance_lower_bound_cache_changes_no_output(chunk_faces):
     cfg = BackendConfig(max_distance=2.0, chunk_faces=chunk_faces)
     cached = make_backend("fcl", scene, "ball vs t", cfg)
     plain = make_backend("fcl", scene, "ball vs t", cfg)
-    plain._since = lambda a, b: None  # no bounds from the last exact distance (nor chunk subsets)
+    plain.exact.since = lambda a, b: None  # no bounds from the last exact distance (nor chunk subsets)
     calls = {"cached": 0, "plain": 0}
     real = fcl_backend.fcl.distance
     rng = np.random.default_rng(3)
@@ -345,7 +345,7 @@ def test_far_pair_skip_changes_no_output_and_skips_evaluations():
     pairs = "av vs t; av vs any b*; m vs scene; b1 vs b2"
     fast = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0))
     plain = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0))
-    plain._far_skip = False  # the same backend without the far-pair skip
+    plain.far.on = False  # the same backend without the far-pair skip
     evaluations = {"fast": 0, "plain": 0}
     real = fcl_backend.FclBackend._evaluate
     seen = {"contact": 0, "toi": 0, "near": 0}
@@ -393,7 +393,7 @@ def test_body_frame_gap_changes_no_output_and_skips_exact_queries(chunk_faces):
     config = BackendConfig(max_distance=2.0, ccd=False, chunk_faces=chunk_faces)
     with_gap = make_backend("fcl", parse_scene(spec), "ball vs t", config)
     plain = make_backend("fcl", parse_scene(spec), "ball vs t", config)
-    plain.FRAME_GAP_MARGIN = math.inf
+    plain.shapes.FRAME_GAP_MARGIN = math.inf
     calls = {"with_gap": 0, "plain": 0}
     real = fcl_backend.fcl.distance
     lo, hi = with_gap.aabb[0]

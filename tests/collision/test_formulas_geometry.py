@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from immersim.models.collision.backend import _face_shift
+from immersim.models.collision.poses import face_shift as _face_shift
 from immersim.models.collision.geometry import pose_matrix, pose_rows
 
 
