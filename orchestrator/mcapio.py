@@ -1,6 +1,7 @@
 """Read immersim MCAP logs back: channels, signals with units, time series."""
 from __future__ import annotations
 
+import base64
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -114,10 +115,17 @@ def _messages(path: Path, topics: Optional[List[str]] = None):
     return msgs, metadata, truncated
 
 
+def binary_variables(js: Dict) -> List[str]:
+    """The FMI 3.0 Binary variables of a channel's JSON schema (base64 text in JSON, ``uint8[]``
+    in ros1; read back as ``bytes`` from either)."""
+    return [n for n, p in js.get("properties", {}).items() if p.get("contentEncoding") == "base64"]
+
+
 def channel_schema(schema, channel) -> Tuple[Dict, Callable[[bytes], Dict]]:
     """The JSON schema of a channel and the decoder of its messages (JSON objects, or the
-    "ros1" packing of :func:`~immersim.orchestrator.observers.ros1_struct`). A ros1 channel
-    without a JSON schema (the 3D view's ``/tf``) has no signals."""
+    "ros1" packing of :func:`~immersim.orchestrator.observers.ros1_struct`), FMI 3.0 Binary
+    values as ``bytes`` in both. A ros1 channel without a JSON schema (the 3D view's ``/tf``)
+    has no signals."""
     if channel.message_encoding == "ros1":
         if "jsonschema" not in channel.metadata:   # not a unit's channel (e.g. the 3D view's /tf)
             return {"title": schema.name if schema else channel.topic, "properties": {}}, lambda data: {}
@@ -126,7 +134,18 @@ def channel_schema(schema, channel) -> Tuple[Dict, Callable[[bytes], Dict]]:
         js = json.loads(channel.metadata["jsonschema"])
         names, unpack = list(js["properties"]), ros1_struct(js).unpack
         return js, lambda data: dict(zip(names, unpack(data)))
-    return json.loads(schema.data), json.loads
+    js = json.loads(schema.data)
+    binary = binary_variables(js)
+    if not binary:
+        return js, json.loads
+
+    def decode(data: bytes) -> Dict:
+        obj = json.loads(data)
+        for n in binary:
+            if isinstance(obj.get(n), str):
+                obj[n] = base64.b64decode(obj[n])
+        return obj
+    return js, decode
 
 
 def read_info(path: Path | str) -> LogInfo:

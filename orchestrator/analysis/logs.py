@@ -1,19 +1,21 @@
 """An immersim MCAP log as arrays per channel or as one pandas DataFrame.
 
 Values come out exactly as logged: a "ros1" channel is read with a numpy structured dtype
-over the packed messages (the same bytes, no float conversion), a JSON channel through
-``orjson`` (shortest round-trip floats, ``null`` for a non-finite Real reads as NaN).
+over the packed messages (the same bytes, no float conversion; one with FMI 3.0 Binary
+``uint8[]`` fields message by message), a JSON channel through ``orjson`` (shortest
+round-trip floats, ``null`` for a non-finite Real reads as NaN, Binary base64 text as bytes).
 """
 from __future__ import annotations
 
+import base64
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, Iterable, List, Optional, Sequence
 
 import numpy as np
 
-from ..mcapio import LogReadError, _messages, channel_schema
-from ..observers import _ros1_kind
+from ..mcapio import LogReadError, _messages, binary_variables, channel_schema
+from ..observers import _ros1_kind, ros1_struct
 from ..patterns import matches
 
 
@@ -22,6 +24,13 @@ def _ros1_dtype(prop: Dict) -> str:
     writer packs it with (:func:`~immersim.orchestrator.observers.ros1_struct`, FMI 3.0 widths
     included)."""
     return "<" + _ros1_kind(prop)[1]
+
+
+def _objects(values: List) -> np.ndarray:
+    """A 1-D object array of ``values`` (``bytes`` kept whole, not split by numpy)."""
+    out = np.empty(len(values), dtype=object)
+    out[:] = values
+    return out
 
 
 #: dtype of each JSON schema type read from JSON messages
@@ -41,7 +50,8 @@ class ChannelData:
         Log time of each message (simulation time in ns).
     values : dict of str -> ndarray, shape (n,)
         Per variable: float64 (Real), int32/int64 (Integer; an FMI 3.0 type at its own width),
-        bool (Boolean) or object (String).
+        bool (Boolean) or object (String: str; FMI 3.0 Binary: bytes, from base64 text in JSON
+        and ``uint8[]`` in ros1).
     units, types : dict of str -> str
         Per variable: its unit ("" when none) and JSON schema type (number, integer, boolean, string).
     """
@@ -67,12 +77,20 @@ def _decode(topic: str, channel, datas: List[bytes], t_ns: np.ndarray, wanted: S
     """The ``wanted`` variables of one channel's messages ``datas`` (schema properties ``props``)."""
     out = ChannelData(topic, t_ns, units={v: props[v].get("unit", "") for v in wanted},
                       types={v: props[v]["type"] for v in wanted})
-    if channel.message_encoding == "ros1":
+    binary = set(binary_variables({"properties": props}))
+    if channel.message_encoding == "ros1" and not binary:
         dtype = np.dtype([(f"f{i}", _ros1_dtype(p)) for i, p in enumerate(props.values())])
         rec = np.frombuffer(b"".join(datas), dtype=dtype, count=len(datas))
         index = {name: f"f{i}" for i, name in enumerate(props)}
         for v in wanted:
             out.values[v] = rec[index[v]].copy()
+        return out
+    if channel.message_encoding == "ros1":   # uint8[] fields: message by message
+        unpack, index = ros1_struct({"properties": props}).unpack, {name: i for i, name in enumerate(props)}
+        rows = [unpack(d) for d in datas]
+        for v in wanted:
+            col = [r[index[v]] for r in rows]
+            out.values[v] = _objects(col) if v in binary else np.array(col, dtype=_ros1_dtype(props[v]))
         return out
     import orjson
 
@@ -80,7 +98,9 @@ def _decode(topic: str, channel, datas: List[bytes], t_ns: np.ndarray, wanted: S
     for v in wanted:
         col = [o.get(v) for o in objs]
         kind = props[v]["type"]
-        if kind == "number":
+        if v in binary:
+            out.values[v] = _objects([base64.b64decode(x) for x in col])
+        elif kind == "number":
             out.values[v] = np.array([np.nan if x is None else x for x in col], dtype=np.float64)
         elif kind == "integer" and props[v].get("fmiType"):   # an FMI 3.0 width (UInt64 beyond int64)
             out.values[v] = np.array(col, dtype=_ros1_dtype(props[v]))

@@ -2,6 +2,7 @@
 orchestrator give FMPy's ``simulate_fmu`` outputs at every step (Roberts within its solver's
 tolerance), Clocks are refused, a unit asking to end the simulation ends the run cleanly."""
 import base64
+import json
 import logging
 from pathlib import Path
 
@@ -92,15 +93,18 @@ def test_reference_fmu_matches_fmpy(tmp_path, version, name, params):
 
 
 def test_feedthrough_strings_and_binary_logged(tmp_path):
-    """String and Binary (FMI 3.0) reach the log: a Binary as base64 text, decoding to the bytes
-    the input was given (hex in the scenario, as in the model description)."""
+    """String and Binary (FMI 3.0) reach the log: a Binary as base64 text, which the log's
+    reader decodes to the bytes the input was given (hex in the scenario, as in the model
+    description)."""
     out = tmp_path / "run.mcap"
     run_scenario(scenario(tmp_path, ROOT / "fmi3" / "Feedthrough.fmu", 0.1, 0.3,
                           {"String_input": "hello", "Binary_input": "00ff10"}), out)
     rows, _ = log_rows(out)
     assert all(r["String_output"] == "hello" for _, r in rows)
-    assert {base64.b64decode(r["Binary_output"]) for _, r in rows} == {b"\x00\xff\x10"}
+    assert {r["Binary_output"] for _, r in rows} == {b"\x00\xff\x10"}
     msgs, _, _ = _messages(out)
+    raw = [json.loads(m.data) for _, c, m in msgs if c.topic == "u"]
+    assert {r["Binary_output"] for r in raw} == {base64.b64encode(b"\x00\xff\x10").decode()} == {"AP8Q"}
     schema = next(channel_schema(s, c)[0] for s, c, _ in msgs if c.topic == "u")
     assert schema["properties"]["Binary_output"]["contentEncoding"] == "base64"
     assert schema["properties"]["UInt64_output"]["fmiType"] == "UInt64"
@@ -152,7 +156,7 @@ to = "b.Float32_continuous_input"
     ramp = [np.float32(0.3 * (max(k - 1, 0) * 100_000_000 / 1e9)).item() for k in range(6)]
     assert [r["Float32_continuous_output"] for _, r in a] == ramp
     assert a[-1][1]["UInt64_output"] == 18_000_000_000_000_000_000
-    assert base64.b64decode(b[-1][1]["Binary_output"]) == b"\x0a\x0b\x0c"
+    assert b[-1][1]["Binary_output"] == b"\x0a\x0b\x0c"
 
 
 STATESPACE = '''[simulation]
@@ -286,8 +290,8 @@ def test_default_experiment_fills_what_the_scenario_omits(tmp_path):
 
 def test_fmi3_widths_in_the_ros1_encoding(tmp_path):
     """The "ros1" log packs each FMI 3.0 type at its own width (UInt64 structural parameters as
-    uint64, Float32 as float32): Feedthrough without its String/Binary (which keep a channel
-    JSON) reads back the values of the JSON log, the ROS 1 definition names the widths."""
+    uint64, Float32 as float32): Feedthrough without its String (which keeps a channel JSON) and
+    Binary reads back the values of the JSON log, the ROS 1 definition names the widths."""
     from immersim.orchestrator.mcapio import read_info, read_series
 
     fmu = ROOT / "fmi3" / "Feedthrough.fmu"
@@ -307,6 +311,45 @@ def test_fmi3_widths_in_the_ros1_encoding(tmp_path):
     msgs, _, _ = _messages(logs["ros1"])
     definition = next(s.data.decode() for s, c, _ in msgs if c.topic == "u")
     assert "uint64 UInt64_output" in definition and "float32 Float32_continuous_output" in definition
+
+
+def test_fmi3_binary_is_uint8_array_in_the_ros1_encoding(tmp_path):
+    """A Binary is a ROS 1 ``uint8[]`` (uint32 length, then the bytes) in a "ros1" log: the
+    ROS 1 reference decoder (mcap_ros1) gives the bytes the input was given, every field of
+    Feedthrough's channel (without its String, which keeps a channel JSON) as our readers
+    give them, and our readers give the same values from the ros1 and the JSON log."""
+    from mcap.reader import make_reader
+    from mcap_ros1.decoder import DecoderFactory
+
+    from immersim.orchestrator.analysis.diff import diff_logs
+    from immersim.orchestrator.analysis.logs import read_channels
+
+    fmu = ROOT / "fmi3" / "Feedthrough.fmu"
+    params = {k: v for k, v in FEED_INPUTS.items() if k != "String_input"}
+    params["Binary_input"] = "00ff1000"   # zero bytes first and last: not a C string
+    logs = {}
+    for enc in ("json", "ros1"):
+        scn = scenario(tmp_path, fmu, 0.1, 0.5, params, extra=f'[log]\nencoding = "{enc}"\nexclude = ["u.String_*"]\n'
+                       '[[faults]]\ntarget = "u.Binary_input"\nat = 0.2\nvalue = "c0ffee"\n')
+        logs[enc] = tmp_path / f"{enc}.mcap"
+        run_scenario(scn, logs[enc])
+    expect = [b"\x00\xff\x10\x00"] * 3 + [b"\xc0\xff\xee"] * 3   # t = 0 .. 0.5 s; the fault at 0.2 s
+    with open(logs["ros1"], "rb") as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        (channel,) = [c for c in reader.get_summary().channels.values() if c.topic == "u"]
+        definition = reader.get_summary().schemas[channel.schema_id].data.decode()
+        decoded = [d for _, _, _, d in reader.iter_decoded_messages(topics=["u"])]
+    assert channel.message_encoding == "ros1" and "uint8[] Binary_output" in definition
+    assert [bytes(d.Binary_output) for d in decoded] == [bytes(d.Binary_input) for d in decoded] == expect
+    ours = {enc: read_channels(logs[enc], ["u.*"])["u"] for enc in logs}
+    assert list(ours["ros1"].values["Binary_output"]) == list(ours["json"].values["Binary_output"]) == expect
+    for name, values in ours["ros1"].values.items():
+        ref = [getattr(d, name) for d in decoded]
+        assert [bytes(x) for x in ref] == list(values) if name.startswith("Binary") else \
+            np.array_equal(np.asarray(ref, dtype=values.dtype), values), name
+    assert len(ours["ros1"].values) == 30 and diff_logs(logs["json"], logs["ros1"]).equal
+    rows, _ = log_rows(logs["ros1"])
+    assert [r["Binary_output"] for _, r in rows] == expect
 
 
 def test_a_worker_unit_asking_to_end_fails_the_run_saying_why(tmp_path):
