@@ -1,23 +1,11 @@
 """The one interface of the collision backends: monitored pairs in, per-pair results out.
 
 Every backend (``fcl``, ``basis_point``, ``honeycomb``) subclasses :class:`CollisionBackend`
-and is driven through ``query(poses, dt) -> QueryResult``. The base class owns what is common:
-
-* the poses and world transforms of all bodies, updated only for dynamic bodies that moved
-  (per step as nested lists; the arrays ``poses`` / ``T`` / ``prev_T`` get a body's rows when
-  a pair with the body is evaluated or the arrays are read);
-* the skip rules: a pair none of whose bodies moved reuses its cached result (static-static
-  pairs are evaluated once, at the first query, and never again); a step where no pose
-  changed returns the previous result at once (``at_rest``);
-* world AABBs and bounding spheres of the bodies (exact, from the transformed vertices);
-* the closing speed of a pair from the pose change over the step;
-* the far-pair skip of backends that declare ``FAR_SKIP`` (fcl): a pair whose last
-  evaluation found every member's AABB at least ``max_distance`` away keeps its far result
-  without any work while the AABB gaps cannot have closed to ``max_distance`` since (the
-  gap bound of :meth:`CollisionBackend._far_holds`, else the backend's own gaps,
-  :meth:`CollisionBackend._far_gap`), unless its first body is a fast mover that needs time
-  of impact. The reported result and counters are exactly those of a full evaluation (which
-  would find no candidate and no member within ``max_distance``).
+and is driven through ``query(poses, dt) -> QueryResult``. The base class owns the poses
+(:mod:`.poses`), the bodies' bounds (:mod:`.bounds`), the reported normal and closing speed,
+and the skip rules: a pair none of whose bodies moved keeps its result; a step where no pose
+changed returns the last result (``at_rest``); with ``FAR_SKIP`` the far-pair skip
+(:mod:`.far`). Every skip reports exactly what a full evaluation would.
 
 Monitored pairs spec
 --------------------

@@ -1,47 +1,26 @@
 """Exact mesh distances chunk by chunk: a large mesh split into small BVHs, visited by a bound.
 
-python-fcl's BVH-BVH distance prunes a bounding volume only when its lower bound reaches the
-best distance found so far. Where a large flat face of one mesh (a tank's hull side, a grid of
-hundreds of small triangles) is nearest to the other body, hundreds of leaves lie within
-round-off of the minimum and each costs triangle-triangle distances: an avatar box against a
-5.4k-triangle tank takes 0.5-2 ms. Here the large mesh (at least ``CHUNK_MIN_FACES``
-triangles, queried against a body of at most ``CHUNK_OTHER_MAX_FACES``) is split once into chunks of at most
-``max_faces`` triangles (median cuts of the triangle centroids along the longest extent), each
-its own ``fcl.BVHModel`` in the mesh's frame. A distance query visits the chunks in the order
-of a lower bound of their distance to the other body and stops at the first chunk whose bound
-reaches the best distance so far (less ``CHUNK_TIE``): the first chunk's exact distance is
-usually within round-off of the answer and prunes all others.
+A mesh of at least ``CHUNK_MIN_FACES`` triangles, queried against a body of at most
+``CHUNK_OTHER_MAX_FACES``, is split once into chunks of at most ``max_faces`` triangles
+(median cuts of the centroids along the longest extent), each its own ``fcl.BVHModel`` in the
+mesh's frame. A query visits the chunks by increasing lower bound and stops at the first
+whose bound reaches the best distance so far less ``CHUNK_TIE``.
 
-The bound of a chunk (its local AABB, centre ``c``, half extents ``h``) and of the other body
-(its local AABB, centre ``c_o``, half extents ``e``; relative rotation ``M = R_b^T R_o`` and
-origin ``p = R_b^T (t_o - t_b)`` in the chunked body's frame) is the larger of the two
-separating-box gaps (the boxes contain the geometry, so each gap is a lower bound of the
-distance; eq. 5-1's bounding-volume cull with boxes in both frames):
+The bound of a chunk (local AABB centre ``c``, half extents ``h``) and the other body (local
+AABB ``c_o``, ``e``; ``M = R_b^T R_o``, ``p = R_b^T (t_o - t_b)`` in the chunked body's frame)
+is the larger of two box gaps (eq. 5-1's bounding-volume cull with boxes in both frames):
 
-``g_1 = || max(|c - c_1| - h - e_1, 0) ||``  (the other body's box in the chunk's frame: the AABB,
-centre ``c_1``, half extents ``e_1``, of its hull vertices ``p + M v``, tighter than ``p + M c_o``, ``|M| e``)
+``g_1 = || max(|c - c_1| - h - e_1, 0) ||``  (``c_1``, ``e_1``: the box of the other's hull
+vertices ``p + M v``)
 
 ``g_2 = || max(|M^T (c - p) - c_o| - |M|^T h - e, 0) ||``  (the chunk's box in the other's frame)
 
-Given a bound above the pair's distance (``within``: the backend's last exact distance of
-the pair plus the motion since, or in conservative advancement the last iteration's distance
-plus the step's motion), only the chunks whose first gap is below it get their second gap
-and are sorted and listed: the nearest chunk is among them and every other chunk's bound is
-at least ``within``, so the visit, its stop and the result are those of the full order.
-(About 30 of 256 chunks on the campus_drive replay; the bounds cost some thirty numpy calls
-either way, the sorting and listing of fewer chunks saves ~2 % of the replay.)
-
-A mesh's chunks may split another triangulation of it row for row (``split_by``): the
-distance triangulation of :mod:`.fans` is chunked by the mesh's own centroids, so the chunks
-of the triangles the two share are the mesh's.
-
-Every chunk keeps the mesh's own vertex coordinates and the body's transform, so each
-triangle pair's distance is computed by fcl with the same arithmetic as in the whole-mesh
-query: the minimum is the same number. Chunks whose bound is within ``CHUNK_TIE`` (1e-12 m)
-above the best so far are not visited, so the reported distance exceeds the exact minimum by
-at most that much; where several triangle pairs are nearest within round-off (parallel faces
-or an edge parallel to a face) the reported nearest points are one of these pairs, not
-necessarily the one fcl's whole-mesh traversal happens to keep.
+Given a bound above the pair's distance (``within``), only chunks whose ``g_1`` is below it
+are bounded and sorted: the visit, its stop and the result are those of the full order.
+A mesh's chunks may split another triangulation row for row (``split_by``, :mod:`.fans`).
+Each triangle pair's distance is fcl's arithmetic of the whole-mesh query, so the minimum is
+the same number (within ``CHUNK_TIE`` = 1e-12 m); where several pairs are nearest within
+round-off, the nearest points are one of them.
 """
 from __future__ import annotations
 
@@ -65,7 +44,6 @@ CHUNK_TIE = 1e-12
 #: proxies): each chunk query pairs the chunk's triangles with all of the other body's that
 #: its BVH cannot prune, and a body of long triangles (the missile's 2.5 m side strips,
 #: 192 triangles) is never pruned: chunk by chunk it costs more than the whole-mesh query
-#: (measured 0.44 vs 0.16 ms for missile-vs-tank near misses)
 CHUNK_OTHER_MAX_FACES = 64
 
 
@@ -194,33 +172,16 @@ def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", T_big: n
                      res: "fcl.DistanceResult", within: float = math.inf) -> float:
     """Exact distance of the chunked body to ``other`` into ``res`` (keeps the smallest).
 
-    Visits chunks by increasing lower bound (:func:`chunk_lower_bounds`; ties ordered by the
-    sum of the squared gaps, then by index) and stops at the first whose bound is within
-    ``CHUNK_TIE`` of ``res.min_distance``. ``tag`` names the body and transform version
-    ``tf_big`` (the fcl form of ``T_big``) belongs to (a chunk object's transform is set only
-    when it holds another's). ``big_first``: the chunk is fcl's first object (the whole-mesh
-    query's order, so that each triangle pair's arithmetic is the same).
+    Chunks are visited by increasing lower bound (:func:`chunk_lower_bounds`; ties by the sum
+    of squared gaps, then index) until one's bound is within ``CHUNK_TIE`` of
+    ``res.min_distance``. ``tag`` names the body and transform version of ``tf_big`` (fcl form
+    of ``T_big``); ``big_first``: the chunk is fcl's first object. ``within`` (m): a bound
+    above the distance; only chunks nearer are bounded (if the visit ends above it, the full
+    order is visited). ``other_box``: ``(hull, centre, half)`` of the other body.
 
-    ``within`` (m): a bound above this pair's distance, e.g. its last distance plus the
-    motion since (default: ``res.min_distance``, above which no chunk is visited anyway). Only
-    the chunks whose first box gap is below it are bounded and sorted (the bounds are most of
-    the cost): the nearest chunk is among them, the others' bounds are at least ``within``,
-    so the visit, the stop and ``res`` are those of the full order. Should the visit end
-    above ``within`` (it was not a bound), the full order is visited (the chunks visited
-    twice leave ``res`` as it is).
-
-    Parameters
-    ----------
-    other_box : tuple
-        ``(hull, centre, half)`` of the other body: :func:`chunk_lower_bounds`'s
-        ``other_hull, other_centre, other_half``.
-
-    Returns
-    -------
-    float
-        A lower bound of this pair's distance (the smallest distance found, or when smaller
-        the bound of the chunk where the visit stopped, or ``within`` when the visit of the
-        chunks nearer than it ended): what the pair's distance cache may keep.
+    Returns a lower bound of the pair's distance (m) for the pair cache: the smallest distance
+    found, or when smaller the bound of the chunk where the visit stopped, or ``within`` when
+    the visit of the chunks nearer than it ended.
     """
     within = min(within, res.min_distance)
     bounds, tie, idx = chunk_lower_bounds(chunks, T_big, T_other, *other_box, within=within)

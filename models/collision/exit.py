@@ -1,28 +1,16 @@
 """Horizontal exit of a deep contact: depth and normal out of the nearest face (2-D SAT).
 
-fcl's mesh-mesh contacts are triangle-pair contacts: the depth of the deepest one is the
-penetration of two *triangles* (bounded by the triangle size: 0.157 m on a 5.4k-triangle
-tank's grid, whatever the bodies' overlap) and its normal is a triangle's. An avatar box
-1.25 m deep in a tank's side, turned by 0.3 rad, gets depth 0.157 m and normal (0, 0, 1)
-(the box's cap cutting the tank's deck); a ``(horizontal)`` pair then fell back to the
-centre-to-centre direction (-0.38, 0.92, 0) against the side face's (0, 1, 0), and a contact
-that began from a contact-free step kept that step's separating direction however the body
-moved inside. Neither says how far, nor which way, the first body has to move to leave its
-partner. For a ``(horizontal)`` pair (a ground vehicle whose box spans the
-obstacles' height, so the contact is decided in the ground plane) this module computes both:
+fcl's contacts are triangle-pair contacts: depth and normal of the deepest one describe two
+triangles, not how far or which way the first body must move to leave its partner. For a
+``(horizontal)`` pair (a ground vehicle whose box spans the obstacles' height):
 
-* each body is the union of its convex parts (the connected components of its mesh, each
-  taken as its convex hull: a tank = hull box, turret, barrel, antenna), projected on the
-  ground plane: convex polygons (world frame);
-* the parts of the partners that overlap the first body's polygon ``A`` (separating-axis
-  test over the edge normals of both) must all be left: along a unit direction ``n`` the
-  first body leaves part ``B_j`` after ``push_j(n) = max(B_j . n) - min(A . n)``, all of
-  them after ``push(n) = max_j push_j(n)``;
-* the exit is the shortest of these over the candidate directions (both signs of every edge
-  normal of ``A`` and of the overlapping parts): ``depth = min_n push(n)``, ``normal =
-  argmin``. For one convex part this is the exact penetration depth of two convex polygons
-  (the minimum translation distance is reached along an edge normal); for several it is
-  the shortest move along a face normal that clears them all.
+* each body is the union of its convex parts (connected components of its mesh, each taken
+  as its convex hull), projected on the ground plane: convex polygons (world frame);
+* the partners' parts overlapping the first body's polygon ``A`` (separating-axis test) must
+  all be left: along a unit ``n`` after ``push(n) = max_j (max(B_j . n) - min(A . n))``;
+* the exit is the shortest over both signs of every edge normal of ``A`` and of the
+  overlapping parts: ``depth = min_n push(n)``, ``normal = argmin`` (the exact penetration
+  depth of two convex polygons; for several parts the shortest face-normal move clearing all).
 """
 from __future__ import annotations
 
