@@ -19,12 +19,15 @@ from __future__ import annotations
 import ctypes
 import functools
 import itertools
+import logging
 import math
 import operator
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from .errors import FmuCallError, FmuLoadError, ScenarioError
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:  # pragma: no cover
     from .fmu import FmuInstance, VarInfo
@@ -350,9 +353,16 @@ def get_values(inst: "FmuInstance", names: Sequence[str]) -> List[Any]:
 
 def stepper(inst: "FmuInstance") -> Callable[[int, int], Optional[int]]:
     """The function ``(t_ns, h_ns) -> end`` that calls ``fmi3DoStep`` from ``t_ns`` over ``h_ns``
-    with pre-built ctypes arguments. An early return (the FMU stopped short of the step's end
-    without asking to terminate) is continued from where it stopped. Returns the time (ns) at
-    which the FMU asked to end the simulation, or None."""
+    with pre-built ctypes arguments. Returns the time (ns) at which the FMU asked to end the
+    simulation (``terminateSimulation``; at ``lastSuccessfulTime`` when it also returned early,
+    else at the step's end), or None.
+
+    Early return: the master instantiates with ``earlyReturnAllowed = false`` (it has no use for
+    an intermediate time: it exchanges values at macro steps only), so a conforming FMU never
+    returns early. One that does (``earlyReturn`` without ``terminateSimulation``) is called
+    again from its ``lastSuccessfulTime`` to the step's end, as often as it returns early (each
+    logged at DEBUG), so the macro step completes as if it had not; one that returns early
+    without advancing raises :class:`~.errors.FmuCallError` (it would never reach the end)."""
     fn, comp, no_set = inst._do_step, inst._c_component, inst._c_true
     event, terminate, early, last = ctypes.c_bool(), ctypes.c_bool(), ctypes.c_bool(), ctypes.c_double()
     refs = (ctypes.byref(event), ctypes.byref(terminate), ctypes.byref(early), ctypes.byref(last))
@@ -379,5 +389,7 @@ def stepper(inst: "FmuInstance") -> Callable[[int, int], Optional[int]]:
                 raise FmuCallError(inst.name, "fmi3DoStep", t_ns, 2,
                                    f"returned early at t = {last.value:.9g} s without advancing "
                                    f"(step from {c_t.value:.9g} s to {end / 1e9:.9g} s)")
+            log.debug("unit %s: fmi3DoStep returned early at t = %.9g s; continued to %.9g s",
+                      inst.name, last.value, end / 1e9)
             c_t.value, c_h.value = reached / 1e9, (end - reached) / 1e9
     return do_step
