@@ -1,7 +1,7 @@
 """Consistency control of ch. 3: scene grid (§3.3), ownership (§3.6.2), dead reckoning (§3.6.3).
 
-The cached master/slave rendering of §3.5.2 lives in :mod:`.model` (it needs the event
-timing); here are the pure, vectorised pieces.
+The cached master/slave rendering of §3.5.2 lives in the frame phases (:mod:`.delivery`,
+:mod:`.history`; it needs the event timing); here are the pure, vectorised pieces.
 """
 from __future__ import annotations
 
@@ -12,6 +12,9 @@ from typing import Tuple
 import numpy as np
 
 from .arrays import concat_ranges
+from .paths import Paths
+
+_DEFAULT = Paths()
 
 
 # -- scene grid §3.3 -------------------------------------------------------------------------
@@ -20,11 +23,14 @@ class SceneGrid:
     """``C x C`` grid over a square scene of side ``size``; 9-cell neighbourhoods (fig. 3-5a).
 
     Cell ``(i, j)`` has index ``i * C + j`` with ``i`` along x. Its neighbourhood is
-    ``S_{i+di, j+dj}`` for ``di, dj in {-1, 0, 1}`` inside the grid.
+    ``S_{i+di, j+dj}`` for ``di, dj in {-1, 0, 1}`` inside the grid. Up to ``scalar_pairs``
+    candidates or view pairs, :meth:`view_pairs` and :meth:`not_in_view` run in Python.
     """
 
-    def __init__(self, size: float, cells: int = 10, enabled: bool = True) -> None:
+    def __init__(self, size: float, cells: int = 10, enabled: bool = True,
+                 scalar_pairs: int = _DEFAULT.scalar_grid) -> None:
         self.size, self.C, self.enabled = float(size), int(cells), enabled
+        self.scalar_pairs = scalar_pairs
         C = self.C
         i, j = np.divmod(np.arange(C * C), C)
         nb = []
@@ -97,7 +103,7 @@ class SceneGrid:
         """
         if not self.enabled:
             return np.flatnonzero(~np.take(old_online, vg))
-        if len(vg) <= SCALAR_VIEW_PAIRS:
+        if len(vg) <= self.scalar_pairs:
             return self._not_in_view_scalar(old_cells.tolist(), old_online.tolist(), cells.tolist(), vg.tolist(),
                                             vo.tolist())
         moved = cells != old_cells
@@ -119,7 +125,7 @@ class SceneGrid:
         M, O = len(viewer_cells), len(object_cells)
         if not self.enabled:
             return np.repeat(np.arange(M), O), np.tile(np.arange(O), M)
-        if M * O <= SCALAR_VIEW_PAIRS:
+        if M * O <= self.scalar_pairs:
             return self._view_pairs_scalar(viewer_cells.tolist(), object_cells.tolist())
         order = np.argsort(object_cells, kind="stable")
         counts = np.bincount(object_cells, minlength=self.C * self.C)
@@ -168,12 +174,6 @@ class SceneGrid:
                     vl += [v] * len(objs)
         return np.array(vl, np.int64), np.array(vo, np.int64)
 
-
-#: at most this many (viewer, object) candidates or view pairs: :meth:`SceneGrid.view_pairs` and
-#: :meth:`SceneGrid.not_in_view` in Python
-SCALAR_VIEW_PAIRS = 256
-#: below this many (avatar, entity) pairs, brute force beats building k-d trees every frame
-BRUTE_FORCE_PAIRS = 4096
 
 
 class PointIndex:
@@ -292,7 +292,8 @@ def _all_pairs(n: int, m: int):
 
 def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, entity_pos: np.ndarray,
                   current: np.ndarray, frame_s: float, scale: float, min_axis: float,
-                  foci: str = "reach", etree=None, lists=None) -> np.ndarray:
+                  foci: str = "reach", etree=None, lists=None, scalar_pairs: int = _DEFAULT.scalar_owners,
+                  brute_pairs: int = _DEFAULT.brute_owners) -> np.ndarray:
     """Owning avatar (group index) of every entity, or the current one where nobody claims it.
 
     ``'mahalanobis'``: the avatar whose control ellipsoid (eq. 3-11/3-12) holds the entity with
@@ -304,11 +305,13 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
     ``a`` around each centre (``d <= 1`` implies ``|x - c| <= a``: the same owners).
     The result may be ``current`` itself when no entity changes owner (small scenes).
     ``lists``: ``avatar_pos``, ``avatar_vel`` and ``entity_pos`` as lists of ``[x, y]`` when the
-    caller has them (small scenes read them instead of the arrays).
+    caller has them (small scenes read them instead of the arrays). Up to ``scalar_pairs``
+    (avatar, entity) pairs the owners are found in Python floats; below ``brute_pairs`` pairs
+    without ``etree`` every pair is tested (brute force beats building a k-d tree every frame).
     """
     if rule == "none" or len(avatar_pos) == 0 or len(entity_pos) == 0:
         return current
-    if etree is None and len(avatar_pos) * len(entity_pos) <= SCALAR_PAIRS and avatar_pos.shape[1] == 2:
+    if etree is None and len(avatar_pos) * len(entity_pos) <= scalar_pairs and avatar_pos.shape[1] == 2:
         if lists is None:
             lists = (avatar_pos.tolist(), avatar_vel.tolist(), entity_pos.tolist())
         out = _assign_owners_scalar(rule, *lists, current, frame_s, scale, min_axis, foci)
@@ -318,7 +321,7 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
         avatar_vel = np.array(lists[1])
     a, b, u, shift = ellipsoid_axes(avatar_vel, frame_s, scale, min_axis, foci)
     centre = avatar_pos + shift if rule == "mahalanobis" else avatar_pos
-    if etree is None and len(centre) * len(entity_pos) <= BRUTE_FORCE_PAIRS:
+    if etree is None and len(centre) * len(entity_pos) <= brute_pairs:
         # small scenes: every (avatar, entity) pair, no k-d tree (same result: the winner is
         # chosen by (entity, distance, avatar) below, whatever order the candidates come in)
         gi, ei = _all_pairs(len(centre), len(entity_pos))
@@ -355,9 +358,6 @@ def assign_owners(rule: str, avatar_pos: np.ndarray, avatar_vel: np.ndarray, ent
         out[ei[first]] = gi[first]
     return out
 
-
-#: up to this many (avatar, entity) pairs :func:`assign_owners` runs in Python floats
-SCALAR_PAIRS = 256
 
 
 def _assign_owners_scalar(rule, avatar_pos, avatar_vel, entity_pos, current, frame_s, scale, min_axis, foci):

@@ -10,17 +10,16 @@ from typing import Dict
 import numpy as np
 
 from .config import LinkClass
+from .paths import Paths
 
 CLASS_INDEX = {"lan": 0, "wan": 1}
-#: a batch over several link classes with exponential jitter and no loss draws its jitter in
-#: one call (``Generator.exponential(mean, m)`` is ``mean * standard_exponential(m)`` draw by
-#: draw, so one ``standard_exponential`` times the per-message means gives the same draws in
-#: the same order as one call per class)
-MERGE_DRAWS = True
-#: ... for batches of at most this many messages (a scalar mean is the faster draw for large ones)
+#: a batch over several link classes with exponential jitter and no loss may draw its jitter in
+#: one call (``Paths.merge_draws``: ``Generator.exponential(mean, m)`` is ``mean *
+#: standard_exponential(m)`` draw by draw, so one ``standard_exponential`` times the per-message
+#: means gives the same draws in the same order as one call per class), for batches of at most
+#: this many messages (a scalar mean is the faster draw for large ones)
 MERGE_MAX = 512
-#: a merged batch of at most this many messages is timed in Python floats (:meth:`TransmitPlan.run_floats`)
-FLOAT_BATCH = 64
+_DEFAULT = Paths()
 
 
 def _exponential_lossless(link: LinkClass) -> bool:
@@ -92,26 +91,29 @@ class TransmitPlan:
     latencies and losses (the same draws, in the same order, as without a plan) and
     serialises on the uplinks: message ``i`` of sender ``s`` leaves at
     ``max(send, busy_s) + sum of the transmission times tx = 8 bytes / bandwidth`` of the
-    messages before it and itself.
+    messages before it and itself. ``merge``: several link classes may draw in one call
+    (``Paths.merge_draws``); a merged batch of at most ``float_batch`` messages is timed in
+    Python floats (:meth:`run_floats`).
     """
 
     def __init__(self, links: Dict[str, LinkClass], sender: np.ndarray, link_class: np.ndarray,
-                 nbytes: np.ndarray) -> None:
+                 nbytes: np.ndarray, merge: bool = _DEFAULT.merge_draws,
+                 float_batch: int = _DEFAULT.float_batch) -> None:
         self.n = len(sender)
+        self.merge = merge
         self.floats = None   # the plan as Python lists (small merged batches, see run_floats)
         self._inputs = None  # (links, sender, link_class, nbytes) while the array plan is not built
-        if self.n <= FLOAT_BATCH and self._plan_floats(links, sender.tolist(), link_class.tolist(), nbytes.tolist()):
+        if self.n <= float_batch and self._plan_floats(links, sender.tolist(), link_class.tolist(), nbytes.tolist()):
             self._inputs = (links, sender, link_class, nbytes)   # the array plan: on the first run()
         else:
             self._plan_arrays(links, sender, link_class, nbytes)
 
-    @staticmethod
-    def _merges(links: Dict[str, LinkClass], counts: list) -> bool:
+    def _merges(self, links: Dict[str, LinkClass], counts: list) -> bool:
         """The classes with messages (``counts`` per class in CLASS_INDEX order) are drawn in
         one call: several of them, each with exponential jitter and no loss, in a batch of at
         most ``MERGE_MAX`` messages."""
         used = [links[name] for name, m in zip(CLASS_INDEX, counts) if m]
-        return MERGE_DRAWS and len(used) > 1 and sum(counts) <= MERGE_MAX and all(map(_exponential_lossless, used))
+        return self.merge and len(used) > 1 and sum(counts) <= MERGE_MAX and all(map(_exponential_lossless, used))
 
     def _plan_arrays(self, links, sender: np.ndarray, link_class: np.ndarray, nbytes: np.ndarray) -> None:
         n = self.n

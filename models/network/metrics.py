@@ -124,3 +124,34 @@ class Totals:
         self.remote_contacts += m.remote_contacts
         self.contacts += m.contacts
         self.frames += m.frames
+
+
+class FrameTraffic:
+    """Frame traffic (messages, bytes) between frames, heartbeats excluded.
+
+    Attributes
+    ----------
+    interval : [messages, bytes] since the last frame
+    frame : (messages, bytes) of the interval that ended at the last frame
+    prev : ``frame`` as it was at the end of the step before (None before the first step)
+    steady : the last step's ``frame`` equals the one of the step before (see ``at_rest``)
+    """
+
+    def __init__(self) -> None:
+        self.interval = [0, 0]
+        self.frame = (0, 0)
+        self.prev = None
+        self.steady = False
+
+    def add(self, messages: int, nbytes: int) -> None:
+        self.interval[0] += messages
+        self.interval[1] += nbytes
+
+    def close_frame(self) -> None:
+        """A frame ends: its interval's traffic becomes ``frame``."""
+        self.frame = (self.interval[0], self.interval[1])
+        self.interval = [0, 0]
+
+    def close_step(self) -> None:
+        self.steady = self.frame == self.prev
+        self.prev = self.frame

@@ -32,11 +32,10 @@ from . import links as lk
 from .arrays import sorted_unique, unique_values
 from .config import NetworkConfig
 from .ids import node_id
+from .paths import Paths
 from .pdu import HEADER, PduType, controller_bytes, record_bytes, report_bytes
 
 H = HEADER.size
-#: at most this many view pairs: the hybrid_p2p messages of a frame are built in Python
-SCALAR_MESSAGES = 256
 PDU_NAMES = {int(t): t.name for t in PduType}
 LAN, WAN = lk.CLASS_INDEX["lan"], lk.CLASS_INDEX["wan"]
 
@@ -107,17 +106,19 @@ class TrafficPlan:
     """What sending a :class:`Traffic` needs that does not depend on its send times or draws.
 
     Totals (messages, bytes, bytes per PDU type), the first hops (``hop_of == -1``) and the
-    relayed second hops, and one :class:`links.TransmitPlan` for each.
+    relayed second hops, and one :class:`links.TransmitPlan` for each (``paths``: their
+    merged draws and Python-float timing, :class:`paths.Paths`).
     """
 
-    def __init__(self, tr: Traffic, links) -> None:
+    def __init__(self, tr: Traffic, links, paths: Paths = Paths()) -> None:
         self.n = len(tr.send_t)
         self.nbytes = int(tr.nbytes.sum())
         per_type = np.bincount(tr.ptype, weights=tr.nbytes, minlength=64)
         self.by_type = [(PDU_NAMES[p], int(per_type[p])) for p in per_type.nonzero()[0].tolist()]
         first = tr.hop_of == -1
         self.first = first
-        self.hop1 = lk.TransmitPlan(links, tr.sender[first], tr.link[first], tr.nbytes[first])
+        self.hop1 = lk.TransmitPlan(links, tr.sender[first], tr.link[first], tr.nbytes[first], paths.merge_draws,
+                                    paths.float_batch)
         second = ~first
         self.second = second if second.any() else None
         self.wait = None     # (first hops, records' messages) of records relayed once their first hop arrived
@@ -126,7 +127,8 @@ class TrafficPlan:
             self.direct, self.direct_src = direct, tr.hop_of[direct]
             wait = tr.rec_hop1 >= 0
             self.wait = (tr.rec_hop1[wait], tr.rec_msg[wait]) if wait.any() else None
-            self.hop2 = lk.TransmitPlan(links, tr.sender[second], tr.link[second], tr.nbytes[second])
+            self.hop2 = lk.TransmitPlan(links, tr.sender[second], tr.link[second], tr.nbytes[second],
+                                        paths.merge_draws, paths.float_batch)
         self._deliveries = (tr.rec_msg, tr.frame_msg, tr.frame_slave)
         self._lists: Optional[tuple] = None
 
@@ -191,7 +193,8 @@ def _cat(parts) -> np.ndarray:
 
 def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.ndarray, slaves: List[np.ndarray],
                    pub_obj: np.ndarray, owner: np.ndarray, view_g: np.ndarray, view_o: np.ndarray,
-                   frame_size: np.ndarray, send_pair: np.ndarray, view_owner=None) -> Traffic:
+                   frame_size: np.ndarray, send_pair: np.ndarray, view_owner=None,
+                   scalar_pairs: int = Paths().scalar_messages) -> Traffic:
     """Aggregated messages of one frame at time ``t``.
 
     Parameters
@@ -204,6 +207,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
     frame_size : (G,) objects in each group's frame
     send_pair : (len(view_g),) bool, the pair's object is sent to the viewer this frame (it was
         published, or it has just entered the viewer's neighbourhood)
+    scalar_pairs : int, up to this many view pairs the hybrid_p2p messages are built in Python
     """
     G = reg.G
     rec = record_bytes(cfg.prediction_order)
@@ -242,7 +246,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
     else:
         # STATE: owner's master -> viewer's master for published objects in the viewer's neighbourhood
         vown = owner[view_o] if view_owner is None else view_owner
-        if cfg.topology == "hybrid_p2p" and len(view_g) <= SCALAR_MESSAGES:
+        if cfg.topology == "hybrid_p2p" and len(view_g) <= scalar_pairs:
             return _hybrid_messages_scalar(cfg, reg, t, master, slaves, view_g, view_o, vown, frame_size, send_pair)
         if send_pair.all():                        # every frame published: no filtering copy
             vg, vo, og = view_g, view_o, vown

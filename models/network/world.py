@@ -26,17 +26,10 @@ import numpy as np
 
 from .config import NetworkConfig
 from .consistency import PointIndex
+from .paths import Paths
 from .response import impulse, inverse_mass, separation
 
 G_ACC = 9.81
-#: up to this many avatars the kinematics run in Python floats (cheaper than numpy calls on tiny arrays)
-SCALAR_AVATARS = 8
-#: the same for up to this many free entities
-SCALAR_ENTITIES = 32
-#: avatars at a fixed point are not sub-stepped, and without entities their P, V, A are reused
-REST_SKIP = True
-#: up to this many avatar-entity pairs the contact pre-check runs in Python floats
-SCALAR_CONTACT_PAIRS = 64
 #: at most this many sub-step lengths keep the entities' per-sub-step turn (see _advance_entities)
 TURN_MEMO = 64
 
@@ -92,11 +85,13 @@ def _reflect_avatars(apos: np.ndarray, yaw: np.ndarray, speed: np.ndarray, S: fl
 
 
 class World:
-    """Vectorised state of ``G`` avatars and ``E`` free entities (SI units, z up)."""
+    """Vectorised state of ``G`` avatars and ``E`` free entities (SI units, z up); ``paths``
+    chooses the Python-float forms of tiny scenes and the resting shortcut (:class:`paths.Paths`)."""
 
-    def __init__(self, cfg: NetworkConfig, rng: np.random.Generator) -> None:
+    def __init__(self, cfg: NetworkConfig, rng: np.random.Generator, paths: Paths = Paths()) -> None:
         G, E, S = cfg.groups, cfg.entities, cfg.scene_size
         self.cfg = cfg
+        self.paths = paths
         self.t = self.ta = self.te = 0.0
         if cfg.avatar_start == "uniform":
             self.apos = rng.uniform(0.05 * S, 0.95 * S, (G, 2))
@@ -148,7 +143,7 @@ class World:
         column into fresh arrays (one cos/sin of the headings). A scene without entities whose
         avatars rest at a fixed point gets the same arrays again (callers only read them).
         ``acc`` False: A is None (a caller that does not use it)."""
-        if REST_SKIP and not len(self.evel) and self._fixed_key is not None:   # at rest, no entities
+        if self.paths.rest_skip and not len(self.evel) and self._fixed_key is not None:   # at rest, no entities
             memo = self._state_memo
             if memo is not None and memo[0] == self._avatar_key() and (memo[3] is not None or not acc):
                 return memo[1], memo[2], memo[3] if acc else None
@@ -223,7 +218,7 @@ class World:
 
     def moving(self, eps: float = 1e-9) -> bool:
         """Some avatar or entity moves faster than ``eps`` (m/s), or some throttle is set."""
-        if len(self.speed) <= SCALAR_AVATARS and len(self.evel) <= SCALAR_ENTITIES:   # tiny: plain Python
+        if len(self.speed) <= self.paths.scalar_avatars and len(self.evel) <= self.paths.scalar_entities:   # tiny: plain Python
             return (any(abs(v) > eps for v in self.speed.tolist())
                     or any(abs(v) > eps for v in self.evel.ravel().tolist()) or any(self.throttle.tolist()))
         return bool(np.any(np.abs(self.speed) > eps) or np.any(np.abs(self.evel) > eps)
@@ -255,14 +250,14 @@ class World:
         """The avatars rest at a fixed point of the sub-step (no throttle, no speed, and the
         last advance's first sub-step changed nothing) and nothing touched them since: a
         further advance would leave every avatar array as it is."""
-        return REST_SKIP and self._fixed_key is not None and self._fixed_key == self._avatar_key()
+        return self.paths.rest_skip and self._fixed_key is not None and self._fixed_key == self._avatar_key()
 
     def _advance_avatars(self, dt: float) -> None:
-        if len(self.speed) <= SCALAR_AVATARS and self.at_fixed_point():
+        if len(self.speed) <= self.paths.scalar_avatars and self.at_fixed_point():
             return
         cfg = self.cfg
         n, h = self._substeps(dt)
-        if len(self.speed) <= SCALAR_AVATARS:
+        if len(self.speed) <= self.paths.scalar_avatars:
             key = self.steer.tobytes()
             memo = self._ksteer_memo
             if memo is None or memo[0] != key:   # the steering gains, kept while the steering stays
@@ -366,7 +361,7 @@ class World:
             return
         cfg = self.cfg
         n, h = self._substeps(dt)
-        if len(self.epos) <= SCALAR_ENTITIES:
+        if len(self.epos) <= self.paths.scalar_entities:
             key = (h, self.eturn.tobytes())
             memo = self._turn_memo.get(key)
             if memo is None:   # per sub-step length (a few values: k T - (k - 1) T differ in the last bits)
@@ -491,7 +486,7 @@ class World:
             if not len(close):   # (an overlap needs its separation even when not approaching)
                 return _NO_CONTACTS
             etree = etree.tree
-        elif etree is None and G * E <= SCALAR_CONTACT_PAIRS:
+        elif etree is None and G * E <= self.paths.scalar_contacts:
             # tiny scenes: the same brute-force check in Python floats (the same differences,
             # squares and bound)
             a, b = (self.apos.tolist(), self.epos.tolist()) if pos_list is None else (pos_list[:G], pos_list[G:])

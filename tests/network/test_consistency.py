@@ -4,7 +4,6 @@ Grid: the 9-cell neighbourhood of every cell (corners and edges included) agains
 cells ``(i + di, j + dj)`` inside the grid, through every code path. Ownership: nearest /
 smallest Mahalanobis distance, ties at exactly equal distance to the lower avatar index.
 """
-import itertools
 import math
 
 import numpy as np
@@ -34,12 +33,11 @@ def test_nine_cell_neighbourhood_of_every_cell_is_the_brute_force_set(C):
 
 
 @pytest.mark.parametrize("scalar", [True, False])
-def test_view_pairs_of_objects_in_every_cell_are_the_brute_force_pairs(monkeypatch, scalar):
+def test_view_pairs_of_objects_in_every_cell_are_the_brute_force_pairs(scalar):
     """One viewer and two objects in every cell of a 6 x 6 grid: the view pairs are exactly the
     (viewer, object) pairs whose cells are neighbours, in the small (Python) and the array path."""
     C = 6
-    monkeypatch.setattr(cons, "SCALAR_VIEW_PAIRS", 10 ** 9 if scalar else -1)
-    g = SceneGrid(60.0, C)
+    g = SceneGrid(60.0, C, scalar_pairs=10 ** 9 if scalar else -1)
     viewers = np.arange(C * C)
     objects = np.repeat(np.arange(C * C), 2)
     v, o = g.view_pairs(viewers, objects)
@@ -51,12 +49,11 @@ def test_view_pairs_of_objects_in_every_cell_are_the_brute_force_pairs(monkeypat
 
 
 @pytest.mark.parametrize("scalar", [True, False])
-def test_pairs_entering_the_view_are_those_not_adjacent_before(monkeypatch, scalar):
+def test_pairs_entering_the_view_are_those_not_adjacent_before(scalar):
     """Of the pairs in view now, those whose viewer was offline or whose cells were not
     neighbours before."""
     C = 5
-    monkeypatch.setattr(cons, "SCALAR_VIEW_PAIRS", 10 ** 9 if scalar else -1)
-    g = SceneGrid(50.0, C)
+    g = SceneGrid(50.0, C, scalar_pairs=10 ** 9 if scalar else -1)
     rng = np.random.default_rng(8)
     G, n = 4, 30
     old = rng.integers(0, C * C, n)
@@ -85,10 +82,9 @@ def test_cell_index_is_the_truncated_quotient_clipped_to_the_grid(use_list):
 PATHS = ("scalar", "brute", "kdtree", "pointindex")
 
 
-def _owners(path, rule, apos, avel, epos, current, monkeypatch, **kw):
-    kw = dict(frame_s=0.033, scale=30.0, min_axis=5.0) | kw
-    monkeypatch.setattr(cons, "SCALAR_PAIRS", 10 ** 9 if path == "scalar" else -1)
-    monkeypatch.setattr(cons, "BRUTE_FORCE_PAIRS", 10 ** 9 if path == "brute" else -1)
+def _owners(path, rule, apos, avel, epos, current, **kw):
+    kw = dict(frame_s=0.033, scale=30.0, min_axis=5.0, scalar_pairs=10 ** 9 if path == "scalar" else -1,
+              brute_pairs=10 ** 9 if path == "brute" else -1) | kw
     etree = None
     if path == "kdtree":
         from scipy.spatial import cKDTree
@@ -101,7 +97,7 @@ def _owners(path, rule, apos, avel, epos, current, monkeypatch, **kw):
 @pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize("rule", ["euclidean", "mahalanobis"])
 @pytest.mark.parametrize("flip", [False, True])
-def test_ownership_tie_at_exactly_equal_distance_goes_to_the_lower_index(monkeypatch, path, rule, flip):
+def test_ownership_tie_at_exactly_equal_distance_goes_to_the_lower_index(path, rule, flip):
     """Two resting avatars 2 m either side of an entity (distances exactly 2.0 each, in either
     rule): the lower avatar index owns it, whichever side it is on; a third entity nearer to
     avatar 1 goes to avatar 1; one out of reach keeps its current owner."""
@@ -110,18 +106,18 @@ def test_ownership_tie_at_exactly_equal_distance_goes_to_the_lower_index(monkeyp
     avel = np.zeros((2, 2))
     epos = np.array([[5.0, 5.0], [(7.5 if not flip else 2.5), 5.0], [40.0, 40.0]])
     current = np.array([-1, -1, 7])
-    out = _owners(path, rule, apos, avel, epos, current, monkeypatch)
+    out = _owners(path, rule, apos, avel, epos, current)
     np.testing.assert_array_equal(out, [0, 1, 7])
 
 
 @pytest.mark.parametrize("path", PATHS)
-def test_ownership_is_the_nearest_avatar_within_reach_by_brute_force(monkeypatch, path):
+def test_ownership_is_the_nearest_avatar_within_reach_by_brute_force(path):
     rng = np.random.default_rng(21)
     apos = rng.uniform(0, 60, (6, 2))
     avel = rng.normal(scale=3.0, size=(6, 2))
     epos = rng.uniform(0, 60, (40, 2))
     current = np.full(40, -1)
-    out = _owners(path, "euclidean", apos, avel, epos, current, monkeypatch, min_axis=8.0)
+    out = _owners(path, "euclidean", apos, avel, epos, current, min_axis=8.0)
     a = np.maximum(np.linalg.norm(avel, axis=1) * 0.033 * 30.0, 8.0)
     d = np.linalg.norm(epos[:, None, :] - apos[None, :, :], axis=2)
     d = np.where(d <= a[None, :], d, np.inf)
@@ -164,3 +160,48 @@ def test_dead_reckoning_orders(order):
     dt = np.array([0.1, 0.3])
     expected = p + (order >= 1) * v * dt[:, None] + (order >= 2) * 0.5 * a * dt[:, None] ** 2
     np.testing.assert_allclose(dead_reckon(p, v, a, dt, order), expected, rtol=1e-15)
+
+
+@pytest.mark.parametrize("cells", [1, 2, 5, 10])
+def test_small_view_pairs_equal_the_array_code(cells):
+    grid, plain = cons.SceneGrid(100.0, cells, True), cons.SceneGrid(100.0, cells, True, scalar_pairs=-1)
+    gen = np.random.default_rng(cells)
+    cases = [(gen.integers(0, cells * cells, gen.integers(0, 12)), gen.integers(0, cells * cells, gen.integers(0, 20)))
+             for _ in range(200)]
+    fast = [grid.view_pairs(v, o) for v, o in cases]
+    for (v, o), (a, b) in zip(cases, fast):
+        ra, rb = plain.view_pairs(v, o)
+        assert np.array_equal(a, ra) and np.array_equal(b, rb) and a.dtype == ra.dtype and b.dtype == rb.dtype
+
+
+@pytest.mark.parametrize("cells", [1, 3, 10])
+def test_small_view_entries_equal_the_array_code(cells):
+    grid, plain = cons.SceneGrid(100.0, cells, True), cons.SceneGrid(100.0, cells, True, scalar_pairs=-1)
+    gen = np.random.default_rng(cells)
+    cases = []
+    for _ in range(300):
+        G, O = int(gen.integers(1, 5)), int(gen.integers(0, 10))
+        old = gen.integers(0, cells * cells, G + O)
+        new = np.where(gen.random(G + O) < 0.3, gen.integers(0, cells * cells, G + O), old)   # some moved
+        k = int(gen.integers(0, 40))
+        cases.append((old, gen.random(G) < 0.7, new, gen.integers(0, G, k), gen.integers(0, G + O, k)))
+    fast = [grid.not_in_view(*c) for c in cases]
+    assert sum(len(f) for f in fast) > 100
+    for c, f in zip(cases, fast):
+        ref = plain.not_in_view(*c)
+        assert np.array_equal(f, ref) and f.dtype == ref.dtype
+
+
+def test_cells_from_a_positions_list_equal_the_array_code():
+    gen = np.random.default_rng(9)
+    for size, C in ((100.0, 10), (60.0, 7), (1.0, 1), (33.3, 3)):
+        grid = cons.SceneGrid(size, C, True)
+        pos = np.r_[gen.uniform(-0.1 * size, 1.1 * size, (200, 2)),
+                    [[0.0, size], [size, 0.0], [-0.0, size * (1 - 1e-16)], [size / C, 2 * size / C], [1e30, -1e30]]]
+        with np.errstate(invalid="ignore"):     # (1e30: beyond int64, the array code's cast)
+            fast, ref = grid.cell(pos, pos.tolist()), grid.cell(pos)
+        assert np.array_equal(fast, ref) and fast.dtype == ref.dtype
+        assert np.array_equal(grid.cell(pos[:-1], pos[:-1].tolist()), ref[:-1])   # (all in Python)
+    with np.errstate(invalid="ignore"):
+        bad = np.array([[np.nan, 1.0], [np.inf, 2.0]])
+        assert np.array_equal(grid.cell(bad, bad.tolist()), grid.cell(bad))   # not finite: the array code

@@ -2,6 +2,8 @@
 
 Expected values are derived here (binomial / exponential / uniform / clipped-normal laws, the
 transmission time 8 bytes / bandwidth); the draws are seeded, so every case is deterministic.
+A batch planned once and timed in Python floats (small, merged link classes) equals the array
+code: arrivals, uplinks and the generator's state.
 """
 import math
 
@@ -10,7 +12,12 @@ import pytest
 from scipy import stats
 
 from immersim.models.network.config import LinkClass
-from immersim.models.network.links import latency_sum, sample_latency, transmit
+from immersim.models.network.links import TransmitPlan, latency_sum, sample_latency, transmit
+from immersim.models.network.paths import Paths
+
+T = 0.033
+LOSSY = {"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}
+LINKS = {"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(20.0, 5.0, 0.0, 100.0)}
 
 
 def _links(lan: LinkClass, wan: LinkClass = LinkClass()):
@@ -104,3 +111,73 @@ def test_unlimited_bandwidth_arrives_after_the_latency_alone():
                           np.zeros(2, int), np.array([10 ** 6, 10 ** 6]), busy, scale=1.5)
     np.testing.assert_allclose(arrival, [1.006, 2.006], rtol=1e-14)
     np.testing.assert_array_equal(busy, 0.0)
+
+
+@pytest.mark.parametrize("bandwidth", [100.0, 0.0, 0.05])
+def test_float_batches_equal_the_array_code(bandwidth):
+    links = {"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(20.0, 5.0, 0.0, bandwidth)}
+    gen = np.random.default_rng(7)
+    for trial in range(60):
+        n = int(gen.integers(1, Paths().float_batch + 1))
+        sender = gen.integers(0, 5, n)
+        link = gen.integers(0, 2, n) if trial % 5 else np.ones(n, np.int64)   # some one-class batches
+        nbytes = gen.integers(20, 3000, n)
+        plan = TransmitPlan(links, sender, link, nbytes)
+        if plan.floats is None:          # one class: not merged, the array code only
+            assert not (link == 0).any() or not (link == 1).any()
+            continue
+        rng_a, rng_b = np.random.default_rng(trial), np.random.default_rng(trial)
+        busy_a = gen.uniform(0.0, 0.01, 5) * (gen.random(5) < 0.5)
+        busy_b = busy_a.copy()
+        for k in range(4):
+            send = k * T + np.where(gen.random(n) < 0.4, 0.002, 0.0)
+            scale = float(gen.choice([1.0, 0.0, 2.5]))
+            arrival, lost = plan.run(rng_a, send, busy_a, scale)
+            floats = plan.run_floats(rng_b, send.tolist(), busy_b, scale)
+            assert floats == arrival.tolist() and not lost.any()
+            assert np.array_equal(busy_a, busy_b)
+        assert rng_a.bit_generator.state == rng_b.bit_generator.state
+
+
+def test_single_class_float_batches_equal_the_array_code():
+    gen = np.random.default_rng(3)
+    for trial in range(40):
+        n = int(gen.integers(1, Paths().float_batch + 1))
+        sender, nbytes = gen.integers(0, 4, n), gen.integers(20, 3000, n)
+        plan = TransmitPlan(LINKS, sender, np.full(n, trial % 2), nbytes)
+        assert plan.floats is not None
+        rng_a, rng_b = np.random.default_rng(trial), np.random.default_rng(trial)
+        busy_a = gen.uniform(0.0, 0.01, 4)
+        busy_b = busy_a.copy()
+        for k in range(3):
+            send = k * T + np.where(gen.random(n) < 0.4, 0.002, 0.0)
+            arrival, lost = plan.run(rng_a, send, busy_a, 1.5)
+            assert plan.run_floats(rng_b, send.tolist(), busy_b, 1.5) == arrival.tolist()
+            assert np.array_equal(busy_a, busy_b) and not lost.any()
+        assert rng_a.bit_generator.state == rng_b.bit_generator.state
+
+
+@pytest.mark.parametrize("dist", ["exponential", "uniform", "normal"])
+def test_latency_sum_equals_the_array_code(dist):
+    for n in (1, 2, 3, 7, 8, 20):
+        for link in (LinkClass(20.0, 5.0, 0.0, 100.0, dist), LinkClass(0.0, 3.0, 0.0, 0.0, dist),
+                     LinkClass(20.0, 0.0, 0.0, 100.0, dist), LinkClass(5.0, 2.0, 0.1, 10.0, dist)):
+            a, b = np.random.default_rng(n), np.random.default_rng(n)
+            for _ in range(20):
+                assert latency_sum(a, link, n) == float(sample_latency(b, link, n).sum())
+            assert a.bit_generator.state == b.bit_generator.state
+
+
+def test_transmit_plan_reused_over_batches_equals_fresh_batches():
+    links = LOSSY
+    rng_a, rng_b = np.random.default_rng(3), np.random.default_rng(3)
+    sender = np.array([0, 2, 0, 1, 2, 2, 0])
+    link = np.array([1, 0, 1, 1, 0, 1, 0])
+    nbytes = np.array([100, 1500, 40, 9000, 64, 700, 3000])
+    busy_a, busy_b = np.zeros(3), np.zeros(3)
+    plan = TransmitPlan(links, sender, link, nbytes)
+    for k in range(5):
+        send = np.full(7, k * T) + np.where(np.arange(7) % 2, 0.002, 0.0)
+        a = plan.run(rng_a, send, busy_a, 1.5)
+        b = transmit(rng_b, links, send, sender, link, nbytes, busy_b, 1.5)
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and np.array_equal(busy_a, busy_b)

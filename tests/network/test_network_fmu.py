@@ -2,6 +2,7 @@
 
 Regenerate the reference with ``python tests/network/test_network_fmu.py --write-reference``.
 """
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -11,11 +12,12 @@ from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
+from immersim.fmus.common import OUTPUTS_UNCHANGED
 from immersim.orchestrator.build import build_unit, default_build_dir
 from tests.fmpy_runner import Runner, readme_has_generated_table, simulate
 
 UNIT = Path(__file__).resolve().parents[2] / "fmus" / "network"
-H = 0.033
+H = T = 0.033
 PARAMS = {"players": 2, "entities": 24, "latency_ms": 30.0, "jitter_ms": 5.0, "seed": 7}
 REF_OUTPUTS = (["avatar[1].x", "avatar[1].y", "avatar[1].yaw", "avatar[1].vx", "avatar[1].f_x", "avatar[1].f_y",
                 "avatar[1].w_z", "avatar[2].x", "avatar[2].y", "perceived[2].x", "perceived[2].y",
@@ -146,14 +148,6 @@ def test_same_outputs_under_fmpy_and_libcosim(fmu):
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
 
 
-if __name__ == "__main__" and "--write-reference" in sys.argv:
-    path = build_unit(UNIT, default_build_dir())
-    data = simulate_reference(path)
-    header = ",".join(["time"] + [n.replace("[", "_").replace("]", "").replace(".", "_") for n in REF_OUTPUTS])
-    np.savetxt(UNIT / "reference.csv", data, delimiter=",", header=header, comments="", fmt="%.12g")
-    print(f"wrote {UNIT / 'reference.csv'} ({len(data)} rows)")
-
-
 def test_contact_depth_moves_the_avatar_out_and_is_not_felt(fmu):
     """The same head-on bounce with contact[1].depth = 0.4 m: the avatar ends the step 0.4 m
     further out along the normal than without it, with the same jolt; a negative depth is an
@@ -181,3 +175,97 @@ def test_contact_depth_moves_the_avatar_out_and_is_not_felt(fmu):
                    for m in r.messages), r.messages
     finally:
         r.close()
+
+
+def _load_wrapper():
+    spec = importlib.util.spec_from_file_location("network_fmu_under_test", UNIT / "network_fmu.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.network
+
+
+def _instance(cls, params, name="t"):
+    """An instance of the wrapper class ``cls`` with ``params``, out of initialization mode."""
+    s = cls(instance_name=name, resources=str(UNIT), visible=False, logging_callback=None)
+    s.values.update(params)
+    s.setup_experiment(0.0, None, None)
+    s.exit_initialization_mode()
+    return s
+
+
+def _fmu_run(cls, params, steps):
+    s = _instance(cls, params)
+    outs = [v.name for v in cls.VARIABLES if v.causality == "output"]
+    rows, unchanged, saved = [], 0, None
+    for k in range(steps):
+        drive = k >= 60                         # at rest first (a drag-braked avatar never stops exactly)
+        s.values["avatar[1].throttle"] = 0.7 if drive else 0.0
+        s.values["avatar[2].steer"] = 0.3 if k >= 70 else 0.0
+        hit = k in (5, 75)                      # a contact at rest (no jolt) and one while driving
+        s.values["contact[1].active"] = hit
+        s.values["contact[1].nx"], s.values["contact[1].ny"] = (-1.0, 0.0) if hit else (0.0, 0.0)
+        if k == 20:
+            saved = s._get_fmu_state()
+        if k == 40:
+            s._set_fmu_state(saved)            # back to step 20 (at rest): the clock goes back 20 steps
+        t = s._time
+        unchanged += s.step_model(t, T) is OUTPUTS_UNCHANGED
+        s._time = t + T
+        rows.append([s.values[n] for n in outs])
+    return rows, unchanged
+
+
+def test_fmu_unchanged_outputs_shortcut_equals_writing_every_step(monkeypatch):
+    cls = _load_wrapper()
+    params = dict(players=3, render_nodes=3, entities=0, seed=0, prediction_order=1)
+    fast, n_unchanged = _fmu_run(cls, params, 120)
+    monkeypatch.setattr(cls, "SKIP_UNCHANGED", False)
+    plain, n_plain = _fmu_run(cls, params, 120)
+    assert n_plain == 0 and n_unchanged > 40        # the idle steps keep their outputs ...
+    assert fast == plain                            # ... and every output is the same
+
+
+def test_fmu_output_check_reads_the_written_outputs_and_names_a_bad_one(monkeypatch):
+    """The wrapper's output check sums the Real outputs the step wrote instead of all of them:
+    the first check after set-up (and after a state restore) reads every output, a step whose
+    written outputs are finite passes (the base class's check agrees), and a non-finite one is
+    refused with the variable named, as the base class names it."""
+    from immersim.fmus.common import TableSlave
+
+    cls = _load_wrapper()
+
+    def fresh():
+        s = _instance(cls, dict(players=3, render_nodes=3, entities=8, seed=0, prediction_order=1), "chk")
+        s.values["avatar[1].throttle"] = 0.8
+        return s
+
+    s = fresh()
+    s.values["avatar[4].x"] = float("nan")       # an output no step writes: the first check reads it
+    assert not s.do_step(0.0, T) and "output avatar[4].x = nan" in s.failed
+    s = fresh()
+    for k in range(30):
+        assert s.do_step(k * T, T), s.failed
+        TableSlave._check_outputs(s, (k + 1) * T)   # every output finite: the base check agrees
+        assert len(s._out) == 3 * 10 + 3 * 2 + 8 * 2 + 2 and not s._check_all
+    state = s._get_fmu_state()
+    s._set_fmu_state(state)
+    assert s._check_all                           # a restore: the next check reads every output
+    assert s.do_step(30 * T, T) and not s._check_all
+    world = s.model.world
+    outputs = world.avatar_outputs
+
+    def bad(h=None, constants=True):              # avatar 2's vx (field 3 of its 10) NaN
+        out = outputs(h, constants)
+        out[10 + 3] = float("nan")
+        return out
+
+    monkeypatch.setattr(world, "avatar_outputs", bad)
+    assert not s.do_step(31 * T, T) and "output avatar[2].vx = nan" in s.failed   # found by the sum
+
+
+if __name__ == "__main__" and "--write-reference" in sys.argv:
+    path = build_unit(UNIT, default_build_dir())
+    data = simulate_reference(path)
+    header = ",".join(["time"] + [n.replace("[", "_").replace("]", "").replace(".", "_") for n in REF_OUTPUTS])
+    np.savetxt(UNIT / "reference.csv", data, delimiter=",", header=header, comments="", fmt="%.12g")
+    print(f"wrote {UNIT / 'reference.csv'} ({len(data)} rows)")

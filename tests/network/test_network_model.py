@@ -68,28 +68,6 @@ def test_dead_reckoning_beats_no_prediction_on_smooth_motion():
     assert rms[2] < rms[1], rms
 
 
-def test_forged_update_from_non_owner_is_rejected_and_counted():
-    cfg = NetworkConfig(groups=3, render_nodes=1, entities=10).with_links(latency_ms=0.0, jitter_ms=0.0,
-                                                                          bandwidth_mbps=0.0)
-    m = NetworkModel(cfg)
-    m.step(T)
-    G = cfg.groups
-    obj = G + 0
-    owner = int(m.owner[obj])
-    forger = (owner + 1) % G
-    viewer = (owner + 2) % G
-    before = m.record(viewer, obj)
-    m.inject_update(forger, viewer, obj, pos=(1e4, 1e4))
-    m._deliver(m.t)
-    assert m.metrics.rejected_updates == 1
-    assert np.array_equal(m.record(viewer, obj), before)
-    # the same record from the owner is accepted
-    m.inject_update(owner, viewer, obj, pos=(5.0, 6.0))
-    m._deliver(m.t)
-    assert m.metrics.rejected_updates == 1
-    assert tuple(m.record(viewer, obj)[1:3]) == (5.0, 6.0)
-
-
 def _trace(seed):
     cfg = NetworkConfig(groups=3, render_nodes=2, entities=30, seed=seed,
                         links={"lan": LinkClass(0.3, 0.2, 0.05), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)})
@@ -150,23 +128,6 @@ def test_link_latency_statistics(dist):
     se = sd / math.sqrt(len(x))
     assert abs(x.mean() - 34.0 if dist != "normal" else x.mean() - 30.0) < 4 * se
     assert x.std() == pytest.approx(sd, rel=0.05)
-
-
-def test_late_slave_packets_are_dropped_at_the_tick():
-    # FRAME leaves compose_ms after the tick and must arrive by the next one
-    def frac(lan):
-        cfg = NetworkConfig(groups=2, render_nodes=3, entities=5, compose_ms=2.0,
-                            links={"lan": lan, "wan": LinkClass(10.0)})
-        m, out = run(cfg, 300)
-        frames = sum(s.frames for s in out[1:]) * cfg.groups * (cfg.render_nodes - 1)
-        return sum(s.dropped_frames for s in out[1:]) / frames, max(s.desync_frames for s in out)
-    assert frac(LinkClass(10.0)) == (0.0, 0)
-    f, desync = frac(LinkClass(40.0))
-    assert f == 1.0 and desync > 100
-    # exponential jitter: P(2 + 25 + X > 33 ms) = exp(-6/5); the deadline is exact, not rounded
-    f, _ = frac(LinkClass(25.0, 5.0))
-    n = 299 * 2 * 2
-    assert abs(f - math.exp(-1.2)) < 4 * math.sqrt(0.3 * 0.7 / n)
 
 
 def test_input_acts_at_its_own_arrival_time_inside_a_frame():

@@ -1,12 +1,8 @@
-"""Pastry routing-table locality, the inconsistency metric (eq. 3-1/3-2) and DIS heartbeats,
+"""Pastry routing-table locality and the cluster of a scene,
 against brute force and closed forms."""
 import numpy as np
-import pytest
 
-from immersim.models.network.config import NetworkConfig
 from immersim.models.network.ids import PastryOverlay, digits, node_id, shared_prefix
-from immersim.models.network.metrics import inconsistency
-from immersim.models.network.model import NetworkModel
 
 
 def test_routing_table_entry_is_the_proximity_nearest_node_with_that_prefix_and_digit():
@@ -29,35 +25,6 @@ def test_routing_table_entry_is_the_proximity_nearest_node_with_that_prefix_and_
             assert abs(prox[table[l][d]] - prox[n]) == best
             checked += 1
     assert checked > 500
-
-
-def test_inconsistency_is_the_max_and_rms_of_the_copies_position_errors():
-    obj = np.array([0, 0, 1, 2, 2, 2])
-    truth = np.array([[0.0, 0.0], [1.0, 1.0], [5.0, -2.0]])
-    shown = truth[obj] + np.array([[3.0, 4.0], [0.0, 1.0], [0.0, 0.0], [1.0, 0.0], [0.0, -2.0], [0.6, 0.8]])
-    per_max, per_rms, total_max, total_rms = inconsistency(obj, shown, truth, 4)
-    np.testing.assert_allclose(per_max, [5.0, 0.0, 2.0, 0.0])
-    np.testing.assert_allclose(per_rms, [np.sqrt((25 + 1) / 2), 0.0, np.sqrt((1 + 4 + 1) / 3), 0.0])
-    assert total_max == pytest.approx(5.0)
-    assert total_rms == pytest.approx(np.sqrt((25 + 1 + 0 + 1 + 4 + 1) / 6))
-
-
-def test_dis_republishes_a_resting_object_at_the_first_frame_a_heartbeat_after_its_last():
-    """DIS (dis_threshold > 0), nothing moving: an object is re-published at the first frame with
-    t - t_last >= dis_heartbeat_s (1 s): frames of 33 ms give t = 1.023, 2.046, 3.069 s."""
-    cfg = NetworkConfig(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3, dis_threshold=0.1)
-    m = NetworkModel(cfg)
-    times, last, expected = [], 0.0, []
-    for k in range(1, 100):
-        m.step(cfg.frame_s)
-        t = k * cfg.frame_s
-        if t - last >= cfg.dis_heartbeat_s - 1e-9:
-            expected.append(round(t, 6))
-            last = t
-        if m.metrics.published:
-            assert m.metrics.published == cfg.groups
-            times.append(round(t, 6))
-    assert times == expected == [1.023, 2.046, 3.069]
 
 
 def test_cluster_holds_the_masters_of_the_render_groups_of_its_scene_only():

@@ -1,9 +1,12 @@
-"""Heading-aware ownership (§3.6.2, fig. 3-7): the region reaches ahead of the avatar, the
-arrival distance |r| (1 - ecc cos theta) decides between avatars; eq. 3-12's two readings."""
+"""Ownership (frame phase 2, §3.6.2, fig. 3-7): the region reaches ahead of the avatar, the
+arrival distance |r| (1 - ecc cos theta) decides between avatars; eq. 3-12's two readings; the
+small-scene forms (Python floats, positions given as lists, a sorted point index) against the
+array code and brute force, bit for bit."""
 import numpy as np
 import pytest
 
 from immersim.models.network import NetworkConfig
+from immersim.models.network import consistency as cons
 from immersim.models.network.consistency import assign_owners, ellipsoid_axes, heading_distance, mahalanobis_ellipsoid
 
 T, SCALE, AMIN = 0.033, 30.0, 5.0
@@ -93,3 +96,69 @@ def test_arrival_distance_closed_form_and_both_code_paths_agree():
     big = assign_owners("mahalanobis", apos, avel, epos, cur, T, SCALE, AMIN, "reach",
                         lists=None, etree=__import__("scipy.spatial", fromlist=["cKDTree"]).cKDTree(epos))
     assert np.array_equal(small, big) and (small != cur).sum() >= 3
+
+
+@pytest.mark.parametrize("rule,foci", [("mahalanobis", "frame"), ("mahalanobis", "reach"), ("euclidean", "frame")])
+def test_scalar_ownership_equals_the_array_code(rule, foci):
+    rng = np.random.default_rng(5)
+    for trial in range(300):
+        G, E = rng.integers(1, 6), rng.integers(1, 30)
+        apos = rng.uniform(0, 20, (G, 2))
+        vel = rng.normal(0, 8, (G, 2)) * (rng.random((G, 1)) < 0.7)     # some avatars at rest
+        if trial % 7 == 0:
+            vel[:] = np.round(vel)                                       # exact ties of speed
+        epos = np.r_[apos[rng.integers(0, G, E // 2)] + rng.normal(0, 3, (E // 2, 2)), rng.uniform(0, 20, (E - E // 2, 2))]
+        cur = rng.integers(0, G, E)
+        min_axis = 0.0 if trial % 11 == 0 else float(rng.choice([0.5, 2.0, 5.0]))   # 0: degenerate (array code)
+        args = (rule, apos, vel, epos, cur, T, 30.0, min_axis, foci)
+        with np.errstate(divide="ignore", invalid="ignore"):   # a = 0: the array code's inf/NaN
+            fast = cons.assign_owners(*args)
+            plain = cons.assign_owners(*args, scalar_pairs=-1)
+        np.testing.assert_array_equal(fast, plain)
+
+
+def test_ownership_from_lists_equals_the_arrays():
+    """``assign_owners`` given the positions and velocities as lists (the small frame's; the
+    velocity array left out) gives the array call's owners, degenerate ellipsoids included
+    (``min_axis`` 0 and a resting avatar: the array code from the listed velocities)."""
+    rng = np.random.default_rng(8)
+    for trial in range(200):
+        G, E = int(rng.integers(1, 5)), int(rng.integers(1, 12))
+        apos = rng.uniform(0, 20, (G, 2))
+        vel = rng.normal(0, 8, (G, 2)) * (rng.random((G, 1)) < 0.7)
+        epos = rng.uniform(0, 20, (E, 2))
+        cur = rng.integers(0, G, E)
+        min_axis = 0.0 if trial % 5 == 0 else 5.0
+        for rule in ("mahalanobis", "euclidean"):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ref = cons.assign_owners(rule, apos, vel, epos, cur, T, 30.0, min_axis)
+                out = cons.assign_owners(rule, apos, None, epos, cur, T, 30.0, min_axis,
+                                         lists=(apos.tolist(), vel.tolist(), epos.tolist()))
+            np.testing.assert_array_equal(out, ref)
+
+
+@pytest.mark.parametrize("foci", ["frame", "reach"])
+def test_point_index_owners_equal_kd_tree_and_brute_force(foci):
+    from scipy.spatial import cKDTree
+
+    from immersim.models.network.consistency import PointIndex, assign_owners
+
+    rng = np.random.default_rng(5)
+    apos, avel = rng.uniform(0, 200, (30, 2)), rng.normal(0, 10, (30, 2))
+    epos = rng.uniform(0, 200, (2000, 2))
+    cur = rng.integers(0, 30, 2000)
+    args = ("mahalanobis", apos, avel, epos, cur, 0.033, 30.0, 4.0, foci)
+    via_index = assign_owners(*args, etree=PointIndex(epos))
+    via_tree = assign_owners(*args, etree=cKDTree(epos))
+    brute = cur.copy()
+    from immersim.models.network.consistency import ellipsoid_axes, mahalanobis_ellipsoid
+    a, b, u, shift = ellipsoid_axes(avel, 0.033, 30.0, 4.0, foci)
+    d = mahalanobis_ellipsoid(epos[:, None, :], (apos + shift)[None], u[None], a[None], b[None])   # (E, G)
+    inside = d <= 1.0
+    # among the regions holding an entity the smallest arrival distance |r| - ecc r.u wins
+    r = epos[:, None, :] - apos[None]
+    ecc = np.hypot(*shift.T) / a
+    L = np.hypot(r[..., 0], r[..., 1]) - ecc[None] * np.einsum("egi,gi->eg", r, u)
+    brute[inside.any(1)] = np.where(inside, L, np.inf).argmin(1)[inside.any(1)]
+    assert np.array_equal(via_index, via_tree) and np.array_equal(via_index, brute)
+    assert (via_index != cur).sum() > 20

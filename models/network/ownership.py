@@ -1,0 +1,111 @@
+"""Frame phase 2: ownership of the entities (§3.6.2) and hand-overs.
+
+Avatars belong to their group; an entity to the group whose ownership region claims it
+(:func:`consistency.assign_owners`, eq. 3-6, 3-11/3-12), initially the nearest avatar. A hand-over
+is held for ``handover_hold_s``; the old owner knew the exact state when it let go, so its
+cache starts from it. Every change bumps ``epoch``: records in flight sent before it have
+their senders checked on delivery (§3.6.1).
+"""
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from .consistency import assign_owners
+from .nodes import H
+from .pdu import PduType, record_bytes
+
+
+def initial_owners(cfg, world) -> np.ndarray:
+    """Owning group (G + E,) of every object at the start: avatars their group, entities the
+    nearest avatar (round robin without an ownership rule)."""
+    G, E = cfg.groups, cfg.entities
+    if cfg.ownership == "none" or E == 0:
+        ent = np.arange(E) % G
+    else:
+        from scipy.spatial import cKDTree
+
+        ent = cKDTree(world.apos).query(world.epos)[1].astype(np.int64)
+    return np.r_[np.arange(G), ent]
+
+
+class Ownership:
+    """Who owns each object.
+
+    Attributes
+    ----------
+    owner : (G + E,) int, owning group of every object (avatars first)
+    hold : (G + E,) s, no hand-over of an object before this time
+    epoch : int, bumped at every ownership change
+    """
+
+    def __init__(self, cfg, world) -> None:
+        self.owner = initial_owners(cfg, world)
+        self.hold = np.full(len(self.owner), -np.inf)
+        self.epoch = 0
+        self.entity_ids = np.arange(cfg.groups, len(self.owner))
+        self._snap: Optional[tuple] = None   # (epoch, copy of the owners, as a list or None)
+
+    def snapshot(self) -> tuple:
+        """``(epoch, copy of the owners, None)`` taken once per epoch: the senders of filed records."""
+        snap = self._snap
+        if snap is None or snap[0] != self.epoch:
+            snap = self._snap = (self.epoch, self.owner.copy(), None)
+        return snap
+
+    def snapshot_list(self, snap: tuple) -> list:
+        """The owners of ``snap`` as a list (kept in the snapshot)."""
+        if snap[2] is None:
+            snap = self._snap = (snap[0], snap[1], snap[1].tolist())
+        return snap[2]
+
+    def handover(self, net, objs: np.ndarray, new: np.ndarray) -> None:
+        """Give objects ``objs`` to groups ``new`` where the owner differs and no hold is on."""
+        cfg = net.cfg
+        if cfg.ownership == "none":
+            return
+        t = net.t
+        changed = (self.owner[objs] != new) & (self.hold[objs] <= t + 1e-9)   # (hysteresis)
+        if changed.any():
+            n = int(changed.sum())
+            o, old = objs[changed], self.owner[objs[changed]]
+            # the old owner knew the exact state when it let go: its cache starts from it
+            P, V, A = (x[o] for x in net.world.state())
+            rec = net.records.table(o, t, P, V, A)
+            net.write_records(net.records.index(old, o), rec, np.arange(len(o)))
+            net.errors.clean = None
+            net.records.newest = max(net.records.newest, t)
+            self.epoch += 1
+            self.owner[o] = new[changed]
+            self.hold[o] = t + cfg.handover_hold_s
+            net.errors.touch(net.records.index(self.owner[o], o))   # the new owner's copy is no longer remote
+            net.metrics.handovers += n
+            net.count(n, n * (H + record_bytes(cfg.prediction_order)), PduType.HANDOVER)
+
+    def assign(self, net, fr) -> None:
+        """Phase 2: the regions' claims on the entities this frame (``fr``: positions, velocities,
+        the online groups ``fr.cand``, the entity index), handed over."""
+        cfg, w, paths = net.cfg, net.world, net.paths
+        if cfg.ownership == "none" or not cfg.entities:
+            return
+        G = cfg.groups
+        sizes = dict(scalar_pairs=paths.scalar_owners, brute_pairs=paths.brute_owners)
+        cur = self.owner[G:]
+        cand = fr.cand
+        if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
+            lazy = fr.lazy
+            fr.vl = w.avatar_velocities() if lazy else None
+            new = assign_owners(cfg.ownership, w.apos, None if lazy else fr.V[:G], w.epos, cur, cfg.frame_s,
+                                cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci, fr.etree,
+                                (fr.pl[:G], fr.vl, fr.pl[G:]) if lazy else None, **sizes)
+        else:
+            cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
+            new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
+                                      cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis,
+                                      cfg.ownership_foci, fr.etree, **sizes)
+            claimed = new_local != cur_local
+            new = cur.copy()
+            new[claimed] = cand[new_local[claimed]]
+        if new is not cur:   # (assign_owners may return cur itself: nobody changed owner)
+            self.handover(net, self.entity_ids, new)
