@@ -22,6 +22,8 @@ if _HOLDING:
         if _sig not in _IGNORED:
             signal.signal(_sig, lambda signum, frame: _EARLY.append(signum))
 
+from . import phases  # noqa: E402,F401  (the phases' clock: the interpreter's start-up ends here)
+
 import argparse  # noqa: E402
 import logging  # noqa: E402
 import math  # noqa: E402
@@ -80,6 +82,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         sys.stdout.write(summary + "\n")
     if res.pacing:
         sys.stdout.write(res.pacing + "\n")
+    log.info("%s", phases.summary())
     if res.skipped_units:
         sys.stdout.write(f"not loaded (nothing uses their outputs): {', '.join(res.skipped_units)}\n")
     return 0
@@ -335,9 +338,45 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    """The ``immersim`` command (``argv`` None: the program's arguments); returns the exit code."""
+    """The ``immersim`` command (``argv`` None: the program's arguments); returns the exit code.
+
+    As the program (``argv`` None), ``run`` ends the process itself once its work is done: the
+    exit handlers run (:mod:`.pythonfmu_exit`'s among them), then ``os._exit``, which skips the
+    interpreter's teardown of every module the units loaded (results/startup/README.md).
+    """
+    code = _main(argv)
+    if argv is None and _COMMAND.get("name") == "run":
+        _exit_now(code)
+    return code
+
+
+#: the command being run (``main``'s choice of exit)
+_COMMAND: dict = {}
+
+
+def _exit_now(code: int) -> None:
+    """Flush the standard streams, run the exit handlers and end the process with ``code``
+    (returns, for the interpreter's own exit, when a stream cannot be flushed)."""
+    import atexit
+
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        return
+    atexit._run_exitfuncs()
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+    os._exit(code)
+
+
+def _main(argv: Optional[List[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    _COMMAND["name"] = args.command
     level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     # `run` defers SIGINT for the whole command (the run itself acts on it between steps): a

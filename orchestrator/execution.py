@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional
 
 from .fmu import ENDED, forget_python_code
-from . import supervisor
+from . import phases, supervisor
 from .supervisor import DeferredSigint
 from .errors import FmuCallError, FmuLoadError, ImmersimError, LogWriteError, ScenarioError
 from .master import Master
@@ -108,13 +108,16 @@ class Execution:
     def __init__(self, scenario: Scenario | Path | str, output: Optional[Path | str] = None,
                  progress: bool = False, overrides: Optional[Dict[str, Any]] = None,
                  realtime: Optional[float] = None, live: Any = None, replay: Optional[Path | str] = None) -> None:
+        phases.run_started()
         self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario, overrides)
+        phases.mark("scenario parse")
         self.pacer = None if realtime is None else Pacer(realtime, self.scenario.start_ns)
         self.live = live
         self.scenario, self.live_inputs = attach_live_inputs(self.scenario, live, replay)
         self.output = Path(output) if output else None
         self.progress = progress
         self.system: System = check_system(self.scenario)
+        phases.mark("scenario check")   # (the FMUs' build check, model descriptions, connections)
         self.meshes: List[Any] = []   # what the units describe, drawn once ([foxglove] units)
         self.view_steps: List[Any] = []   # ... and redrawn every step (the platform's rods)
         if self.scenario.view_units:
@@ -283,6 +286,7 @@ class Execution:
                     supervisor.note(log=str(self.output), start_ns=sc.start_ns, step_ns=sc.step_ns)
                     self._open_log(master)
                 self._observe(master, 0, sc.start_ns)
+                phases.mark("master and log set-up")
                 if self.progress:
                     from tqdm import tqdm
                     # on a terminal only (disable=None), and only for a run still going after 2 s
@@ -294,6 +298,8 @@ class Execution:
                 for k in range(n):
                     if sigint.requested:
                         raise KeyboardInterrupt
+                    if k == 1:
+                        phases.mark("first step")
                     t_ns, t_next = t0 + k * h, min(t0 + (k + 1) * h, stop)
                     master.step(t_ns, t_next - t_ns)
                     try:   # units in worker processes start the next step while this one is logged
@@ -308,6 +314,7 @@ class Execution:
                     if ENDED:   # a unit asked to end the simulation: this step is the last
                         break
                 master.finish()
+                phases.mark("stepping")
                 result.status, result.reason = "completed", ""
                 if ENDED:
                     result.status, result.reason = "ended", "; ".join(
@@ -348,6 +355,7 @@ class Execution:
                         result.timing["wait"] = master.wait_ns / 1e9
                         result.remote_units = [n for n, s in master.slots.items() if s.inst.remote]
             self._finish(result)
+            phases.mark("log close")
         return result
 
     def _stop_message(self, r: RunResult) -> str:
