@@ -752,61 +752,123 @@ def _package_at(path, name):
     return mod
 
 
-def bench_ab(tree, reps=10, rest_reps=500):
-    """This tree's model against the one of checkout ``tree`` on the 5040-tank field (26.4k
-    triangles, missile vs any tank): per step thread CPU time of each variant and of raw
-    python-fcl, all interleaved step by step; and the cost of a step in which nothing moves.
-    Returns header and rows (medians in ms; ratios of medians)."""
+def _interleaved(models, inputs, reps, fresh=True, dt=0.033):
+    """Thread CPU seconds per query of each model (name -> list, ``reps x len(inputs)``), all
+    models queried at each input in turns (the order reversed every other step), and whether
+    their outputs were identical at every input of the first repetition. ``models``: name ->
+    a function making the model, called per repetition when ``fresh`` (else once)."""
+    times = {name: [] for name in models}
+    same = True
+    clock = time.thread_time
+    bes = None
+    for rep in range(reps):
+        if fresh or bes is None:
+            bes = [(name, make()) for name, make in models.items()]
+        for k, p in enumerate(inputs):
+            out = []
+            for name, be in (bes if (rep + k) % 2 == 0 else bes[::-1]):
+                t = clock()
+                res = be.query(p, dt) if name != "raw" else be.query(p)
+                times[name].append(clock() - t)
+                if rep == 0 and name != "raw":
+                    out.append(_outputs(res))
+            same = same and all(o == out[0] for o in out)
+    return times, same
+
+
+def bench_ab(tree, log=None, reps=10):
+    """This tree's model against the one of checkout ``tree``: the 5040-tank field (26.4k
+    triangles, missile vs any tank) per step with raw python-fcl, a step in which nothing
+    moves, and with ``log`` the collision unit's inputs of a campus_drive run replayed; every
+    variant interleaved step by step, thread CPU time. Returns header, rows."""
     base = _package_at(Path(tree) / "models" / "collision", "collision_ab_base")
     spec = "tanks:n=5040,tris=26.4k;missile:z=8"
-    scenes = {"this tree": parse_scene(spec), "baseline": base.parse_scene(spec)}
-    traj = field_trajectory(scenes["this tree"], 30)
-    configs = (("ccd off", dict(ccd=False)), ("ccd on", {}), (f"max_distance={FMU_MAX_DISTANCE:g}", dict(max_distance=FMU_MAX_DISTANCE)))
-    models = {}
-    for tag, mod, make in (("this tree", None, make_backend), ("baseline", base, base.make_backend)):
-        cfg = BackendConfig if mod is None else mod.BackendConfig
-        for label, kw in configs:
-            models[(tag, label)] = make("fcl", scenes[tag], "missile vs any tank", cfg(**kw))
-    raw = RawField(models[("this tree", "ccd off")], len(scenes["this tree"].bodies) - 1)
-    times = {k: [] for k in list(models) + ["raw"]}
-    clock = time.thread_time
-    order = list(models.items()) + [("raw", raw)]
-    for r in range(reps):
-        for p in traj:
-            for key, m in (order if r % 2 == 0 else order[::-1]):  # take turns at going first
-                t = clock(); m.query([p]); times[key].append(clock() - t)
-    rest = {"this tree": [], "baseline": []}
-    for tag in rest:
-        models[(tag, "ccd off")].query([traj[-1]])
-    for r in range(rest_reps):
-        for tag in (("this tree", "baseline") if r % 2 == 0 else ("baseline", "this tree")):
-            m = models[(tag, "ccd off")]
-            t = clock(); m.query([traj[-1]]); rest[tag].append(clock() - t)
-    med = {k: float(np.median(v)) * 1e3 for k, v in times.items()}
+    scenes = {"this": parse_scene(spec), "base": base.parse_scene(spec)}
+    traj = [[p] for p in field_trajectory(scenes["this"], 30)]
+    mods = {"this": (make_backend, BackendConfig), "base": (base.make_backend, base.BackendConfig)}
     rows = []
-    for label, _ in configs:
-        a, b = med[("this tree", label)], med[("baseline", label)]
-        rows.append([f"5040-tank field step, {label}", a, b, a / b, a / med["raw"], b / med["raw"]])
-    a, b = (float(np.median(rest[t])) * 1e3 for t in ("this tree", "baseline"))
-    rows.append(["cached step (nothing moved)", a, b, a / b, "", ""])
-    rows.append(["raw python-fcl step (same queries)", med["raw"], med["raw"], 1.0, 1.0, 1.0])
-    header = ["figure (thread CPU time, median)", "this tree ms", "baseline ms", "this / baseline",
-              "this / raw", "baseline / raw"]
-    return header, rows, len(traj) * reps
+
+    def row(label, t_this, t_base, raw=None, stat=np.median):
+        a, b = float(stat(t_this)) * 1e3, float(stat(t_base)) * 1e3
+        extra = [a / raw, b / raw] if raw else ["", ""]
+        rows.append([label, a, b, a / b] + extra)
+
+    configs = (("ccd off", dict(ccd=False)), ("ccd on", {}), (f"max_distance = {FMU_MAX_DISTANCE:g} m", dict(max_distance=FMU_MAX_DISTANCE)))
+    for label, kw in configs:
+        models = {tag: (lambda tag=tag, kw=kw: mods[tag][0]("fcl", scenes[tag], "missile vs any tank", mods[tag][1](**kw)))
+                  for tag in mods}
+        if label == "ccd off":
+            models["raw"] = lambda: RawField(make_backend("fcl", scenes["this"], "missile vs any tank"),
+                                             len(scenes["this"].bodies) - 1)
+        times, same = _interleaved(models, traj, reps, fresh=False)
+        if label == "ccd off":
+            raw = float(np.median(times["raw"])) * 1e3
+        row(f"5040-tank field step, {label}{'' if same else ' (outputs DIFFER)'}", times["this"], times["base"], raw)
+    rest = {tag: (lambda tag=tag: mods[tag][0]("fcl", scenes[tag], "missile vs any tank", mods[tag][1](ccd=False)))
+            for tag in mods}
+    times, same = _interleaved(rest, [traj[-1]] * 500, 1, fresh=False)
+    row("5040-tank field, step in which nothing moved", times["this"][1:], times["base"][1:])
+    rows.append(["raw python-fcl, 5040-tank field step", raw, raw, 1.0, 1.0, 1.0])
+    if log:
+        params, poses = _campus_inputs(log)
+        camp = {tag: (lambda tag=tag: mods[tag][0]("fcl", (parse_scene if tag == "this" else base.parse_scene)(params["scene"]),
+                                                     params["pairs"], mods[tag][1](max_distance=FMU_MAX_DISTANCE)))
+                for tag in mods}
+        times, same = _interleaved(camp, poses, CAMPUS_REPS)
+        row(f"campus_drive replay, mean per step{'' if same else ' (outputs DIFFER)'}", times["this"], times["base"],
+            stat=np.mean)
+        row("campus_drive replay, median per step", times["this"], times["base"])
+    header = ["figure (thread CPU time)", "this tree ms", "baseline ms", "this / baseline", "this / raw",
+              "baseline / raw"]
+    return header, rows
 
 
-def ab_main(tree, baseline_name):
+def bench_shortcuts(log, reps=CAMPUS_REPS):
+    """Each :class:`Shortcuts` switch off against all on: the campus_drive replay of ``log``
+    and the 5040-tank field at the FMU's max_distance, interleaved, mean thread CPU per step."""
+    from immersim.models.collision import Shortcuts
+
+    params, poses = _campus_inputs(log)
+    field = parse_scene("tanks:n=5040,tris=26.4k;missile:z=8")
+    traj = [[p] for p in field_trajectory(field, 30)]
+    names = ["all on"] + [f"{f} off" for f in Shortcuts.__dataclass_fields__]
+    switch = lambda name: Shortcuts() if name == "all on" else Shortcuts(**{name[:-4]: False})
+    rows = []
+    for label, make, inputs, r in (
+            ("campus_drive replay", lambda name: make_backend("fcl", parse_scene(params["scene"]), params["pairs"],
+                                                                BackendConfig(max_distance=FMU_MAX_DISTANCE), switch(name)),
+             poses, reps),
+            ("5040-tank field", lambda name: make_backend("fcl", field, "missile vs any tank",
+                                                            BackendConfig(max_distance=FMU_MAX_DISTANCE), switch(name)),
+             traj, 10)):
+        times, same = _interleaved({n: (lambda n=n: make(n)) for n in names}, inputs, r, fresh=inputs is poses)
+        on = float(np.mean(times["all on"])) * 1e3
+        for n in names[1:]:
+            off = float(np.mean(times[n])) * 1e3
+            rows.append([label, n, on, off, off / on, "yes" if same else "NO"])
+    return ["workload", "variant", "all on ms/step", "variant ms/step", "variant / all on", "outputs identical"], rows
+
+
+def ab_main(tree, baseline_name, log=None):
     commit, ncpu, cpu, py, _ = machine()
-    header, rows, n = bench_ab(tree)
+    header, rows = bench_ab(tree, log)
     write_csv("ab.csv", header, rows)
     text = ["# collision model A/B", "",
-            f"Command: `python benchmarks/bench_collision.py --ab CHECKOUT` with CHECKOUT a work tree of "
-            f"`{baseline_name}`. Commit `{commit}` against `{baseline_name}`, {ncpu} CPUs ({cpu}), Python {py}. "
-            f"{n} steps per variant, all variants and raw python-fcl interleaved step by step (taking turns at "
-            "going first); thread CPU time; the machine is shared, so only ratios within this run are compared.", "",
+            f"Command: `python benchmarks/bench_collision.py --ab CHECKOUT{' --campus LOG' if log else ''}` with "
+            f"CHECKOUT a work tree of `{baseline_name}`{' and LOG a campus_drive log' if log else ''}. Commit "
+            f"`{commit}` against `{baseline_name}`, {ncpu} CPUs ({cpu}), Python {py}. Every variant (and raw "
+            "python-fcl) queried at each step in turns, thread CPU time; medians unless marked mean. The machine "
+            "is shared: only ratios within this run are compared.", "",
             md_table(header, rows)]
+    if log:
+        sh, srows = bench_shortcuts(log)
+        write_csv("shortcuts.csv", sh, srows)
+        text += ["## Shortcuts (each switched off against all on)", "",
+                 "`Shortcuts` of `models/collision/backend.py`; mean thread CPU per step, FMU default max_distance.", "",
+                 md_table(sh, srows)]
     (OUT / "ab.md").write_text("\n".join(text))
     print("\n".join(text))
+
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -825,7 +887,7 @@ def main():
     warnings.simplefilter("ignore")
     OUT.mkdir(parents=True, exist_ok=True)
     if args.ab:
-        ab_main(args.ab, args.ab_name)
+        ab_main(args.ab, args.ab_name, args.campus)
         return
     if args.campus:
         campus_main(args.campus, args.baseline, args.baseline_max_distance, args.run_output)

@@ -9,14 +9,15 @@ normal, time of impact and closing speed, plus candidate / narrow-phase counts:
 * ``honeycomb``: the ray-casting honeycomb decomposition of ch. 4 (:mod:`.honeycomb`).
 """
 from .backend import (BackendConfig, CollisionBackend, PairResult, PairSpec, PairSpecError,
-                      QueryResult, parse_pairs)
+                      QueryResult, Shortcuts, parse_pairs)
 from .scene import (Body, MeshError, MeshWarning, Scene, SceneError, TANK_TRIS, load_mesh, make_missile,
                     make_tank, parse_scene)
 
 BACKENDS = ("fcl", "basis_point", "honeycomb")
 
 
-def make_backend(name: str, scene: Scene, pairs="", config: BackendConfig | None = None) -> CollisionBackend:
+def make_backend(name: str, scene: Scene, pairs="", config: BackendConfig | None = None,
+                 shortcuts: Shortcuts | None = None) -> CollisionBackend:
     """Create the backend ``name`` (one of :data:`BACKENDS`) for ``scene`` and ``pairs``."""
     if name == "fcl":
         from .fcl_backend import FclBackend as cls
@@ -26,9 +27,9 @@ def make_backend(name: str, scene: Scene, pairs="", config: BackendConfig | None
         from .honeycomb import HoneycombBackend as cls
     else:
         raise ValueError(f"unknown collision backend {name!r}; choose one of {', '.join(BACKENDS)}")
-    return cls(scene, pairs, config)
+    return cls(scene, pairs, config, shortcuts)
 
 
 __all__ = ["BACKENDS", "make_backend", "BackendConfig", "CollisionBackend", "PairResult", "PairSpec",
-           "PairSpecError", "QueryResult", "parse_pairs", "Body", "MeshError", "MeshWarning", "Scene",
+           "PairSpecError", "QueryResult", "Shortcuts", "parse_pairs", "Body", "MeshError", "MeshWarning", "Scene",
            "SceneError", "TANK_TRIS", "load_mesh", "make_missile", "make_tank", "parse_scene"]

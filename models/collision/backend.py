@@ -47,7 +47,7 @@ from .scene import Scene, SceneError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BackendConfig", "PairSpec", "PairResult", "QueryResult", "CollisionBackend",
+__all__ = ["BackendConfig", "Shortcuts", "PairSpec", "PairResult", "QueryResult", "CollisionBackend",
            "parse_pairs", "PairSpecError"]
 
 
@@ -125,6 +125,22 @@ class BackendConfig:
             raise ValueError(f"chunk_faces = {self.chunk_faces} must be >= 0")
         if self.rays_per_cell < 1:
             raise ValueError(f"rays_per_cell = {self.rays_per_cell} must be >= 1")
+
+
+@dataclass(frozen=True)
+class Shortcuts:
+    """The speed mechanisms that change no output, one switch each: each is tested bit for bit
+    against the backend without it; its A/B is in ``results/collision/README.md``.
+
+    far_pairs: the far-pair skip (:mod:`.far`). distance_bounds (fcl): lower bounds of a
+    pair's distance, from its last exact distance and the motion since (:mod:`.pair_cache`)
+    and from body-frame box gaps (:meth:`.fcl_objects.BodyShapes.frame_gap`), skip
+    ``fcl.collide`` of candidates they prove apart and exact distances that cannot beat the
+    best so far.
+    """
+
+    far_pairs: bool = True
+    distance_bounds: bool = True
 
 
 @dataclass
@@ -240,6 +256,8 @@ class CollisionBackend(ABC):
     pairs : str or list of PairSpec
         Monitored pairs (spec string or parsed).
     config : BackendConfig, optional
+    shortcuts : Shortcuts, optional
+        Default: all on.
     """
 
     name = "abstract"
@@ -249,9 +267,11 @@ class CollisionBackend(ABC):
     #: m of slack in the far-pair skip (covers the rounding of computed AABBs)
     FAR_MARGIN = 1e-9
 
-    def __init__(self, scene: Scene, pairs, config: Optional[BackendConfig] = None) -> None:
+    def __init__(self, scene: Scene, pairs, config: Optional[BackendConfig] = None,
+                 shortcuts: Optional[Shortcuts] = None) -> None:
         self.scene = scene
         self.config = config or BackendConfig()
+        self.shortcuts = shortcuts or Shortcuts()
         self.pairs: List[PairSpec] = parse_pairs(pairs, scene) if isinstance(pairs, (str, type(None))) else list(pairs)
         self.n = len(scene.bodies)
         self.dyn = np.asarray(scene.dynamic, dtype=int)
@@ -274,7 +294,7 @@ class CollisionBackend(ABC):
         # (after _setup: a backend may decide FAR_SKIP there)
         self.far = FarSkip(self.bounds.local, [b.mesh_key for b in scene.bodies], self._pair_bodies,
                            self.config.max_distance, self.FAR_MARGIN,
-                           bool(self.FAR_SKIP and math.isfinite(self.config.max_distance)))
+                           bool(self.FAR_SKIP and self.shortcuts.far_pairs and math.isfinite(self.config.max_distance)))
 
     # -- to implement -------------------------------------------------------------------
     def _setup(self) -> None:

@@ -132,11 +132,13 @@ class FclBackend(CollisionBackend):
         pair cache's lower bound or the body-frame box gap reaches the best so far (checks
         left out when the pair cache's upper bound is below it: none could skip)."""
         before, fclo, shapes = res.min_distance, self.fclo, self.shapes
-        since = self.exact.since(a, b)
+        bounds = self.shortcuts.distance_bounds
+        since = self.exact.since(a, b) if bounds else None
         if since is None or since[1] >= before:  # (else it is nearer than the best: no bound can skip it)
             if self.bounds.gap(a, b) >= before:
                 return False
-            if (since is not None and since[0] >= before) or self.shapes.frame_gap(a, b, self.frames.rows) >= before + shapes.FRAME_GAP_MARGIN:
+            if bounds and ((since is not None and since[0] >= before)
+                           or shapes.frame_gap(a, b, self.frames.rows) >= before + shapes.FRAME_GAP_MARGIN):
                 return False
         # the larger BVH first: fcl's traversal is cheaper (member first otherwise, see _collide)
         fclo.sync(self._pair_now)
@@ -204,7 +206,7 @@ class FclBackend(CollisionBackend):
             seen.add(b)
             counts[0] += 1
             counts[1] += 1
-            if self._separated(a, b):
+            if self.shortcuts.distance_bounds and self._separated(a, b):
                 continue  # fcl.collide would find no intersecting triangles: no contact
             hit = self._collide(a, b)
             if hit is not None:

@@ -11,7 +11,7 @@ import struct
 import numpy as np
 import pytest
 
-from immersim.models.collision import BackendConfig, make_backend, parse_scene
+from immersim.models.collision import BackendConfig, Shortcuts, make_backend, parse_scene
 from immersim.models.collision.geometry import pose_matrix
 
 SCENE = ("box:name=av,sx=4,sy=2,sz=4.4,dynamic=1;sphere:name=e,r=1,dynamic=1;"
@@ -53,8 +53,8 @@ def scene():
 def test_the_far_pair_skip_changes_no_output(scene):
     traj = _trajectory()
     fast = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
-    full = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
-    full.far.on = False  # every pair whose bodies moved is evaluated
+    full = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0), Shortcuts(far_pairs=False))
+    assert fast.far.on and not full.far.on  # full: every pair whose bodies moved is evaluated
     evaluated = []
     real = fast._evaluate
     fast._evaluate = lambda pair, dt: evaluated.append(pair.label) or real(pair, dt)
@@ -67,8 +67,8 @@ def test_the_far_pair_skip_changes_no_output(scene):
 def test_skipped_contact_tests_change_no_output(scene):
     traj = _trajectory()
     fast = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
-    full = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
-    full._separated = lambda a, b: False  # every broad-phase candidate gets fcl.collide
+    # every broad-phase candidate gets fcl.collide
+    full = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0), Shortcuts(distance_bounds=False))
     skipped = []
     real = fast._separated
     fast._separated = lambda a, b: real(a, b) and not skipped.append((a, b))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from immersim.models.collision import BackendConfig, make_backend, parse_scene
+from immersim.models.collision import BackendConfig, Shortcuts, make_backend, parse_scene
 from immersim.models.collision.geometry import point_triangle_distance, pose_matrix
 
 
@@ -295,8 +295,8 @@ def test_distance_lower_bound_cache_changes_no_output(chunk_faces):
     scene = parse_scene("tank:name=t,tris=5.4k;sphere:name=ball,r=0.3,dynamic=1,x=20")
     cfg = BackendConfig(max_distance=2.0, chunk_faces=chunk_faces)
     cached = make_backend("fcl", scene, "ball vs t", cfg)
-    plain = make_backend("fcl", scene, "ball vs t", cfg)
-    plain.exact.since = lambda a, b: None  # no bounds from the last exact distance (nor chunk subsets)
+    # no bounds from the last exact distance (nor chunk subsets)
+    plain = make_backend("fcl", scene, "ball vs t", cfg, Shortcuts(distance_bounds=False))
     calls = {"cached": 0, "plain": 0}
     real = fcl_backend.fcl.distance
     rng = np.random.default_rng(3)
@@ -344,8 +344,8 @@ def test_far_pair_skip_changes_no_output_and_skips_evaluations():
             "sphere:name=b1,r=1,dynamic=1;sphere:name=b2,r=1,dynamic=1;missile:name=m,dynamic=1,x=-40,z=30")
     pairs = "av vs t; av vs any b*; m vs scene; b1 vs b2"
     fast = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0))
-    plain = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0))
-    plain.far.on = False  # the same backend without the far-pair skip
+    # the same backend without the far-pair skip
+    plain = make_backend("fcl", parse_scene(spec), pairs, BackendConfig(max_distance=2.0), Shortcuts(far_pairs=False))
     evaluations = {"fast": 0, "plain": 0}
     real = fcl_backend.FclBackend._evaluate
     seen = {"contact": 0, "toi": 0, "near": 0}
@@ -392,8 +392,7 @@ def test_body_frame_gap_changes_no_output_and_skips_exact_queries(chunk_faces):
     spec = "tank:name=t,tris=5.4k,yaw=0.785;sphere:name=ball,r=0.3,dynamic=1,x=20"
     config = BackendConfig(max_distance=2.0, ccd=False, chunk_faces=chunk_faces)
     with_gap = make_backend("fcl", parse_scene(spec), "ball vs t", config)
-    plain = make_backend("fcl", parse_scene(spec), "ball vs t", config)
-    plain.shapes.FRAME_GAP_MARGIN = math.inf
+    plain = make_backend("fcl", parse_scene(spec), "ball vs t", config, Shortcuts(distance_bounds=False))
     calls = {"with_gap": 0, "plain": 0}
     real = fcl_backend.fcl.distance
     lo, hi = with_gap.aabb[0]
