@@ -19,7 +19,7 @@ write of the step's records into the current chunk (:meth:`McapObserver.write_st
 from __future__ import annotations
 
 import base64
-import functools
+import binascii
 import json
 import logging
 import math
@@ -53,13 +53,9 @@ def _json_value(value: Any) -> str:
 
 
 def _base64(value: Any) -> str:
-    if isinstance(value, bytes):
-        return base64.b64encode(value).decode("ascii")
-    raise TypeError
-
-
-#: orjson.dumps with FMI 3.0 Binary values (bytes) as base64 text (as :func:`_json_value`)
-_dumps_binary = functools.partial(_dumps, default=_base64)
+    """The base64 text of an FMI 3.0 Binary value (as :func:`_json_value`); ``TypeError`` for a
+    value that is not bytes-like."""
+    return binascii.b2a_base64(value, newline=False).decode("ascii")
 
 
 def json_schema(unit: str, infos: Sequence[VarInfo]) -> Dict[str, Any]:
@@ -92,13 +88,17 @@ class ChannelEncoder:
         self.infos = list(infos)
         self.names = [v.name for v in self.infos]
         self._template = "{" + ",".join(f"{json.dumps(n)}:%s" for n in self.names) + "}"
-        #: orjson, with base64 text for the bytes of FMI 3.0 Binary variables when there are some
-        self._dumps = _dumps_binary if any(v.family == "binary" for v in self.infos) else _dumps
+        #: the FMI 3.0 Binary variables: their bytes go to orjson as base64 text (converted
+        #: before the call: an orjson ``default`` callback per value costs more)
+        self._binary = [v.name for v in self.infos if v.family == "binary"]
 
     def encode(self, values: Sequence[Any]) -> bytes:
         """JSON bytes of one message; ``values`` in the order of ``infos``."""
         try:
-            return self._dumps(dict(zip(self.names, values)))
+            obj = dict(zip(self.names, values))
+            for name in self._binary:
+                obj[name] = _base64(obj[name])
+            return _dumps(obj)
         except TypeError:  # orjson.JSONEncodeError subclasses TypeError
             return (self._template % tuple(_json_value(v) for v in values)).encode()
 
