@@ -132,15 +132,19 @@ class Shortcuts:
     """The speed mechanisms that change no output, one switch each: each is tested bit for bit
     against the backend without it; its A/B is in ``results/collision/README.md``.
 
-    far_pairs: the far-pair skip (:mod:`.far`). distance_bounds (fcl): lower bounds of a
-    pair's distance, from its last exact distance and the motion since (:mod:`.pair_cache`)
-    and from body-frame box gaps (:meth:`.fcl_objects.BodyShapes.frame_gap`), skip
-    ``fcl.collide`` of candidates they prove apart and exact distances that cannot beat the
-    best so far.
+    far_pairs: the far-pair skip (:mod:`.far`). distance_bounds (fcl): lower bounds of a pair's
+    distance (:mod:`.pair_cache`, body-frame box gaps) skip ``fcl.collide`` of candidates they
+    prove apart and exact distances that cannot beat the best so far. flat_poses: the FMU's
+    flat pose tuple is sliced as it is, not converted by numpy. rotation_reuse: a body keeping
+    the bits of its roll, pitch and yaw keeps its rotation rows. toi_pretests (fcl): the
+    fast-mover test settled by the move's face shift or a scalar estimate before the travel.
     """
 
     far_pairs: bool = True
     distance_bounds: bool = True
+    flat_poses: bool = True
+    rotation_reuse: bool = True
+    toi_pretests: bool = True
 
 
 @dataclass
@@ -278,7 +282,7 @@ class CollisionBackend(ABC):
         self.is_dynamic = np.zeros(self.n, bool)
         self.is_dynamic[self.dyn] = True
         #: the poses and transforms (one representation), their array forms and the bounds
-        self.frames = Poses(scene)
+        self.frames = Poses(scene, self.shortcuts.flat_poses, self.shortcuts.rotation_reuse)
         self.arrays = PoseArrays(self.frames)
         self.bounds = Bounds(scene, self.frames, self.arrays)
         self._footprints = Footprints(scene)  # ground-plane parts of (horizontal) contacts (.exit)

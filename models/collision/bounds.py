@@ -46,7 +46,7 @@ class Bounds:
         self.sphere_c = np.zeros((n, 3))
         self.sphere_r = np.array([self.local[k][2] for k in self._keys])
         self._rotated: Dict[tuple, np.ndarray] = {}  # static bodies' boxes by (mesh, rotation)
-        #: per dynamic body its last rotated local box: (rotation key, box, box as lists)
+        #: per dynamic body its last rotated local box: (rotation key, box)
         self._dyn_box: Dict[int, tuple] = {}
         self._static_lists: Dict[int, tuple] = {}  # static bodies' AABBs as (lo, hi) lists
         self.stale = np.zeros(n, bool)
@@ -87,7 +87,7 @@ class Bounds:
                 np.minimum.reduce(pts, 0, out=box[0])
                 np.maximum.reduce(pts, 0, out=box[1])
                 if self._is_dyn[i]:
-                    self._dyn_box[i] = (rkey, box, box.tolist())
+                    self._dyn_box[i] = (rkey, box)
                 else:
                     self._rotated[rkey] = box
             self.aabb[i] = box + T[:3, 3]
@@ -95,21 +95,13 @@ class Bounds:
                 self.sphere_c[i] = T[:3, :3] @ c + T[:3, 3]
 
     def lists(self, i: int) -> Tuple[list, list]:
-        """Body ``i``'s world AABB as ``(lo, hi)`` lists: the numbers of its ``aabb`` row. A
-        dynamic body that kept the rotation of its last box gets ``box + t`` per coordinate
-        (its row stays stale); a static body's are listed once."""
+        """Body ``i``'s world AABB as ``(lo, hi)`` lists, up to date (a static body's listed once)."""
         if not self._is_dyn[i]:
             box = self._static_lists.get(i)
             if box is None:
                 box = self._static_lists[i] = tuple(self.aabb[i].tolist())
             return box
         if self.stale[i]:
-            last = self._dyn_box.get(i)
-            if last is not None and last[0] == self._p.rot_key.get(i):
-                rows = self._p.rows[i]
-                (l0, l1, l2), (h0, h1, h2) = last[2]
-                t0, t1, t2 = rows[0][3], rows[1][3], rows[2][3]
-                return [l0 + t0, l1 + t1, l2 + t2], [h0 + t0, h1 + t1, h2 + t2]
             self.update([i], spheres=False)
         return self.aabb[i].tolist()
 

@@ -47,15 +47,14 @@ class FclBackend(CollisionBackend):
     #: m; a lower bound of a candidate's distance above this proves it is not in contact (far
     #: above the rounding of fcl's triangle tests at coordinates of 1e2..1e3 m)
     SEPARATED = 1e-6
-    #: m; the rounding of a loose box's corners (coordinates up to 1e4 m)
-    LOOSE_ROUNDING = 1e-9
 
     def _setup(self) -> None:
         scene = self.scene
         self.fclo = FclObjects(scene, self.frames, self.arrays, self.config.max_contacts)
         self.shapes = BodyShapes(scene, self.fclo, self.bounds.local, self.arrays.T(), self.config.chunk_faces)
         self.exact = PairDistances(self.frames, self.shapes.radius)
-        self.toi = TimeOfImpact(self.config, self.frames, self.arrays, self.bounds, self.fclo, self.shapes, scene)
+        self.toi = TimeOfImpact(self.config, self.frames, self.arrays, self.bounds, self.fclo, self.shapes, scene,
+                                self.shortcuts.toi_pretests)
         n_static = len(self.fclo.static_idx)
         #: per pair: member mask, static members, dynamic members, whether the tree serves it,
         #: the members checked directly, the dynamic bodies whose fcl transform it needs
@@ -82,30 +81,11 @@ class FclBackend(CollisionBackend):
 
     def _far_gap(self, k: int, pair: PairSpec) -> float | None:
         """The smallest AABB gap of the members checked directly; None for a pair served by
-        the tree (its distance traversal may count a candidate). Loose boxes first (the local
-        AABB rotated, no AABB update), exact gaps when they do not settle it."""
+        the tree (its distance traversal may count a candidate)."""
         parts = self._pair_parts[id(pair)]
         if parts[3]:
             return None
-        a, small = pair.a, parts[4]
-        alo, ahi = self._loose_box(a)
-        loose = math.inf
-        for b in small:
-            blo, bhi = self._loose_box(b)
-            g = 0.0
-            for k in range(3):
-                d = max(blo[k] - ahi[k], alo[k] - bhi[k], 0.0)
-                g += d * d
-            loose = min(loose, math.sqrt(g) - self.LOOSE_ROUNDING)
-        if loose >= self.config.max_distance + self.FAR_MARGIN:
-            return loose
-        return min(self.bounds.gap(a, b) for b in small)
-
-    def _loose_box(self, i: int) -> tuple:
-        """A world box containing body ``i``'s AABB: a static body's AABB itself."""
-        if not self.is_dynamic[i]:
-            return self.bounds.lists(i)
-        return self.shapes.loose_box(i, self.frames.rows[i])
+        return min(self.bounds.gap(pair.a, b) for b in parts[4])
 
     def _separated(self, a: int, b: int) -> bool:
         """A broad-phase candidate is provably not in contact: the pair cache's lower bound or

@@ -152,18 +152,6 @@ class BodyShapes:
         self.radius = (np.array(self._sphere_r) + np.linalg.norm(np.array([local[b.mesh_key][1] for b in bodies]),
                                                                  axis=1)).tolist()
 
-    def loose_box(self, i: int, rows: list) -> tuple:
-        """A world box (lo, hi lists) containing body ``i``'s AABB at transform ``rows``: its
-        local AABB rotated and moved (centre ``R c + t``, half extents ``|R| h``), up to rounding."""
-        (cx, cy, cz), (hx, hy, hz) = self._box_lists[i][2], self._box_lists[i][3]
-        lo, hi = [], []
-        for r0, r1, r2, t in rows[:3]:
-            c = r0 * cx + r1 * cy + r2 * cz + t
-            e = abs(r0) * hx + abs(r1) * hy + abs(r2) * hz
-            lo.append(c - e)
-            hi.append(c + e)
-        return lo, hi
-
     def frame_gap(self, a: int, b: int, rows: list) -> float:
         """Lower bound (m) of the distance of ``a`` and ``b`` (transforms ``rows[a]``, ``rows[b]``):
         in the frame of each rotated body not smaller than the other, the gap between its local

@@ -51,9 +51,12 @@ class Poses:
         Per body the query in which it last moved (-1: never), last moved keeping its rotation.
     motion : dict
         Per body moved in the current query: ``face_shift`` of its move.
+
+    ``flat``, ``reuse``: the shortcuts ``flat_poses`` and ``rotation_reuse`` (.backend.Shortcuts).
     """
 
-    def __init__(self, scene) -> None:
+    def __init__(self, scene, flat: bool = True, reuse: bool = True) -> None:
+        self._flat, self._reuse = flat, reuse
         self.names = [b.name for b in scene.bodies]
         self.dyn: List[int] = list(scene.dynamic)
         self.pose: List[tuple] = [tuple(np.asarray(b.pose, float).tolist()) for b in scene.bodies]
@@ -75,7 +78,7 @@ class Poses:
         FMU passes (sliced as it is when its sum is finite: then every entry is). Raises
         ValueError naming the body and coordinate of a non-finite entry."""
         pose = self.pose
-        if type(poses) is tuple and len(poses) == 6 * len(self.dyn):
+        if self._flat and type(poses) is tuple and len(poses) == 6 * len(self.dyn):
             try:
                 fast = math.isfinite(sum(poses))
             except (TypeError, ValueError, OverflowError):
@@ -105,11 +108,12 @@ class Poses:
         becomes the new transform)."""
         pose, rows, prev, motion = self.pose, self.rows, self.prev, self.motion
         rot_key, same_at, moved_at, qn = self.rot_key, self.same_rotation_at, self.moved_at, self.qn
+        reuse = self._reuse
         for i, row in changed:
             pose[i] = row
             old = rows[i]
             key = _PACK3(row[3], row[4], row[5])
-            if key == rot_key[i]:
+            if reuse and key == rot_key[i]:
                 r0, r1, r2 = old[0], old[1], old[2]
                 x, y, z = float(row[0]), float(row[1]), float(row[2])
                 new = [[r0[0], r0[1], r0[2], x], [r1[0], r1[1], r1[2], y], [r2[0], r2[1], r2[2], z],

@@ -39,7 +39,8 @@ class TimeOfImpact:
     CA_MOTION_ABS = 1e-9
 
     def __init__(self, config, frames: Poses, arrays: PoseArrays, bounds, fclo: FclObjects,
-                 shapes: BodyShapes, scene) -> None:
+                 shapes: BodyShapes, scene, pretests: bool = True) -> None:
+        self._pretests = pretests  # the toi_pretests shortcut (.backend.Shortcuts)
         self._config, self._frames, self._arrays, self._bounds = config, frames, arrays, bounds
         self._fclo, self._shapes, self._bodies = fclo, shapes, scene.bodies
         self._is_dyn = [b.dynamic for b in scene.bodies]
@@ -63,6 +64,8 @@ class TimeOfImpact:
         sqrt 2)``); a scalar estimate the clear cases; ``travel`` the ones within its rounding."""
         if not self._config.ccd:
             return False
+        if not self._pretests:
+            return bool(self.travel(a) > self.threshold[a])
         frames = self._frames
         motion = frames.motion.get(a)
         if motion is not None and motion[0] + _ANGLE_PER_FRO * motion[1] * self._shapes.radius[a] < self.clear[a]:

@@ -1,9 +1,8 @@
 """The fcl backend's shortcuts give the outputs of the full computation, bit for bit.
 
-Each shortcut (far-pair skip by the members' AABB gaps, the contact test skipped for a
-candidate whose distance bound proves it apart, transforms written only when read) is
-compared with the same backend without it over a trajectory that approaches, touches and
-leaves a rotated tank while steering.
+Each ``Shortcuts`` switch is compared with the same backend without it over a trajectory that
+approaches, touches and leaves a rotated tank while steering; the array forms of the poses
+and transforms read as the poses say.
 """
 import math
 import struct
@@ -153,14 +152,20 @@ def test_norm3_is_numpys_norm_bit_for_bit():
         assert norm3(v) == np.linalg.norm(v)
 
 
-def test_the_scalar_aabb_is_the_arrays(scene):
-    """_aabb_lists (scalar, the arrays left stale) gives the numbers _update_bounds writes."""
-    be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
-    for poses in _trajectory(30):
-        be.query(tuple(x for p in poses for x in p))
-        lists = [be.bounds.lists(i) for i in range(be.n)]
-        be.ensure_bounds(np.arange(be.n))
-        assert [tuple(map(list, box)) for box in lists] == [tuple(r) for r in be.aabb.tolist()]
+@pytest.mark.parametrize("off", sorted(Shortcuts.__dataclass_fields__))
+def test_each_shortcut_changes_no_output(scene, off):
+    """The backend without one shortcut gives the outputs of the backend with all, bit for bit,
+    in both pose forms (the FMU's flat tuple and an array), also after a state restore."""
+    traj = _trajectory(40)
+    fast = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
+    plain = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0), Shortcuts(**{off: False}))
+    assert _run(fast, traj) == _run(plain, traj)
+    state = fast.get_state(), plain.get_state()
+    arrays = [np.array(p) for p in traj[::-1]]
+    assert [_bits(fast.query(p)) for p in arrays] == [_bits(plain.query(p)) for p in arrays]
+    fast.set_state(state[0])
+    plain.set_state(state[1])
+    assert _run(fast, traj[::3]) == _run(plain, traj[::3])
 
 
 def test_slerp_at_is_the_array_formula():
