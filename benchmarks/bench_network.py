@@ -16,7 +16,11 @@
    its log, replayed through the FMU class's ``do_step``; with ``--baseline DIR`` another
    tree's runs alternate with this tree's and every output of every step is compared bit for bit.
 
-Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus] [--baseline DIR] [--campus-log LOG]
+6. paths (``--only paths``): what each shortcut of :class:`Paths` buys, A/B in one run: the campus
+   steps (4.) and the scale step (3.) with one shortcut switched to its plain form against the
+   default, fresh processes alternated, CPU medians; writes ``paths.md``.
+
+Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus,paths] [--baseline DIR] [--campus-log LOG]
 """
 from __future__ import annotations
 
@@ -27,12 +31,12 @@ import platform
 import subprocess
 import sys
 import time
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network import LinkClass, NetworkConfig, NetworkModel, Paths
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "network"
@@ -140,6 +144,65 @@ def bench_scale(quick: bool):
     return res
 
 
+def scale_cpu(steps: int, dis: float, paths: dict = None, fmu_dir: str = NETWORK_DIR):
+    """Median CPU time (ms) of the scale step (1000 render nodes, 10,000 entities, every frame
+    or DIS ``dis``) over ``steps`` steps after 5 warm-up steps, with ``paths`` (fields of :class:`Paths`)."""
+    cfg = NetworkConfig(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform",
+                        dis_threshold=dis, seed=4)
+    m = NetworkModel(cfg, Paths(**(paths or {})))
+    for _ in range(5):
+        m.step(T)
+    cpu = []
+    for _ in range(steps):
+        c0 = time.process_time()
+        m.step(T)
+        cpu.append(time.process_time() - c0)
+    return float(np.median(cpu)) * 1e3
+
+
+#: one shortcut (or a pair that only acts together) at a time in its plain form, for bench_paths
+CAMPUS_SWITCHES = [("memo_pairs", dict(memo_pairs=-1)), ("reuse_views", dict(reuse_views=False)),
+                   ("scalar_view", dict(scalar_view=-1)), ("few_records", dict(few_records=-1)),
+                   ("rest_display", dict(rest_display=False)), ("float_batch", dict(float_batch=-1)),
+                   ("merge_draws", dict(merge_draws=False)), ("scalar_owners", dict(scalar_owners=-1)),
+                   ("scalar_avatars + scalar_entities", dict(scalar_avatars=-1, scalar_entities=-1)),
+                   ("rest_skip", dict(rest_skip=False)), ("scalar_contacts", dict(scalar_contacts=-1))]
+SCALE_SWITCHES = [("groups_min_pairs", dict(groups_min_pairs=10 ** 12))]
+
+
+def bench_paths(quick: bool):
+    """Each shortcut against the default, A/B in one run (fresh processes, the variants in turn,
+    the order reversed every other round): campus CPU medians per step (us) and the scale step's
+    (ms), medians over the rounds, and their ratio to the default's."""
+    rounds, steps = (2, 300) if quick else (3, 600)
+    variants = [("default (every shortcut)", {})] + CAMPUS_SWITCHES + [("all (Paths.plain())", "plain")]
+    camp = {name: [] for name, _ in variants}
+    for rnd in range(rounds):
+        for name, kw in (variants if rnd % 2 == 0 else variants[::-1]):
+            kw = {f.name: getattr(Paths.plain(), f.name) for f in fields(Paths)} if kw == "plain" else kw
+            r = in_tree(None, "campus_inprocess", steps, paths=kw)
+            camp[name].append((1e3 * r[0]["cpu_median_ms"], 1e3 * r[1]["cpu_median_ms"]))
+    campus_rows = []
+    d0 = np.median([x[0] for x in camp[variants[0][0]]]), np.median([x[1] for x in camp[variants[0][0]]])
+    for name, _ in variants:
+        d, i = np.median([x[0] for x in camp[name]]), np.median([x[1] for x in camp[name]])
+        campus_rows.append(dict(plain=name, drive_us=d, drive_ratio=d / d0[0], idle_us=i, idle_ratio=i / d0[1]))
+    srounds, ssteps = (2, 10) if quick else (2, 20)
+    scale_rows = []
+    for dis in (0.0, 0.1):
+        svar = [("default (every shortcut)", {})] + SCALE_SWITCHES
+        got = {name: [] for name, _ in svar}
+        for rnd in range(srounds):
+            for name, kw in (svar if rnd % 2 == 0 else svar[::-1]):
+                got[name].append(in_tree(None, "scale_cpu", ssteps, dis, paths=kw))
+        s0 = np.median(got[svar[0][0]])
+        for name, _ in svar:
+            s = np.median(got[name])
+            scale_rows.append(dict(plain=name, dis_threshold=dis, cpu_median_ms=s, ratio=s / s0,
+                                   rounds=", ".join(f"{x:.1f}" for x in got[name])))
+    return campus_rows, scale_rows
+
+
 #: the campus scenes' network parameters, and the driven case's constant driver inputs
 CAMPUS = (("campus_drive (driving)", 8, True), ("campus_idle (at rest)", 0, False))
 CAMPUS_DRIVE = ((0.8, 0.0), (0.7, 0.1), (0.6, -0.2))
@@ -177,14 +240,17 @@ def in_tree(tree, fn: str, *args, **kwargs):
     return json.loads(subprocess.check_output([sys.executable, "-c", code], env=env, cwd="/", text=True))
 
 
-def campus_inprocess(steps: int, fmu_dir: str = NETWORK_DIR):
+def campus_inprocess(steps: int, fmu_dir: str = NETWORK_DIR, paths: dict = None):
     """CPU and wall time of the FMU class's do_step (model + wrapper, in process) at the campus
     scenes' size; ``fmu_dir`` holds the ``network_fmu.py`` to load (another tree's for a
-    baseline run, with that tree's ``immersim`` first on ``PYTHONPATH``)."""
+    baseline run, with that tree's ``immersim`` first on ``PYTHONPATH``); ``paths``: fields of
+    :class:`Paths` for the model (this tree only; the model is remade with them after set-up)."""
     network = network_class(fmu_dir)
     res = []
     for label, entities, drive in CAMPUS:
         s = campus_slave(network, entities, "bench")
+        if paths:
+            s.model = NetworkModel(s.model.cfg, Paths(**paths))   # (a fresh model: the same state)
         if drive:
             for p, (thr, steer) in enumerate(CAMPUS_DRIVE, start=1):
                 s.values[f"avatar[{p}].throttle"], s.values[f"avatar[{p}].steer"] = thr, steer
@@ -379,6 +445,10 @@ REPLAY_COLS = (["code", "round", "steps", "passes", "cpu_mean_us", "cpu_median_u
                 "load", "outputs"],
                {"cpu_mean_us": "{:.1f}", "cpu_median_us": "{:.1f}", "wall_mean_us": "{:.1f}",
                 "wall_median_us": "{:.1f}", "load": "{:.1f}"})
+PATHS_CAMPUS_COLS = (["plain", "drive_us", "drive_ratio", "idle_us", "idle_ratio"],
+                     {"drive_us": "{:.1f}", "drive_ratio": "{:.3f}", "idle_us": "{:.1f}", "idle_ratio": "{:.3f}"})
+PATHS_SCALE_COLS = (["plain", "dis_threshold", "cpu_median_ms", "ratio", "rounds"],
+                    {"cpu_median_ms": "{:.1f}", "ratio": "{:.3f}"})
 AB_COLS = (["scene", "code", "round", "median_ms", "cpu_median_ms", "load", "unchanged"],
            {"median_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "load": "{:.1f}"})
 
@@ -395,6 +465,15 @@ def only(parts, quick: bool, baseline: str = "") -> None:
             text += (f"\nAlternated with the baseline tree `{baseline}` (fresh process per run):\n\n"
                      + table(ab, *AB_COLS))
         (OUT / "campus.md").write_text(text)
+        print(text)
+    if "paths" in parts:
+        camp, scale = bench_paths(quick)
+        text = (head + "One shortcut of `Paths` in its plain form (column `plain`) against the default: the campus "
+                "scenes' FMU step (model + wrapper, CPU median per step, us; drive: 3 players driving, 8 "
+                "entities; idle: at rest, no entities) and the 1000-node / 10,000-entity step (CPU median, ms); "
+                "fresh processes, the variants in turn; ratio > 1: the shortcut saves that share.\n\n"
+                + table(camp, *PATHS_CAMPUS_COLS) + "\n" + table(scale, *PATHS_SCALE_COLS))
+        (OUT / "paths.md").write_text(text)
         print(text)
     if "scale" in parts:
         (OUT / "scale.md").write_text(head + table(bench_scale(quick), *SCALE_COLS))
@@ -437,7 +516,7 @@ def table(rows, cols, fmt=None):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer points and steps (about a minute)")
-    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus")
+    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths")
     ap.add_argument("--baseline", default="", help="campus: directory with another commit's immersim/models and "
                     "immersim/fmus (git archive COMMIT models fmus | tar -x -C DIR/immersim; touch DIR/immersim/__init__.py), "
                     "alternated with this tree")

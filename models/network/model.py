@@ -85,7 +85,7 @@ class NetworkModel:
         self.rng = np.random.default_rng(cfg.seed)
         self.world = World(cfg, self.rng, self.paths)
         self.reg = NodeRegistry(cfg)
-        self.grid = SceneGrid(cfg.scene_size, cfg.grid_cells, cfg.grid, self.paths.scalar_grid)
+        self.grid = SceneGrid(cfg.scene_size, cfg.grid_cells, cfg.grid)
         G, n_obj = cfg.groups, cfg.groups + cfg.entities
         if n_obj >= 2 ** 21:
             raise ValueError(f"network model: {n_obj} objects, at most 2^21 - 1 (record ids object * 2^32 + table)")
