@@ -22,7 +22,7 @@ from common import ROOT, interleaved, median, stamp  # noqa: E402
 from immersim.orchestrator.build import build_unit  # noqa: E402
 from immersim.orchestrator.execution import run_scenario  # noqa: E402
 from immersim.orchestrator.fmu import clear_caches  # noqa: E402
-from immersim.orchestrator.observers import McapObserver  # noqa: E402
+from immersim.orchestrator.observers import McapObserver, _fast_writer_class  # noqa: E402
 
 
 def scenario(tmp: Path, fmu: Path, n_units: int, steps: int) -> Path:
@@ -60,6 +60,52 @@ def compression_table(tmp: Path, fmu: Path, n: int, repeats: int) -> List[Tuple[
     rows = [(c, median(v) / n * 1e6, sizes[c]) for c, v in times.items()]
     for c, us, size in rows:
         print(f"compression {c}: {us:.1f} us/step CPU, {size / 1024:.0f} kB", flush=True)
+    return rows
+
+
+def _library_writer_class():
+    """The writer with each step's messages written by the library's ``add_message``, one by one
+    (what the orchestrator's step path, ``observers._fast_writer_class``, replaces)."""
+    from mcap.writer import Writer
+
+    from immersim.orchestrator import observers
+
+    fast = _fast_writer_class()
+
+    class LibraryWriter(fast):
+        def add_step(self, log_time: int, sequence: int, items) -> None:
+            log_time += self.time_offset
+            for cid, data in items:
+                Writer.add_message(self, cid, log_time, data, log_time, sequence)
+
+    return LibraryWriter
+
+
+def writer_table(tmp: Path, fmu: Path, n: int, repeats: int) -> List[Tuple[int, float, float]]:
+    """Our 1- and 3-unit runs with the MCAP step writer and with the library's add_message per
+    message: median process CPU per step of interleaved runs."""
+    from immersim.orchestrator import observers
+
+    rows = []
+    for n_units in (1, 3):
+        scn = scenario(tmp, fmu, n_units, n)
+
+        def run(cls_of) -> Callable[[], float]:
+            def fn() -> float:
+                observers._fast_writer_class = cls_of
+                try:
+                    clear_caches()
+                    c = time.process_time()
+                    run_scenario(scn, tmp / "w.mcap")
+                    return time.process_time() - c
+                finally:
+                    observers._fast_writer_class = _fast_writer_class
+            return fn
+
+        times = interleaved({"step": run(_fast_writer_class), "library": run(_library_writer_class)}, repeats)
+        step, lib = (median(times[k]) / n * 1e6 for k in ("step", "library"))
+        rows.append((n_units, step, lib))
+        print(f"writer, {n_units} unit(s): step path {step:.1f} us/step CPU, library {lib:.1f}", flush=True)
     return rows
 
 
@@ -109,6 +155,7 @@ def main() -> None:
                   f"CPU {cus['immersim']:.1f} vs {cus['fmpy']:.1f}, ratio {cus['immersim'] / cus['fmpy']:.2f}",
                   flush=True)
         comp_rows = compression_table(tmp, fmu, n, args.repeats)
+        writer_rows = writer_table(tmp, fmu, n, args.repeats)
     out = ROOT / "results" / "orchestrator"
     out.mkdir(parents=True, exist_ok=True)
     cmd = f"python benchmarks/bench_orchestrator.py --steps {args.steps} --repeats {args.repeats}"
@@ -141,6 +188,14 @@ def main() -> None:
     for comp, cpu_us, size in comp_rows:
         mark = " (used)" if comp == McapObserver.COMPRESSION else ""
         text.append(f"| {comp}{mark} | {cpu_us:.1f} | {size / 1024:.0f} |")
+    text += ["", "MCAP writer: the step path (`observers._fast_writer_class`: a step's records packed into the "
+             "chunk with one `struct` call each, relying on mcap's private writer state, pinned in pyproject.toml) "
+             "against the library's `add_message` per message; the same runs otherwise (interleaved, median "
+             "process CPU; `tests/orchestrator/test_mcap_writer.py` checks the bytes are the library's):", "",
+             "| units | step path CPU [us/step] | library add_message CPU [us/step] | library / step path |",
+             "|---|---|---|---|"]
+    for n_units, step, lib in writer_rows:
+        text.append(f"| {n_units} | {step:.1f} | {lib:.1f} | {lib / step:.2f} |")
     (out / "README.md").write_text("\n".join(text) + "\n")
     print((out / "README.md").read_text())
 

@@ -237,8 +237,18 @@ class FoxgloveObserver:
         tfs = self._msg["transforms"]
         self._poses = [v for t in tfs for v in (*t["translation"].values(), *t["rotation"].values())]
         index = {id(t["translation"]): i for i, t in enumerate(tfs)}
-        self._updates = [(7 * index[id(translation)], moves, spin, order)
-                         for translation, moves, _, spin, order in self._moving]
+        #: what :meth:`_update` writes: (pose index, getter, offset) of each moving coordinate,
+        #: (sine index, cosine index, getter) of each one-axis rotation, (offset, angles, order)
+        #: of each other rotation
+        self._shifts, self._spins, self._turns = [], [], []
+        for translation, moves, _, spin, order in self._moving:
+            o = 7 * index[id(translation)]
+            if moves is not None:
+                self._shifts += [(o + j, g, off) for j, (g, off) in enumerate(zip(*moves)) if callable(g)]
+            if spin is not None and len(spin) == 2:
+                self._spins.append((o + 3 + spin[0], o + 6, spin[1]))
+            elif spin is not None:
+                self._turns.append((o, spin, order))
         #: the JSON message's dicts of the moving bodies, with their offset in the poses
         self._moved = [(translation, rotation, 7 * index[id(translation)])
                        for translation, _, rotation, _, _ in self._moving]
@@ -271,20 +281,15 @@ class FoxgloveObserver:
         """Write every moving body's translation (position + offset) and quaternion into
         ``poses``: about one axis the quaternion is the sine and cosine of half the angle, else
         :func:`euler_quaternion`; a constant position plus its offset is there from the start."""
-        for o, moves, spin, order in self._updates:
-            if moves is not None:
-                for j, (g, off) in enumerate(zip(*moves)):
-                    if callable(g):
-                        poses[o + j] = g() + off
-            if spin is None:
-                continue
-            if len(spin) == 2:
-                axis, get = spin
-                half = 0.5 * get()
-                poses[o + 3 + axis] = math.sin(half)
-                poses[o + 6] = math.cos(half)
-            else:
-                poses[o + 3:o + 7] = euler_quaternion(*[e() if callable(e) else e for e in spin], order)
+        for i, get, off in self._shifts:
+            poses[i] = get() + off
+        sin, cos = math.sin, math.cos
+        for i, j, get in self._spins:
+            half = 0.5 * get()
+            poses[i] = sin(half)
+            poses[j] = cos(half)
+        for o, angles, order in self._turns:
+            poses[o + 3:o + 7] = euler_quaternion(*[a() if callable(a) else a for a in angles], order)
 
     def transforms(self, k: int, t_ns: int) -> Tuple[int, bytes]:
         """``(channel id, data)`` of step ``k``'s ``/tf`` message (the log writer puts it with the

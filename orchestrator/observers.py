@@ -220,9 +220,11 @@ def ros1_definition(schema: Dict[str, Any]) -> str:
 
 def _fast_writer_class():
     """An ``mcap.writer.Writer`` whose ``add_step`` (and ``add_message``, a one-message step)
-    packs the record header with one ``struct`` call instead of five, keeping the chunk index and statistics exactly as the
-    library does (``tests/orchestrator/test_mcap_writer.py`` checks the bytes are identical).
-    Falls back to the library's method when its internals are not the expected ones."""
+    writes a step's records straight into the chunk, one ``struct`` call per record header,
+    keeping the chunk index and statistics exactly as the library does
+    (``tests/orchestrator/test_mcap_writer.py`` checks the bytes are identical). It uses the
+    private state of the mcap version pinned in pyproject.toml, and falls back to the library's
+    method when that state is not there."""
     import struct
 
     from mcap.records import MessageIndex

@@ -350,3 +350,31 @@ def test_an_error_of_no_known_module_becomes_a_runtime_error_naming_its_type():
 
     back = rebuild(("somepkg.mod", "Oddity", "went odd", {}))
     assert type(back) is RuntimeError and str(back) == "Oddity: went odd"
+
+
+def test_in_process_and_worker_units_implement_the_instance_protocol(tmp_path, test_fmus):
+    """The master algorithm knows units through ``Instance``: an FMU loaded here and one in a
+    worker both implement it; only the worker's implements ``WorkerStepping``."""
+    from immersim.orchestrator.fmu import FmuInstance
+    from immersim.orchestrator.instance import Instance, WorkerStepping
+    from immersim.orchestrator.transport import RemoteInstance, WorkerProcess
+
+    local = FmuInstance("a", test_fmus["oscillator"], tmp_path / "a")
+    w = WorkerProcess(1)
+    try:
+        remote = RemoteInstance("b", test_fmus["oscillator"], tmp_path / "b", w)
+        remote.start_loading()
+        remote.finish_loading()
+        assert isinstance(local, Instance) and not isinstance(local, WorkerStepping) and not local.remote
+        assert isinstance(remote, Instance) and isinstance(remote, WorkerStepping) and remote.remote
+        for inst in (local, remote):
+            inst.initialize(0, None, {"x0": 1.0})
+        readers = [inst.reader(["x", "v"]) for inst in (local, remote)]
+        for k in range(3):
+            for inst in (local, remote):
+                inst.do_step(k * 33_000_000, 33_000_000)
+            assert readers[0].read() == readers[1].read()
+    finally:
+        local.terminate()
+        remote.terminate()
+        w.close()
