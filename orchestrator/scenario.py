@@ -59,7 +59,7 @@ class UnitSpec:
     parameters: Dict[str, Any] = field(default_factory=dict)
     path: Optional[Path] = None  # resolved FMU file, set when loaded
     #: 0: the unit runs in the master's process; N >= 1: in worker process N (units with the
-    #: same N share one), stepped in parallel with the others under Jacobi (orchestrator/remote.py)
+    #: same N share one), stepped in parallel with the others (orchestrator/transport/)
     process: int = 0
 
 
