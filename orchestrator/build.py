@@ -6,6 +6,13 @@ whole ``immersim.models`` package into ``resources/`` so that, at run time, the 
 the third-party packages. Builds are incremental: an FMU is rebuilt only when the sha256 of
 its sources (and of the pythonfmu version) changes.
 
+Sized builds: a unit declares its capacities as build options (``BUILD_OPTIONS`` in its
+wrapper, :mod:`immersim.fmus.common.options`). ``build_unit(..., options={"players": 8})``
+checks them, writes them into the packed copy (``fmus/common/build_options.json``), where the
+wrapper reads them when it declares its variables, and names the FMU after them
+(``network-players8.fmu``). The options are part of the digest; options equal to their
+defaults are dropped, so a default build is the plain ``<unit>.fmu``.
+
 Code isolation: pythonfmu FMUs share the interpreter of the master that loads them, and Python
 imports a module name once per process. So that an FMU always runs the code it was built
 from -- not the ``immersim`` the master imported, nor another build loaded earlier (an
@@ -17,6 +24,7 @@ share their modules; different builds never do.
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import os
 import shutil
@@ -26,7 +34,7 @@ import zipfile
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, List, Optional
+from typing import Any, Dict, Iterable, List, Mapping, Optional
 
 from .errors import BuildError
 
@@ -82,12 +90,16 @@ class UnitSources:
     script: Path
     files: List[tuple]  # (source path, archive path relative to resources)
 
-    def digest(self) -> str:
+    def digest(self, options: str = "") -> str:
+        """sha256 of the sources, the pythonfmu version, the layout and the build ``options``
+        (their JSON; none: the digest of a default build)."""
         import pythonfmu
 
         h = hashlib.sha256(f"pythonfmu {pythonfmu.__version__}\nlayout {LAYOUT}\n".encode())
         for src, arc in sorted(self.files, key=lambda f: str(f[1])):
             h.update(str(arc).encode() + b"\0" + src.read_bytes() + b"\0")
+        if options:
+            h.update(b"options\0" + options.encode())
         return h.hexdigest()
 
 
@@ -124,19 +136,73 @@ def fmu_target(name: str, dest_dir: Path | str | None, digest: str, force: bool)
     return fmu, stamp, current
 
 
-def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: bool = False) -> Path:
+def unit_options(unit_dir: Path | str, given: Optional[Mapping[str, Any]] = None,
+                 who: Optional[str] = None) -> Dict[str, int]:
+    """The build options of ``given`` that differ from their defaults, checked against the
+    unit's ``BUILD_OPTIONS`` (read from its wrapper); :class:`BuildError` with one line naming
+    the unit (``who``, by default ``unit <name>``) and the option for an unknown option or a
+    value out of range."""
+    if not given:
+        return {}
+    import importlib.util
+
+    from immersim.fmus.common.options import check_options
+
+    unit_dir = Path(unit_dir).resolve()
+    script = unit_dir / f"{unit_dir.name}_fmu.py"
+    if not script.exists():
+        raise BuildError(f"unit folder {unit_dir}: no wrapper script {script.name}")
+    spec = importlib.util.spec_from_file_location(f"_immersim_options_{unit_dir.name}", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    declared = tuple(getattr(module, "BUILD_OPTIONS", ()))
+    try:
+        values = check_options(who or f"unit {unit_dir.name}", declared, given)
+    except ValueError as exc:
+        raise BuildError(str(exc)) from None
+    defaults = {o.name: o.default for o in declared}
+    return {k: v for k, v in sorted(values.items()) if v != defaults[k]}
+
+
+def parse_options(items: Iterable[str]) -> Dict[str, int]:
+    """``["players=8", ...]`` (``immersim build --option``) as ``{"players": 8}``."""
+    out: Dict[str, int] = {}
+    for item in items:
+        name, eq, value = item.partition("=")
+        try:
+            out[name.strip()] = int(value)
+        except ValueError:
+            raise BuildError(f"--option {item}: expected NAME=INTEGER, e.g. players=8") from None
+        if not eq or not name.strip():
+            raise BuildError(f"--option {item}: expected NAME=INTEGER, e.g. players=8")
+    return out
+
+
+def sized_name(unit: str, options: Mapping[str, int]) -> str:
+    """The FMU file name (without ``.fmu``) of a build: ``network``, ``network-players8``."""
+    return "-".join([unit] + [f"{k}{v}" for k, v in sorted(options.items())])
+
+
+def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: bool = False,
+               options: Optional[Mapping[str, Any]] = None) -> Path:
     """Build ``unit_dir`` into ``dest_dir/<unit>.fmu`` unless it is up to date.
 
+    ``options`` (e.g. ``{"players": 8}``) sizes the unit (see the module docstring); a build
+    with options other than the defaults goes to ``dest_dir/<unit>-<option><value>....fmu``.
     Returns the FMU path. Raises :class:`BuildError` naming the unit on any failure.
     """
     from pythonfmu.builder import FmuBuilder
+
+    from immersim.fmus.common.options import CHOSEN_FILE
 
     from .fmu import forget_python_code
 
     unit_dir = Path(unit_dir).resolve()
     sources = unit_sources(unit_dir)
-    digest = sources.digest()
-    fmu, stamp, current = fmu_target(unit_dir.name, dest_dir, digest, force)
+    sized = unit_options(unit_dir, options)
+    chosen = json.dumps({"unit": unit_dir.name, "options": sized}, sort_keys=True) if sized else ""
+    digest = sources.digest(chosen)
+    fmu, stamp, current = fmu_target(sized_name(unit_dir.name, sized), dest_dir, digest, force)
     if current:
         return fmu
     package, script_name = packed_names(unit_dir.name, digest)
@@ -154,6 +220,8 @@ def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: 
                 target.write_text(_IMPORTS.sub(package + ".", src.read_text()))
             else:
                 shutil.copy2(src, target)
+        if chosen:   # read by immersim.fmus.common.options when the wrapper declares its variables
+            (stage / package / "fmus" / "common" / CHOSEN_FILE).write_text(chosen + "\n")
         script = stage / script_name
         extra = [stage / package] + [stage / arc for _, arc in sources.files[1:] if arc.parent == Path(".")]
         out = Path(tmp) / "out"
@@ -172,7 +240,7 @@ def build_unit(unit_dir: Path | str, dest_dir: Path | str | None = None, force: 
         _check_archive(built, unit_dir.name, package, script_name)
         shutil.move(str(built), fmu)
     stamp.write_text(digest + "\n")
-    log.info("unit %s: built %s", unit_dir.name, fmu)
+    log.info("unit %s: built %s%s", unit_dir.name, fmu, f" ({chosen})" if chosen else "")
     return fmu
 
 
@@ -203,10 +271,13 @@ def builtin_names() -> List[str]:
 
 
 def build_all(units: Optional[Iterable[str]] = None, dest_dir: Path | str | None = None,
-              force: bool = False) -> List[Path]:
-    """Build the named built-in units (all by default, the native ones included)."""
+              force: bool = False, options: Optional[Mapping[str, Any]] = None) -> List[Path]:
+    """Build the named built-in units (all by default, the native ones included), each with
+    the build ``options`` (see :func:`build_unit`; only for named units with options)."""
     from .native_build import build_native
 
+    if options and not units:
+        raise BuildError("build options need the units they size: name them (immersim build network --option ...)")
     names = list(units) if units else builtin_names()
     if not units:   # (codegen imports casadi: only when every unit is asked for)
         from immersim.models.platform.codegen import compiler
@@ -218,5 +289,15 @@ def build_all(units: Optional[Iterable[str]] = None, dest_dir: Path | str | None
     for name in names:
         if name not in known:
             raise BuildError(f"unknown unit {name!r}; built-in units are {', '.join(known) or 'none'}")
-    return [build_native(dest_dir, force) if name in NATIVE_UNITS else build_unit(_fmus_dir() / name, dest_dir, force)
-            for name in names]
+    if options:
+        for name in names:
+            check_build_options(name, options)
+    return [build_native(dest_dir, force) if name in NATIVE_UNITS
+            else build_unit(_fmus_dir() / name, dest_dir, force, options) for name in names]
+
+
+def check_build_options(name: str, options: Mapping[str, Any], who: Optional[str] = None) -> Dict[str, int]:
+    """:func:`unit_options` of the built-in unit ``name`` (a native unit takes none)."""
+    if name in NATIVE_UNITS:
+        raise BuildError(f"{who or f'unit {name}'}: takes no build options")
+    return unit_options(_fmus_dir() / name, options, who)

@@ -38,10 +38,10 @@ EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
-    from .build import build_all
+    from .build import build_all, parse_options
 
     units = [f"{u}-native" for u in args.units or ["platform"]] if args.native else args.units or None
-    for path in build_all(units, args.dest, force=args.force):
+    for path in build_all(units, args.dest, force=args.force, options=parse_options(args.option)):
         log.info("%s", path)
         sys.stdout.write(f"{path}\n")
     return 0
@@ -260,6 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--force", action="store_true", help="rebuild even when up to date")
     b.add_argument("--native", action="store_true",
                    help="build the native (C, no Python at run time) FMU of the units (platform): <unit>-native.fmu")
+    b.add_argument("--option", action="append", default=[], metavar="NAME=N",
+                   help="a build option sizing the named units, e.g. players=8 (network), bodies=16 or pairs=16 "
+                        "(collision): <unit>-players8.fmu")
     b.set_defaults(fn=_cmd_build)
 
     r = sub.add_parser("run", help="run a scenario file and log every signal to MCAP")

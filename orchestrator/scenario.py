@@ -61,6 +61,8 @@ class UnitSpec:
     #: 0: the unit runs in the master's process; N >= 1: in worker process N (units with the
     #: same N share one), stepped in parallel with the others (orchestrator/transport/)
     process: int = 0
+    #: build options of a built-in unit (``{"players": 8}``): the FMU is built to that size
+    build: Dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -250,8 +252,8 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     if stop_ns <= start_ns:
         raise ScenarioError(f"{path}: simulation.stop = {stop_ns / 1e9:g} s must be after simulation.start = "
                             f"{start_ns / 1e9:g} s")
-    units = [UnitSpec(u.name, u.fmu, dict(data["units"][i].get("parameters", {})), process=u.process)
-             for i, u in enumerate(model.units)]
+    units = [UnitSpec(u.name, u.fmu, dict(data["units"][i].get("parameters", {})), process=u.process,
+                      build=dict(u.build)) for i, u in enumerate(model.units)]
     connections = []
     for c in model.connections:
         if isinstance(c, str):

@@ -122,6 +122,12 @@ def _process(x: Any) -> int:
     return x
 
 
+def _build_size(x: Any) -> int:
+    if isinstance(x, bool) or not isinstance(x, int):
+        raise _fail("build", "a build option is an integer (a capacity), got {got}", got=_show(x))
+    return x
+
+
 def _nonempty(x: str) -> str:
     if not x.strip():
         raise _fail("empty", "must not be empty")
@@ -195,6 +201,8 @@ class UnitTable(Table):
     fmu: Text = Field(description="a built-in unit name or the path of an FMI 2.0/3.0 CS FMU")
     parameters: Dict[str, Scalar] = Field(default_factory=dict)
     process: Annotated[Any, AfterValidator(_process)] = Field(0, description="0: the master's process, N: worker N")
+    build: Dict[str, Annotated[Any, AfterValidator(_build_size)]] = Field(
+        default_factory=dict, description="build options of a built-in unit (its capacities), e.g. { players = 8 }")
 
 
 class ConnectionTable(Table):

@@ -21,13 +21,18 @@ from .scenario import Connection, Scenario, seconds_to_ns
 log = logging.getLogger(__name__)
 
 
-def resolve_fmu(spec: str, scenario_file: Path, unit: str) -> Path:
-    """A built-in unit name (built on demand, incrementally) or a path relative to the scenario."""
-    from .build import build_all, builtin_names
+def resolve_fmu(spec: str, scenario_file: Path, unit: str, build: Optional[Dict[str, int]] = None) -> Path:
+    """A built-in unit name (built on demand, incrementally, sized by the ``build`` options) or
+    a path relative to the scenario."""
+    from .build import build_all, builtin_names, check_build_options
 
     p = Path(spec)
     if p.suffix != ".fmu" and "/" not in spec and spec in builtin_names():
-        return build_all([spec])[0]
+        if build:   # checked first: the error names the scenario's unit
+            check_build_options(spec, build, who=f"{scenario_file}: unit {unit} ({spec})")
+        return build_all([spec], options=build)[0]
+    if build:
+        raise ScenarioError(f"{scenario_file}: unit {unit}: build options size a built-in unit; {spec!r} is an FMU file")
     if not p.is_absolute():
         p = (scenario_file.parent / p).resolve()
     if not p.exists():
@@ -179,7 +184,7 @@ def check_system(scenario: Scenario) -> System:
     paths: Dict[str, Path] = {}
     variables: Dict[str, Dict[str, VarInfo]] = {}
     for u in scenario.units:
-        paths[u.name] = Path(u.path) if u.path else resolve_fmu(u.fmu, f, u.name)  # path: a local copy
+        paths[u.name] = Path(u.path) if u.path else resolve_fmu(u.fmu, f, u.name, u.build)  # path: a local copy
         variables[u.name] = read_variables(paths[u.name], u.name, u.parameters)
     apply_default_experiment(scenario, paths)
     from .fmi3 import expand_arrays

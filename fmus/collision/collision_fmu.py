@@ -1,17 +1,24 @@
 """FMI 2.0 co-simulation wrapper of the collision unit (thesis ch. 4-5).
 
-Fixed capacities: 8 dynamic bodies (inputs ``body[i].*``, the i-th dynamic body of the
-scene in scene order; unused inputs are ignored) and 8 monitored pairs (outputs
-``pair[k].*``, the k-th pair of the ``pairs`` spec; unused outputs stay 0 / -1). The model is
+Capacities fixed at build time (build options ``bodies`` and ``pairs``, 8 each by default):
+dynamic bodies (inputs ``body[i].*``, the i-th dynamic body of the scene in scene order;
+unused inputs are ignored) and monitored pairs (outputs ``pair[k].*``, the k-th pair of the
+``pairs`` spec; unused outputs stay 0 / -1). The model is
 :func:`immersim.models.collision.make_backend`; this file only maps variables.
 """
 from operator import itemgetter
 
-from immersim.fmus.common import OUTPUTS_UNCHANGED, TableSlave, Var
+from immersim.fmus.common import OUTPUTS_UNCHANGED, BuildOption, TableSlave, Var, build_options
 from immersim.models.collision import BACKENDS, BackendConfig, make_backend, parse_scene
 
-BODY_CAPACITY = 8
-PAIR_CAPACITY = 8
+#: capacities fixed at build time (``immersim build collision --option bodies=16``)
+BUILD_OPTIONS = (
+    BuildOption("bodies", 8, 1, 64, "dynamic bodies with pose inputs body[i].*"),
+    BuildOption("pairs", 8, 1, 64, "monitored pairs with outputs pair[k].*"),
+)
+OPTIONS = build_options(*BUILD_OPTIONS)
+BODY_CAPACITY = OPTIONS["bodies"]
+PAIR_CAPACITY = OPTIONS["pairs"]
 POSE = (("x", "m"), ("y", "m"), ("z", "m"), ("roll", "rad"), ("pitch", "rad"), ("yaw", "rad"))
 PAIR_REALS = (
     ("distance", "m", "minimum distance (0 in contact; max_distance when farther; -1 when the pair has no member)"),
@@ -80,7 +87,8 @@ class collision(TableSlave):
             raise type(exc)(f"{who}: parameter scene: {exc}") from exc
         n_dyn = len(scene.dynamic)
         if n_dyn > BODY_CAPACITY:
-            raise ValueError(f"{who}: parameter scene has {n_dyn} dynamic bodies; the FMU takes at most {BODY_CAPACITY}")
+            raise ValueError(f"{who}: parameter scene has {n_dyn} dynamic bodies; the FMU takes at most {BODY_CAPACITY} "
+                             "(build option bodies)")
         try:
             config = BackendConfig(max_distance=val["max_distance"], ccd=bool(val["ccd"]), st=val["st"],
                                    cells_n=int(val["cells_n"]), cells_m=int(val["cells_m"]),
@@ -92,7 +100,8 @@ class collision(TableSlave):
         except ValueError as exc:
             raise ValueError(f"{who}: parameter pairs: {exc}") from exc
         if len(self.model.pairs) > PAIR_CAPACITY:
-            raise ValueError(f"{who}: parameter pairs lists {len(self.model.pairs)} pairs; the FMU reports at most {PAIR_CAPACITY}")
+            raise ValueError(f"{who}: parameter pairs lists {len(self.model.pairs)} pairs; the FMU reports at most "
+                             f"{PAIR_CAPACITY} (build option pairs)")
         self._pose_names = [[f"body[{i + 1}].{axis}" for axis, _ in POSE] for i in range(n_dyn)]
         flat = [n for names in self._pose_names for n in names]
         self._inputs = itemgetter(*flat) if len(flat) > 1 else (lambda v, _n=flat: tuple(v[n] for n in _n))

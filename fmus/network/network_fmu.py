@@ -1,7 +1,8 @@
 """FMI 2.0 co-simulation wrapper of the network unit (thesis ch. 2-3).
 
-A fixed capacity of 4 players (control platform + avatar + render group each); the
-structural parameter ``players`` chooses how many are active. Driver inputs travel as
+A capacity of ``players`` players (build option, 4 by default: control platform + avatar +
+render group each) and ``entity_outputs`` entity poses (16); the structural parameter
+``players`` chooses how many are active. Driver inputs travel as
 ControllerPackets to the group's master and act when they arrive; collision responses
 (``contact[p].*``) bounce or stop avatar ``p`` at the start of the step. The model itself is
 :class:`immersim.models.network.NetworkModel`.
@@ -10,13 +11,19 @@ ControllerPackets to the group's master and act when they arrive; collision resp
 import math
 from operator import itemgetter
 
-from immersim.fmus.common import OUTPUTS_UNCHANGED, TableSlave, Var
+from immersim.fmus.common import OUTPUTS_UNCHANGED, BuildOption, TableSlave, Var, build_options
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.world import World
 from immersim.models.network.config import OWNERSHIP_FOCI, OWNERSHIP_RULES, TOPOLOGIES
 
-CAPACITY = 4
-N_ENTITY_OUT = 16
+#: capacities fixed at build time (``immersim build network --option players=8``)
+BUILD_OPTIONS = (
+    BuildOption("players", 4, 1, 32, "players with I/O: avatar[p].*, contact[p].*, perceived[p].*"),
+    BuildOption("entity_outputs", 16, 0, 64, "free entities with pose outputs entity[e].x, .y, .z"),
+)
+OPTIONS = build_options(*BUILD_OPTIONS)
+CAPACITY = OPTIONS["players"]
+N_ENTITY_OUT = OPTIONS["entity_outputs"]
 #: per-avatar outputs in the order of the block written each step
 AVATAR_FIELDS = ("x", "y", "z", "yaw", "vx", "vy", "f_x", "f_y", "f_z", "w_x", "w_y", "w_z", "jolt", "jolt_acc")
 
@@ -67,7 +74,7 @@ class network(TableSlave):
     description = "hybrid-P2P distributed VR network: supernode, render groups, ownership, dead reckoning, cached rendering"
     CAN_HANDLE_STATE = True
     VARIABLES = (
-        Var("players", "parameter", "Integer", 2, "", f"active players 1..{CAPACITY} (one control platform, avatar and render group each)"),
+        Var("players", "parameter", "Integer", min(2, CAPACITY), "", f"active players 1..{CAPACITY} (one control platform, avatar and render group each)"),
         Var("render_nodes", "parameter", "Integer", 3, "", "render nodes per group; the first online is the master F-RP (§3.5.1)"),
         Var("entities", "parameter", "Integer", 16, "", f"free dynamic entities in the scene (outputs for the first {N_ENTITY_OUT})"),
         Var("seed", "parameter", "Integer", 0, "", "seed of every random draw (placement, latency, loss)"),
@@ -103,7 +110,7 @@ class network(TableSlave):
     def setup_model(self):
         v = self.values
         if not 1 <= v["players"] <= CAPACITY:
-            raise self._param_error("players", f"must be in 1..{CAPACITY}")
+            raise self._param_error("players", f"must be in 1..{CAPACITY} (build option players)")
         if v["render_nodes"] < 1:
             raise self._param_error("render_nodes", "must be >= 1")
         if v["entities"] < 0:

@@ -11,7 +11,7 @@ from fmpy.validation import validate_fmu
 
 from immersim.orchestrator.build import build_unit
 from immersim.orchestrator.crosscheck import simulate_fmpy, simulate_libcosim
-from immersim.orchestrator.errors import BuildError
+from immersim.orchestrator.errors import BuildError, ScenarioError
 from immersim.orchestrator.execution import run_scenario
 from immersim.orchestrator.fmu import read_model
 
@@ -194,3 +194,115 @@ def test_forget_python_code_drops_what_was_imported_from_the_folder(tmp_path):
     finally:
         if str(link) in sys.path:
             sys.path.remove(str(link))
+
+
+# -- sized builds: capacities as build options ------------------------------------------------
+@pytest.fixture(scope="module")
+def sized(tmp_path_factory):
+    """The network unit at its default size (4 players) and at 8; collision at 16 bodies/16 pairs."""
+    from immersim.orchestrator.build import build_all
+
+    dest = tmp_path_factory.mktemp("sized")
+    return {"network": build_all(["network"], dest)[0],
+            "network8": build_all(["network"], dest, options={"players": 8})[0],
+            "collision16": build_all(["collision"], dest, options={"bodies": 16, "pairs": 16})[0],
+            "dest": dest}
+
+
+def _names(fmu):
+    return list(read_model(fmu, "u")[1])
+
+
+def test_sized_builds_validate_and_declare_their_capacity(sized):
+    from immersim.fmus.collision.collision_fmu import PAIR_REALS, POSE
+    from immersim.fmus.network.network_fmu import AVATAR_FIELDS
+
+    assert sized["network8"].name == "network-players8.fmu" and sized["collision16"].name == "collision-bodies16-pairs16.fmu"
+    for key in ("network", "network8", "collision16"):
+        assert validate_fmu(str(sized[key])) == [], key
+    four, eight = _names(sized["network"]), _names(sized["network8"])
+    per_player = 6 + len(AVATAR_FIELDS) + 2    # inputs throttle, steer, contact.{active,nx,ny,depth}; outputs
+    assert len(eight) - len(four) == 4 * per_player
+    assert "avatar[8].jolt_acc" in eight and "contact[8].depth" in eight and "perceived[8].y" in eight
+    assert "avatar[5].x" not in four and "avatar[9].x" not in eight and "entity[16].z" in eight
+    # the players added at the end of each block, the default's variables in their order
+    assert [n for n in eight if n in set(four)] == four
+    md8 = read_model(sized["network8"], "u")[1]
+    assert md8["avatar[8].throttle"].causality == "input" and md8["avatar[8].x"].unit == "m"
+    coll = _names(sized["collision16"])
+    assert sum(n.startswith("body[") for n in coll) == 16 * len(POSE)
+    assert sum(n.startswith("pair[") for n in coll) == 16 * (1 + len(PAIR_REALS))
+
+
+def test_sized_builds_are_cached_by_their_options(sized):
+    from immersim.orchestrator.build import build_all
+
+    dest, fmu = sized["dest"], sized["network8"]
+    first = fmu.stat().st_mtime_ns
+    assert build_all(["network"], dest, options={"players": 8})[0].stat().st_mtime_ns == first   # up to date
+    # options equal to the defaults are the default build
+    assert build_all(["network"], dest, options={"players": 4, "entity_outputs": 16})[0] == sized["network"]
+    # each size packs its own code under its own name (the options are part of the digest)
+    tags = {zipfile.ZipFile(sized[k]).read("resources/slavemodule.txt") for k in ("network", "network8")}
+    assert len(tags) == 2
+    chosen = [n for n in zipfile.ZipFile(fmu).namelist() if n.endswith("build_options.json")]
+    assert len(chosen) == 1 and b'"players": 8' in zipfile.ZipFile(fmu).read(chosen[0])
+    assert not any(n.endswith("build_options.json") for n in zipfile.ZipFile(sized["network"]).namelist())
+
+
+def test_a_sized_network_runs_in_fmpy_as_in_our_master(sized):
+    """FMPy's own master and ours step the 8-player FMU to the same values; players 5-8 drive
+    (constant throttle 0.1 p: the faster the larger p)."""
+    from fmpy import simulate_fmu
+
+    from immersim.orchestrator.crosscheck import simulate_fmpy
+
+    fmu, n = sized["network8"], 30
+    start = {"players": 8, "render_nodes": 2, **{f"avatar[{p}].throttle": 0.1 * p for p in range(1, 9)}}
+    outs = [f"avatar[{p}].{c}" for p in range(1, 9) for c in ("x", "y", "vx", "vy")]
+    theirs = simulate_fmu(str(fmu), start_values=start, stop_time=n * 0.033, step_size=0.033,
+                          output_interval=0.033, output=outs)
+    ours = simulate_fmpy(fmu, start, n, outs)[0]
+    for name in outs:
+        np.testing.assert_array_equal(theirs[name][1:], ours[name], err_msg=name)
+    speed = [math.hypot(ours[f"avatar[{p}].vx"][-1], ours[f"avatar[{p}].vy"][-1]) for p in range(1, 9)]
+    assert speed[0] > 0.1 and all(np.diff(speed) > 0)
+
+
+def test_build_options_refused_in_one_line(tmp_path, capsys):
+    from immersim.orchestrator.cli import main
+
+    for args, line in (
+            (["network", "--option", "player=8"],
+             "unit network: unknown build option 'player' (options: players, entity_outputs)"),
+            (["network", "--option", "players=33"], "unit network: build option players = 33 must be in 1..32"),
+            (["collision", "--option", "pairs=0"], "unit collision: build option pairs = 0 must be in 1..64"),
+            (["network", "--option", "players=eight"], "--option players=eight: expected NAME=INTEGER, e.g. players=8"),
+            (["platform", "--option", "players=8"], "unit platform: takes no build options (got 'players')"),
+            (["--option", "players=8"],
+             "build options need the units they size: name them (immersim build network --option ...)")):
+        assert main(["build", *args, "-d", str(tmp_path)]) == 2, args
+        assert capsys.readouterr().err == f"immersim: error: {line}\n"
+    assert not list(tmp_path.glob("*.fmu"))
+
+
+def test_a_scenario_sizes_its_units(tmp_path, sized, monkeypatch):
+    monkeypatch.setenv("IMMERSIM_BUILD_DIR", str(sized["dest"]))
+    scn = tmp_path / "eight.toml"
+    body = ('[simulation]\nstop = 0.099\n[[units]]\nname = "net"\nfmu = "network"\nbuild = {{ {} }}\n'
+            '[units.parameters]\nplayers = 8\n[[inputs]]\ntarget = "net.avatar[8].throttle"\nkind = "constant"\nvalue = 1.0\n')
+    scn.write_text(body.format("players = 8"))
+    res = run_scenario(scn, tmp_path / "eight.mcap")
+    assert res.status == "completed" and res.values["net"]["avatar[8].vx"] ** 2 + res.values["net"]["avatar[8].vy"] ** 2 > 0
+    for build, err, message in (
+            ("players = 9.5", ScenarioError, r"units\[0\]\.build\.players: a build option is an integer"),
+            ("players = 40", BuildError, rf"^{re.escape(str(scn))}: unit net \(network\): build option players = 40 "
+                                          r"must be in 1\.\.32$"),
+            ("seats = 8", BuildError, r"unit net \(network\): unknown build option 'seats' \(options: players, ")):
+        scn.write_text(body.format(build))
+        with pytest.raises(err, match=message):
+            run_scenario(scn, tmp_path / "bad.mcap")
+    # the default build holds 4 players: a scenario asking for more is told which option sizes it
+    scn.write_text(body.format("").replace("build = {  }\n", "").split("[[inputs]]")[0])
+    with pytest.raises(Exception, match=r"parameter players = 8 must be in 1\.\.4 \(build option players\)"):
+        run_scenario(scn, tmp_path / "four.mcap")
