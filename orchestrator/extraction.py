@@ -14,17 +14,21 @@ run, also one that may not write bytecode itself (``PYTHONDONTWRITEBYTECODE``).
   makes it extracted again. Keyed by the content, an entry is never stale.
 * Each process holds a shared ``flock`` on the entries it uses; the cache keeps the
   :data:`KEEP` entries used last and removes an older one only when no process holds it.
+* An entry also keeps the FMU's validated model description (:func:`store_model`), so a run
+  reads a pickle instead of parsing and validating ``modelDescription.xml`` again.
 * An FMU that may be instantiated only once per process gets its own copy per instance, as do
   all FMUs with ``IMMERSIM_FMU_CACHE=0``; ``IMMERSIM_FMU_CACHE=<folder>`` moves the cache.
 """
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import importlib
 import json
 import logging
 import os
+import pickle
 import shutil
 import sys
 import tempfile
@@ -98,6 +102,56 @@ def extract(path: Path, md: Any, unzip_dir: Optional[Path], unit: str) -> str:
             _EXTRACTED.clear()
         _EXTRACTED[key] = folder
     return folder
+
+
+#: the checks :func:`.modeldesc.read_model` makes before a model description is stored (a
+#: change of them changes this number, so older stored descriptions are not used)
+MODEL_CHECKS = 1
+
+
+def stored_model(path: Path) -> Optional[tuple]:
+    """What :func:`.modeldesc.read_model` returned for FMU ``path`` (same content) in an earlier
+    run, kept in the file's cache entry by :func:`store_model`; None when there is none."""
+    name = _model_file(path)
+    if name is None:
+        return None
+    try:
+        with open(name, "rb") as fh:
+            return pickle.load(fh)
+    except FileNotFoundError:
+        return None
+    except Exception as exc:   # written by another version, or damaged: read the FMU again
+        log.debug("stored model description %s not used: %s", name, exc)
+        return None
+
+
+def store_model(path: Path, model: tuple) -> None:
+    """Keep ``model`` (a validated model description and its variables) in the cache entry of
+    FMU ``path``, if the entry exists (written to a temporary file, then renamed)."""
+    name = _model_file(path)
+    if name is None or not os.path.isdir(os.path.dirname(name)):
+        return
+    part = f"{name}.{os.getpid()}.part"
+    try:
+        with open(part, "wb") as fh:
+            pickle.dump(model, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(part, name)
+    except OSError as exc:
+        log.debug("model description of %s not stored: %s", path, exc)
+        with contextlib.suppress(OSError):
+            os.unlink(part)
+
+
+def _model_file(path: Path) -> Optional[str]:
+    root = cache_root()
+    if root is None:
+        return None
+    import fmpy
+
+    try:
+        return os.path.join(root, digest(path), f".immersim-model-{MODEL_CHECKS}-fmpy{fmpy.__version__}.pickle")
+    except OSError:
+        return None
 
 
 def _plain(path: Path, unzip_dir: Optional[Path], unit: str) -> str:

@@ -67,9 +67,8 @@ def ns_to_s(t_ns: int) -> float:
 #: (unit, time in ns) of every unit that asked to end the simulation (FMI 2.0 fmi2Terminated,
 #: FMI 3.0 terminateSimulation) since the execution cleared it; the step it ends is complete
 ENDED: List[tuple] = []
-#: this is a worker process (orchestrator/remote.py): see FmuInstance._ended
+#: this is a worker process (orchestrator/transport): see FmuInstance._ended
 IN_WORKER = False
-_MODELS: Dict[tuple, tuple] = {}
 
 
 def step_error(unit: str, t_ns: int, h_ns: int, instance_ns: int) -> FmuCallError:

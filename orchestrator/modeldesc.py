@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict
 
+from . import extraction
 from .errors import FmuLoadError
 
 #: type families that may be connected to each other
@@ -54,7 +55,9 @@ _MODELS: Dict[tuple, tuple] = {}
 def read_model(path: Path, unit: str):
     """Read and validate an FMU's model description without instantiating it.
 
-    A file read before (same path, modification time and size) is not parsed again.
+    A file read before (same path, modification time and size) is not parsed again, nor an
+    FMI 2.0 file of the same content read by an earlier run (kept in its cache entry,
+    :func:`.extraction.store_model`).
 
     Returns
     -------
@@ -68,7 +71,13 @@ def read_model(path: Path, unit: str):
     if key in _MODELS:
         md, variables = _MODELS[key]
         return md, dict(variables)
-    md, variables = _read_model(path, unit)
+    stored = extraction.stored_model(path) if key is not None else None
+    if stored is not None:
+        md, variables = stored
+    else:
+        md, variables = _read_model(path, unit)
+        if key is not None and md.fmiVersion.startswith("2"):
+            extraction.store_model(path, (md, variables))
     if key is not None:
         if len(_MODELS) >= 64:
             _MODELS.clear()

@@ -88,6 +88,31 @@ def test_a_damaged_entry_is_extracted_again(test_fmus, cache, tmp_path):
         forget_python_code(tmp_path / "run2")
 
 
+def test_a_stored_model_description_is_used_and_a_damaged_one_read_again(test_fmus, cache, tmp_path,
+                                                                         monkeypatch):
+    from immersim.orchestrator import modeldesc
+
+    fmu = test_fmus["oscillator"]
+    first = modeldesc.read_model(fmu, "u")[1]   # no entry yet: nothing stored
+    FmuInstance("a", fmu, tmp_path / "run1" / "a").terminate()
+    forget_python_code(tmp_path / "run1")
+    clear_caches()
+    assert modeldesc.read_model(fmu, "u")[1] == first   # the entry exists now: stored
+    stored = list((cache / extraction.digest(fmu)).glob(".immersim-model-*.pickle"))
+    assert len(stored) == 1
+    clear_caches()
+    with monkeypatch.context() as m:
+        m.setattr(modeldesc, "_read_model", lambda *a: pytest.fail("parsed again"))
+        assert modeldesc.read_model(fmu, "u")[1] == first
+    stored[0].write_bytes(stored[0].read_bytes()[:100])   # cut: parsed again, stored again
+    clear_caches()
+    assert modeldesc.read_model(fmu, "u")[1] == first
+    clear_caches()
+    with monkeypatch.context() as m:
+        m.setattr(modeldesc, "_read_model", lambda *a: pytest.fail("parsed again"))
+        assert modeldesc.read_model(fmu, "u")[1] == first
+
+
 def _extract_at_once(fmu: str, root: str, barrier, results) -> None:
     barrier.wait()
     results.put(extraction.cached(Path(fmu), Path(root), "u"))
