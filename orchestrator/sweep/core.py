@@ -26,11 +26,13 @@ def _prebuild(spec: SweepSpec) -> None:
     from ..scenario import load_scenario
 
     builtin = set(builtin_names())
-    used = {u.fmu for v in spec.variants for u in load_scenario(spec.scenario, v.resolved).units}
-    names = sorted(used & builtin)
+    used = {(u.fmu, tuple(sorted(u.build.items()))) for v in spec.variants
+            for u in load_scenario(spec.scenario, v.resolved).units}
+    names = sorted(u for u in used if u[0] in builtin)
     if names:
-        log.info("building built-in units %s", ", ".join(names))
-        build_all(names)
+        log.info("building built-in units %s", ", ".join(name for name, _ in names))
+        for name, options in names:   # each at the size its scenario builds it (build = {...})
+            build_all([name], options=dict(options))
 
 
 def make_tasks(spec: SweepSpec, output_dir: Path) -> List[RunTask]:

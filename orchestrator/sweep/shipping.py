@@ -40,7 +40,7 @@ def attach_inputs(tasks: Iterable, scenario_file: Path) -> Tuple[Dict[str, Path]
     from ..system import resolve_fmu, sha256
 
     text = Path(scenario_file).read_text()
-    resolved: Dict[str, Path] = {}
+    resolved: Dict[tuple, Path] = {}
     hashed: Dict[Path, str] = {}
     failed: Dict[int, str] = {}
     for task in tasks:
@@ -48,9 +48,10 @@ def attach_inputs(tasks: Iterable, scenario_file: Path) -> Tuple[Dict[str, Path]
         try:
             sc = load_scenario(scenario_file, task.overrides)
             for u in sc.units:
-                if u.fmu not in resolved:
-                    resolved[u.fmu] = resolve_fmu(u.fmu, sc.file, u.name)
-                path = resolved[u.fmu]
+                key = (u.fmu, tuple(sorted(u.build.items())))   # a built-in unit at its build size
+                if key not in resolved:
+                    resolved[key] = resolve_fmu(u.fmu, sc.file, u.name, u.build)
+                path = resolved[key]
                 if path not in hashed:
                     hashed[path] = sha256(path)
                 task.fmus[u.name] = (hashed[path], str(path))

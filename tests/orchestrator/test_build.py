@@ -306,3 +306,19 @@ def test_a_scenario_sizes_its_units(tmp_path, sized, monkeypatch):
     scn.write_text(body.format("").replace("build = {  }\n", "").split("[[inputs]]")[0])
     with pytest.raises(Exception, match=r"parameter players = 8 must be in 1\.\.4 \(build option players\)"):
         run_scenario(scn, tmp_path / "four.mcap")
+
+
+def test_a_sweep_ships_the_sized_build(tmp_path, sized, monkeypatch):
+    """A sweep's tasks carry the FMU their scenario builds (the sized one), not the default."""
+    from types import SimpleNamespace
+
+    from immersim.orchestrator.sweep.shipping import attach_inputs
+
+    monkeypatch.setenv("IMMERSIM_BUILD_DIR", str(sized["dest"]))
+    scn = tmp_path / "eight.toml"
+    scn.write_text('[[units]]\nname = "net"\nfmu = "network"\nbuild = { players = 8 }\n'
+                   '[[units]]\nname = "net4"\nfmu = "network"\n')
+    tasks = [SimpleNamespace(overrides={}, index=0)]
+    blobs, failed = attach_inputs(tasks, scn)
+    assert not failed and len(blobs) == 2
+    assert tasks[0].fmus["net"][1] == str(sized["network8"]) and tasks[0].fmus["net4"][1] == str(sized["network"])
