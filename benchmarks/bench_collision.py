@@ -40,7 +40,17 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "collision"
 RNG_SEED = 2010
 FMU_MAX_DISTANCE = 2.0  # m, the FMU's default max_distance
-CAMPUS = ROOT / "scenarios" / "campus_drive.toml"
+#: the collision unit's scene and pairs in campus_drive
+CAMPUS_COLLISION = {
+    "scene": ("box:name=avatar_1,sx=4,sy=2,sz=4.4,dynamic=1;box:name=avatar_2,sx=4,sy=2,sz=4.4,dynamic=1;"
+              "box:name=avatar_3,sx=4,sy=2,sz=4.4,dynamic=1;missile:x=5,y=20,z=12,pitch=0.564;"
+              "sphere:name=entity_1,r=1,dynamic=1;sphere:name=entity_2,r=1,dynamic=1;sphere:name=entity_3,r=1,dynamic=1;"
+              "sphere:name=entity_4,r=1,dynamic=1;tank:name=tank_a,tris=5.4k,x=57.19,y=60.37,yaw=2.2408;"
+              "tank:name=tank_b,tris=5.4k,x=50.71,y=74.25,yaw=3.0124;tank:name=tank_c,tris=5.4k,x=68.98,y=57.30,yaw=1.8448;"
+              "tanks:n=4,tris=5.4k,spacing=12,x=20,y=20"),
+    "pairs": ("avatar_1 vs tank_a (horizontal); avatar_2 vs tank_b (horizontal); avatar_3 vs tank_c (horizontal); "
+              "missile vs any tank*; avatar_1 vs any entity_*"),
+}
 CAMPUS_REPS = 5  # repetitions of each variant in the campus_drive replay (interleaved step by step)
 #: ms; the collision model's share of the 0.33 ms per step of campus_drive at 100x real time that this replay is held to (mean
 #: per step, outputs identical to the baseline), and the speed-up over the baseline asked with it
@@ -442,10 +452,9 @@ class Deviation:
 
 
 def _campus_params():
-    """The collision unit's parameters in campus_drive.toml."""
-    import tomllib
-
-    return next(u for u in tomllib.loads(CAMPUS.read_text())["units"] if u["fmu"] == "collision")["parameters"]
+    """The collision unit's scene and pairs in campus_drive (the workload stays fixed whatever
+    the scenario's syntax)."""
+    return dict(CAMPUS_COLLISION)
 
 
 def _campus_inputs(log):
@@ -870,6 +879,73 @@ def ab_main(tree, baseline_name, log=None):
     print("\n".join(text))
 
 
+# -- start-up: import and instantiation in fresh processes ----------------------------------------
+_STARTUP = """
+import json, sys, time
+t0 = time.perf_counter()
+sys.path.insert(0, sys.argv[1])
+import collision_pkg as C
+t1 = time.perf_counter()
+p = json.loads(sys.argv[2])
+scene = C.parse_scene(p["scene"])
+t2 = time.perf_counter()
+be = C.make_backend("fcl", scene, p["pairs"], C.BackendConfig(max_distance=2.0))
+t3 = time.perf_counter()
+be.query(tuple(float(x) for i in scene.dynamic for x in scene.bodies[i].pose), 0.033)
+t4 = time.perf_counter()
+print(json.dumps([t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0, [m for m in ("trimesh", "scipy.spatial", "fcl") if m in sys.modules]]))
+"""
+
+
+def bench_startup(trees, runs=7):
+    """Per tree (name -> its models/collision folder), in fresh processes taking turns: the
+    package's import time (``python -X importtime``, cumulative) and, on campus_drive's scene
+    and pairs, the wall time of import, scene, backend, first query and their sum (medians, ms)."""
+    import json
+    import re
+    import tempfile
+
+    dirs = {}
+    for name, folder in trees.items():
+        d = tempfile.mkdtemp(prefix="bench_startup_")
+        os.symlink(Path(folder).resolve(), Path(d) / "collision_pkg")
+        dirs[name] = d
+    imp = {n: [] for n in trees}
+    inst = {n: [] for n in trees}
+    for r in range(runs):
+        for name in (list(trees) if r % 2 == 0 else list(trees)[::-1]):
+            out = subprocess.run([sys.executable, "-X", "importtime", "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
+                                  "import collision_pkg", dirs[name]], capture_output=True, text=True, check=True)
+            imp[name].append(int(re.search(r"\|\s*(\d+) \| collision_pkg$", out.stderr, re.M).group(1)) / 1e3)
+            out = subprocess.run([sys.executable, "-c", _STARTUP, dirs[name], json.dumps(CAMPUS_COLLISION)], capture_output=True,
+                                 text=True, check=True)
+            inst[name].append(json.loads(out.stdout))
+    header = ["tree", "import of the model package ms (importtime)", "instantiate: import ms", "scene ms", "backend ms",
+              "first query ms", "total ms", "heavy modules loaded"]
+    rows = []
+    for name in trees:
+        t = np.median(np.array([x[:5] for x in inst[name]]), 0) * 1e3
+        rows.append([name, float(np.median(imp[name]))] + [float(x) for x in t] + [", ".join(inst[name][0][5])])
+    return header, rows
+
+
+def startup_main(tree, baseline_name, runs=7):
+    commit, ncpu, cpu, py, _ = machine()
+    trees = {f"this tree ({commit})": ROOT / "models" / "collision"}
+    if tree:
+        trees[baseline_name] = Path(tree) / "models" / "collision"
+    header, rows = bench_startup(trees, runs)
+    text = ["# collision unit start-up", "",
+            f"Command: `python benchmarks/bench_collision.py --startup{' --ab CHECKOUT' if tree else ''}`"
+            f"{' with CHECKOUT a work tree of `' + baseline_name + '`' if tree else ''}. {ncpu} CPUs ({cpu}), Python {py}. "
+            f"{runs} fresh processes per tree, taking turns; medians. Import: `python -X importtime` of the model "
+            "package alone (cumulative). Instantiate: wall time in a fresh process of the import, `parse_scene` of "
+            "campus_drive's scene, `make_backend('fcl', ...)` with its pairs (max_distance 2 m) and the first query.", "",
+            md_table(header, rows)]
+    (OUT / "startup.md").write_text("\n".join(text))
+    print("\n".join(text))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer sizes and poses (about 2 minutes)")
@@ -882,10 +958,15 @@ def main():
     ap.add_argument("--ab", metavar="CHECKOUT",
                     help="only: this tree's model against CHECKOUT's on the 5040-tank field (-> ab.md)")
     ap.add_argument("--ab-name", default="baseline", help="with --ab: how the baseline is named in ab.md")
+    ap.add_argument("--startup", action="store_true",
+                    help="only: import and instantiation time in fresh processes (with --ab: also CHECKOUT's; -> startup.md)")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     warnings.simplefilter("ignore")
     OUT.mkdir(parents=True, exist_ok=True)
+    if args.startup:
+        startup_main(args.ab, args.ab_name)
+        return
     if args.ab:
         ab_main(args.ab, args.ab_name, args.campus)
         return
