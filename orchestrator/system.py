@@ -147,9 +147,9 @@ class System:
         """Load every needed unit: a unit with ``process = N >= 1`` in worker process N
         (:mod:`~immersim.orchestrator.transport`), the others here. Workers load while this
         process loads its own units."""
-        from .transport import RemoteInstance, WorkerProcess
-
         where = {name: self.scenario.unit(name).process for name in self.needed}
+        if any(where.values()):   # (the worker transport only for a run that has workers)
+            from .transport import RemoteInstance, WorkerProcess
         for name in self.needed:
             n = where[name]
             if n and n not in self.workers:
