@@ -322,3 +322,15 @@ def test_a_sweep_ships_the_sized_build(tmp_path, sized, monkeypatch):
     blobs, failed = attach_inputs(tasks, scn)
     assert not failed and len(blobs) == 2
     assert tasks[0].fmus["net"][1] == str(sized["network8"]) and tasks[0].fmus["net4"][1] == str(sized["network"])
+
+
+@pytest.mark.parametrize("unit", ["network", "collision"])
+def test_the_unit_readme_lists_its_build_options(unit):
+    """The README's table of build options is the one generated from the wrapper's declaration."""
+    import importlib
+
+    from immersim.fmus.common import options_table
+
+    wrapper = importlib.import_module(f"immersim.fmus.{unit}.{unit}_fmu")
+    assert len(wrapper.BUILD_OPTIONS) == 2
+    assert options_table(wrapper.BUILD_OPTIONS) in (TESTS.parent / "fmus" / unit / "README.md").read_text()
