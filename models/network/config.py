@@ -65,6 +65,9 @@ class NetworkConfig:
     ownership : 'mahalanobis' (eq. 3-11/3-12), 'euclidean' (nearest avatar, Yonekura) or
         'none' (a fixed owner per entity, never handed over).
     ownership_foci : reading of eq. 3-12, see :func:`consistency.ellipsoid_axes`.
+    ownerless : entities outside every ownership region belong to no avatar (§3.6.3): nobody
+        publishes them, every node shows its own prediction from its last record, and a region
+        (or an avatar touching one) claims them again; False: such an entity keeps its last owner.
     grid : 10x10 scene grid with 9-cell neighbourhoods (§3.3) on/off.
     dis_threshold : DIS-style update: an owner publishes an object only when the receivers'
         dead-reckoned position would be off by more than this (m) or ``dis_heartbeat_s`` has
@@ -131,6 +134,8 @@ class NetworkConfig:
     pastry_b: int = 4
     pastry_L: int = 16
     pastry_M: int = 16
+    # entities outside every ownership region: no owner (§3.6.3), see the class docstring
+    ownerless: bool = False
 
     def __post_init__(self) -> None:
         checks = [
@@ -140,6 +145,7 @@ class NetworkConfig:
             (0 <= self.driven_groups <= self.groups, f"driven_groups = {self.driven_groups} must be in [0, groups]"),
             (self.topology in TOPOLOGIES, f"topology {self.topology!r} not in {TOPOLOGIES}"),
             (self.ownership in OWNERSHIP_RULES, f"ownership {self.ownership!r} not in {OWNERSHIP_RULES}"),
+            (not (self.ownerless and self.ownership == "none"), "ownerless needs an ownership rule (not 'none')"),
             (self.prediction_order in (0, 1, 2), f"prediction_order = {self.prediction_order} must be 0, 1 or 2"),
             (self.scene_size > 0, f"scene_size = {self.scene_size} must be > 0"),
             (self.ownership_foci in OWNERSHIP_FOCI, f"ownership_foci {self.ownership_foci!r} not in {OWNERSHIP_FOCI}"),

@@ -3,6 +3,8 @@
 An entity that touches its owner's avatar takes the impulse at once; a contact with another
 group's avatar is reported to the owner (slave/master report, §3.5.1 rule 3) and acts when the
 report arrives (an ``impulse`` event), handing the entity over to the avatar that touched it.
+An entity without an owner (``cfg.ownerless``) is answered by the node of the avatar touching
+it, which claims it.
 """
 from __future__ import annotations
 
@@ -49,9 +51,13 @@ class Contacts:
         if not len(ai):
             return
         net.metrics.contacts += len(ai)
-        local = net.own.owner[G + ei] == ai
+        owner = net.own.owner[G + ei]
+        free = owner < 0          # (ownerless entities only)
+        local = (owner == ai) | free
         for e, d in zip(ei[local], dv[local]):
             w.push_entity(e, d)
+        if free.any():
+            net.own.claim(net, ei[free], ai[free])
         remote = ~local & ~self.pending[ei]
         if remote.any():
             lat = net.latency_scale * lk.sample_latency(net.rng, cfg.links["wan"], int(remote.sum()))

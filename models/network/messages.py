@@ -121,6 +121,8 @@ class Messaging:
         cfg, t, view, newly, og, pub = net.cfg, fr.t, fr.view, fr.newly, fr.og, fr.pub
         grp, owner = net.groups, net.own.owner
         vo, vg, fi, frame_size = view
+        if newly is not None and cfg.ownerless:   # an ownerless object entering a view: nobody sends it
+            newly = newly & (og >= 0)
         memo = self._msgs
         fast = None
         if len(vg) <= net.paths.memo_pairs:

@@ -87,6 +87,10 @@ class StepMetrics:
     remote_contacts: int = 0
     contacts: int = 0
     published: int = 0
+    #: entities released by their owner (no region holds them) and claimed from no owner
+    #: (``NetworkConfig.ownerless``; hand-overs between two owners are ``handovers``)
+    released: int = 0
+    claimed: int = 0
     online_nodes: int = 0
     frames: int = 0
     #: traffic of the last frame interval ((k-1) T, k T] ending in the step, heartbeats excluded

@@ -5,6 +5,11 @@ Avatars belong to their group; an entity to the group whose ownership region cla
 is held for ``handover_hold_s``; the old owner knew the exact state when it let go, so its
 cache starts from it. Every change bumps ``epoch``: records in flight sent before it have
 their senders checked on delivery (§3.6.1).
+
+With ``cfg.ownerless`` an entity that no region claims has no owner (-1, §3.6.3): nobody
+publishes it and every node shows its own prediction; a region (or an avatar touching it,
+:mod:`.contacts`) claims it again. Releases and claims are decided by every node from the same
+rule and state, so they send no message; only a hand-over between two owners does.
 """
 from __future__ import annotations
 
@@ -19,10 +24,14 @@ from .pdu import PduType, record_bytes
 
 def initial_owners(cfg, world) -> np.ndarray:
     """Owning group (G + E,) of every object at the start: avatars their group, entities the
-    nearest avatar (round robin without an ownership rule)."""
+    nearest avatar (round robin without an ownership rule); with ``cfg.ownerless`` the region
+    of a resting avatar holding the entity, else none (-1)."""
     G, E = cfg.groups, cfg.entities
     if cfg.ownership == "none" or E == 0:
         ent = np.arange(E) % G
+    elif cfg.ownerless:
+        ent = assign_owners(cfg.ownership, world.apos, np.zeros((G, 2)), world.epos, np.full(E, -1, np.int64),
+                            cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci)
     else:
         from scipy.spatial import cKDTree
 
@@ -67,20 +76,47 @@ class Ownership:
             return
         t = net.t
         changed = (self.owner[objs] != new) & (self.hold[objs] <= t + 1e-9)   # (hysteresis)
-        if changed.any():
-            n = int(changed.sum())
-            o, old = objs[changed], self.owner[objs[changed]]
-            # the old owner knew the exact state when it let go: its cache starts from it
-            P, V, A = (x[o] for x in net.world.state())
-            rec = net.records.table(o, t, P, V, A)
-            net.write_records(net.records.index(old, o), rec, np.arange(len(o)))
-            net.errors.clean = None
-            net.records.newest = max(net.records.newest, t)
-            self.epoch += 1
-            self.owner[o] = new[changed]
-            self.hold[o] = t + cfg.handover_hold_s
-            net.errors.touch(net.records.index(self.owner[o], o))   # the new owner's copy is no longer remote
-            net.metrics.handovers += n
+        if not changed.any():
+            return
+        o, old = objs[changed], self.owner[objs[changed]]
+        if cfg.ownerless:
+            return self._change_ownerless(net, o, old, new[changed])
+        n = len(o)
+        # the old owner knew the exact state when it let go: its cache starts from it
+        P, V, A = (x[o] for x in net.world.state())
+        rec = net.records.table(o, t, P, V, A)
+        net.write_records(net.records.index(old, o), rec, np.arange(len(o)))
+        net.errors.clean = None
+        net.records.newest = max(net.records.newest, t)
+        self.epoch += 1
+        self.owner[o] = new[changed]
+        self.hold[o] = t + cfg.handover_hold_s
+        net.errors.touch(net.records.index(self.owner[o], o))   # the new owner's copy is no longer remote
+        net.metrics.handovers += n
+        net.count(n, n * (H + record_bytes(cfg.prediction_order)), PduType.HANDOVER)
+
+    def _change_ownerless(self, net, o: np.ndarray, old: np.ndarray, new: np.ndarray) -> None:
+        """Owner changes of objects ``o`` from ``old`` to ``new`` (-1: none) under ``ownerless``:
+        an old owner's cache starts from the exact state it let go of (its copy now counts);
+        hand-overs between two owners are sent (HANDOVER), releases and claims are not."""
+        cfg, t, rc = net.cfg, net.t, net.records
+        let_go = old >= 0
+        if let_go.any():
+            lo = o[let_go]
+            P, V, A = (x[lo] for x in net.world.state())
+            net.write_records(rc.index(old[let_go], lo), rc.table(lo, t, P, V, A), np.arange(len(lo)))
+            rc.newest = max(rc.newest, t)
+        net.errors.clean = None
+        self.epoch += 1
+        self.owner[o] = new
+        self.hold[o] = t + cfg.handover_hold_s
+        taken = new >= 0
+        net.errors.touch(rc.index(new[taken], o[taken]))   # a new owner's copy is no longer remote
+        n = int(np.count_nonzero(let_go & taken))
+        net.metrics.handovers += n
+        net.metrics.released += int(np.count_nonzero(~taken))
+        net.metrics.claimed += int(np.count_nonzero(~let_go))
+        if n:
             net.count(n, n * (H + record_bytes(cfg.prediction_order)), PduType.HANDOVER)
 
     def assign(self, net, fr) -> None:
@@ -92,20 +128,29 @@ class Ownership:
         G = cfg.groups
         sizes = dict(scalar_pairs=paths.scalar_owners, brute_pairs=paths.brute_owners)
         cur = self.owner[G:]
+        # ownerless: every entity must be claimed by a region anew, else it has no owner
+        held = np.full(len(cur), -1, np.int64) if cfg.ownerless else cur
         cand = fr.cand
         if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
             lazy = fr.lazy
             fr.vl = w.avatar_velocities() if lazy else None
-            new = assign_owners(cfg.ownership, w.apos, None if lazy else fr.V[:G], w.epos, cur, cfg.frame_s,
+            new = assign_owners(cfg.ownership, w.apos, None if lazy else fr.V[:G], w.epos, held, cfg.frame_s,
                                 cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci, fr.etree,
                                 (fr.pl[:G], fr.vl, fr.pl[G:]) if lazy else None, **sizes)
         else:
-            cur_local = np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0))
+            cur_local = (np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0)) if not cfg.ownerless
+                         else held)
             new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
                                       cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis,
                                       cfg.ownership_foci, fr.etree, **sizes)
             claimed = new_local != cur_local
-            new = cur.copy()
+            new = held.copy()
             new[claimed] = cand[new_local[claimed]]
         if new is not cur:   # (assign_owners may return cur itself: nobody changed owner)
             self.handover(net, self.entity_ids, new)
+
+    def claim(self, net, ents: np.ndarray, groups: np.ndarray) -> None:
+        """Ownerless entities ``ents`` touched by the avatars of ``groups`` become theirs (the
+        first contact of an entity wins)."""
+        ents, first = np.unique(ents, return_index=True)
+        self.handover(net, net.cfg.groups + ents, groups[first])

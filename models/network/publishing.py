@@ -1,7 +1,7 @@
 """Frame phase 3: which objects their owners publish this frame.
 
-Every object with an online owner every frame, or with a DIS threshold (``dis_threshold > 0``)
-only when the owner's dead reckoning of what it last published has drifted beyond the
+Every object with an online owner (none without one, ``cfg.ownerless``) every frame, or with a
+DIS threshold (``dis_threshold > 0``) only when the owner's dead reckoning of what it last published has drifted beyond the
 threshold or ``dis_heartbeat_s`` has passed since (IEEE 1278 DIS, §3.6.3).
 """
 from __future__ import annotations
@@ -50,7 +50,7 @@ class Publisher:
         if cfg.dis_threshold > 0:
             pred = dead_reckon(self.p, self.v, self.a, t - self.t, cfg.prediction_order)
             err = np.hypot(*(pred - P).T)
-            pub = online_g[owner] & ((err > cfg.dis_threshold) | (t - self.t >= cfg.dis_heartbeat_s))
+            pub = self._owned(cfg, online_g, owner) & ((err > cfg.dis_threshold) | (t - self.t >= cfg.dis_heartbeat_s))
             pub_obj = np.flatnonzero(pub)
             self.t[pub_obj] = t
             self.p[pub_obj], self.v[pub_obj], self.a[pub_obj] = P[pub_obj], fr.V[pub_obj], fr.A[pub_obj]
@@ -58,10 +58,17 @@ class Publisher:
             memo = self._memo
             key = (net.groups.version, net.own.epoch)
             if memo is None or memo[0] != key:
-                pub = online_g[owner]
+                pub = self._owned(cfg, online_g, owner)
                 memo = self._memo = (key, pub, np.flatnonzero(pub))
             pub, pub_obj = memo[1], memo[2]
         fr.pub, fr.pub_obj = pub, pub_obj
         net.metrics.published += len(pub_obj)
         if self.exact is None or self.exact[0] is not P:   # a new position array: a new streak
             self.exact = (P, t)
+
+    @staticmethod
+    def _owned(cfg, online_g: np.ndarray, owner: np.ndarray) -> np.ndarray:
+        """Objects (G + E,) bool whose owner is online (an ownerless one, -1, has none)."""
+        if not cfg.ownerless:
+            return online_g[owner]
+        return online_g[np.maximum(owner, 0)] & (owner >= 0)

@@ -1,0 +1,124 @@
+"""Entities that belong to no avatar (``NetworkConfig.ownerless``, §3.6.3): outside every
+ownership region an entity has no owner, nobody publishes it and every node shows its own
+prediction; a region claims it again when it enters it, an avatar when it touches it. Closed
+forms: a parked avatar's region is the disc of radius ``ownership_min_axis``; an entity in
+straight motion at 1 m/s leaves or enters it at a known frame; with no prediction (order 0)
+each node's copy stays where its last record put it, so its error grows as 1 m/s times the
+record's age."""
+import numpy as np
+import pytest
+
+from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network.consistency import ellipsoid_axes, mahalanobis_ellipsoid
+
+T = 0.033
+NO_DELAY = {"lan": LinkClass(0.0, 0.0, 0.0, 0.0), "wan": LinkClass(0.0, 0.0, 0.0, 0.0)}
+
+
+def _model(x0: float, vx: float, order: int = 1, **kw) -> NetworkModel:
+    """Avatar 0 parked at (50, 50), avatar 1 parked at (40, 50) (in the neighbouring grid cell:
+    it views the entity, its region never reaches it), one entity at (x0, 50) moving at ``vx``
+    m/s along x without drag or turning; links without delay."""
+    cfg = NetworkConfig(**{**dict(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, ownerless=True,
+                                  entity_drag=0.0, links=NO_DELAY, prediction_order=order, ownership_min_axis=5.0),
+                           **kw})
+    m = NetworkModel(cfg)
+    w = m.world
+    w.apos[:] = [[50.0, 50.0], [40.0, 50.0]]
+    w.epos[0] = [x0, 50.0]
+    w.evel[0] = [vx, 0.0]
+    w.eturn[:] = 0.0
+    m.own.owner[2] = 0 if abs(x0 - 50.0) <= 5.0 else -1      # (the positions set by hand: their owner)
+    return m
+
+
+def test_the_default_keeps_the_last_owner_and_ownerless_needs_a_rule():
+    assert NetworkConfig().ownerless is False
+    with pytest.raises(ValueError, match="ownerless needs an ownership rule"):
+        NetworkConfig(ownerless=True, ownership="none")
+
+
+def test_an_entity_leaving_every_region_is_released_and_no_longer_published():
+    """x = 53.5 + t leaves the disc of radius 5 around x = 50 after t = 1.5 s: frame 46
+    (1.518 s) is the first outside; from then the entity has no owner and is not published."""
+    m = _model(53.5, 1.0)
+    owners, published = [], []
+    for k in range(1, 61):
+        m.step(T)
+        owners.append(int(m.owner[2]))
+        published.append(m.metrics.published)
+    assert owners[:45] == [0] * 45 and owners[45:] == [-1] * 15
+    assert published[:45] == [3] * 45 and published[45:] == [2] * 15     # avatars 2, + the entity while owned
+    assert m.totals.handovers == 0                  # a release is no hand-over between owners ...
+    assert m.totals.by_type.get("HANDOVER", 0) == 0  # ... and sends nothing
+
+
+def test_an_entity_entering_a_region_is_claimed_at_the_first_frame_inside():
+    """x = 60 - t enters the disc at t = 5 s: frame 152 (5.016 s) is the first inside."""
+    m = _model(60.0, -1.0)
+    claimed_at = None
+    for k in range(1, 171):
+        m.step(T)
+        if claimed_at is None and m.owner[2] == 0:
+            claimed_at = k
+        assert m.owner[2] in (-1, 0) and m.metrics.released == 0
+    assert claimed_at == 152 and m.owner[2] == 0
+
+
+def test_each_node_shows_its_own_prediction_and_the_error_counts_every_copy():
+    """Order 0 (no prediction): released at frame 46, the former owner's copy holds the exact
+    state of t_46 and the other node's the record of frame 45 (published at t_45, no delay);
+    at frame k both copies count, errors 1 m/s (t_k - t_46) and 1 m/s (t_k - t_45)."""
+    m = _model(53.5, 1.0, order=0)
+    for k in range(1, 71):
+        m.step(T)
+        if k >= 47:
+            e_owner, e_other = (k - 46) * T, (k - 45) * T
+            assert m.per_object_max[2] == pytest.approx(e_other, abs=1e-9)
+            assert m.per_object_rms[2] == pytest.approx(np.sqrt((e_owner ** 2 + e_other ** 2) / 2), abs=1e-9)
+    # dead reckoning (order 1) of this straight motion predicts it exactly on every node
+    m1 = _model(53.5, 1.0, order=1)
+    for _ in range(70):
+        m1.step(T)
+    assert m1.owner[2] == -1 and m1.per_object_max[2] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_contact_with_an_ownerless_entity_is_answered_at_once_and_claims_it():
+    """An ownerless entity hits parked avatar 1 head on: the response is local (no report),
+    1 m/s becomes 0.25 m/s (equal masses, restitution 0.5), and avatar 1 owns it. (Regions
+    of radius 2 m: inside the contact distance of 3 m, so only the contact claims it.)"""
+    m = _model(43.2, -1.0, ownership_min_axis=2.0)   # 3.2 m right of avatar 1
+    for _ in range(10):
+        m.step(T)
+        if m.metrics.contacts:
+            break
+    assert m.metrics.contacts == 1 and m.metrics.remote_contacts == 0 and m.metrics.claimed == 1
+    assert m.world.evel[0] == pytest.approx([-0.25, 0.0], abs=1e-12) and m.owner[2] == 1
+
+
+def test_owned_entities_lie_in_their_owners_region_unless_a_hand_over_holds():
+    """The issue's case (NetworkConfig(seed=0), 600 steps): with the old rule most entity-frames
+    lie outside their owner's region; with ``ownerless`` none does, but for the 0.2 s hold after
+    an owner change."""
+    def outside_share(ownerless):
+        cfg = NetworkConfig(seed=0, ownerless=ownerless)
+        m = NetworkModel(cfg)
+        G, out, total, released = cfg.groups, 0, 0, 0
+        for _ in range(600):
+            m.step(T)
+            released += m.metrics.released
+            owner = m.owner[G:]
+            owned = np.flatnonzero(owner >= 0)
+            w = m.world
+            a, b, u, shift = ellipsoid_axes(w.state()[1][:G], cfg.frame_s, cfg.ownership_scale,
+                                            cfg.ownership_min_axis, cfg.ownership_foci)
+            g = owner[owned]
+            d = mahalanobis_ellipsoid(w.epos[owned], (w.apos + shift)[g], u[g], a[g], b[g])
+            free_to_move = m.own.hold[G + owned] <= m.t + 1e-9
+            out += int(np.count_nonzero((d > 1.0 + 1e-9) & free_to_move))
+            total += len(owned)
+        return out / max(total, 1), released
+
+    old, _ = outside_share(False)
+    new, released = outside_share(True)
+    assert old > 0.5 and new == 0.0 and released > 0
