@@ -334,3 +334,17 @@ def test_the_unit_readme_lists_its_build_options(unit):
     wrapper = importlib.import_module(f"immersim.fmus.{unit}.{unit}_fmu")
     assert len(wrapper.BUILD_OPTIONS) == 2
     assert options_table(wrapper.BUILD_OPTIONS) in (TESTS.parent / "fmus" / unit / "README.md").read_text()
+
+
+@pytest.mark.parametrize("unit, options, count", [
+    ("network", {"players": 1, "entity_outputs": 0}, 27 + 22 * 1 + 3 * 0),
+    ("network", {"players": 32, "entity_outputs": 64}, 27 + 22 * 32 + 3 * 64),
+    ("collision", {"bodies": 1, "pairs": 1}, 14 + 6 * 1 + 11 * 1),
+    ("collision", {"bodies": 64, "pairs": 64}, 14 + 6 * 64 + 11 * 64)])
+def test_the_smallest_and_largest_builds_validate(tmp_path, unit, options, count):
+    """Either end of each option's range: a valid model description with the variables it
+    sizes (network: 22 per player, 3 per entity output; collision: 6 per body, 11 per pair)."""
+    from immersim.orchestrator.build import build_all
+
+    fmu = build_all([unit], tmp_path, options=options)[0]
+    assert validate_fmu(str(fmu)) == [] and len(_names(fmu)) == count
