@@ -383,9 +383,7 @@ class CollisionBackend(ABC):
                 rest = cache[k] = _at_rest(cached)
                 out.append(rest)
                 continue
-            if far.on and far.records[k] is not None and far.holds(
-                    k, lambda: pair.a in moved_set and self._fast(pair.a),
-                    (lambda: self._far_gap(k, pair)) if self._far_gap_known else None):
+            if far.on and far.records[k] is not None and self._far_holds(k, pair, moved_set):
                 out.append(cached)  # the far result: no candidate, no test
                 continue
             self._last_gap = None
@@ -403,6 +401,18 @@ class CollisionBackend(ABC):
             n_narrow += m
         self._last = QueryResult(out, self.n, n_cand, n_narrow, False)
         return self._last
+
+    def _far_holds(self, k: int, pair: PairSpec, moved: set) -> bool:
+        """Pair ``k``'s far record still holds (:mod:`.far`): its gap cannot have closed to the
+        limit, or the backend's exact gap (:meth:`_far_gap`) is still beyond it; and its first
+        body, if it moved, needs no time of impact."""
+        far = self.far
+        close, now = far.closing(k)
+        if close and not self._far_gap_known:
+            return False
+        if pair.a in moved and self._fast(pair.a):
+            return False
+        return not close or far.confirm(k, self._far_gap(k, pair), now)
 
     #: the backend implements :meth:`_far_gap`
     _far_gap_known = False

@@ -10,7 +10,7 @@ an axis separation of two boxes by at most the sum over both, the Euclidean gap 
 from __future__ import annotations
 
 import math
-from typing import Callable, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -61,22 +61,19 @@ class FarSkip:
         shift = self._shift
         self.records[k] = (float(gap), sum(shift[i] for i in self._pair_bodies[k]))
 
-    def holds(self, k: int, needs_toi: Callable[[], bool], exact_gap: Optional[Callable[[], Optional[float]]]) -> bool:
-        """Pair ``k``'s far record still holds: its gap shrank by less than the slack, or the
-        exact gap (``exact_gap()``, None: unknown) is still at least the limit (it becomes the
-        record); and ``needs_toi()`` (its first body moved and needs a time of impact) is False."""
+    def closing(self, k: int) -> Tuple[bool, float]:
+        """Whether pair ``k``'s gap may have closed to the limit since its record (by the face
+        shifts), and the current shift sum of its bodies."""
         gap, shift0 = self.records[k]
         now = sum(map(self._shift.__getitem__, self._pair_bodies[k]))
-        close = gap - _SQRT3 * (now - shift0) < self.limit
-        if close and exact_gap is None:
+        return gap - _SQRT3 * (now - shift0) < self.limit, now
+
+    def confirm(self, k: int, exact: Optional[float], now: float) -> bool:
+        """The exact gap ``exact`` (m, None: unknown) of pair ``k`` is still at least the limit:
+        it becomes the record."""
+        if exact is None or not exact >= self.limit:
             return False
-        if needs_toi():
-            return False
-        if close:
-            exact = exact_gap()
-            if exact is None or not exact >= self.limit:
-                return False
-            self.records[k] = (exact, now)
+        self.records[k] = (exact, now)
         return True
 
     def reset(self) -> None:
