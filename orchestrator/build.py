@@ -144,24 +144,39 @@ def unit_options(unit_dir: Path | str, given: Optional[Mapping[str, Any]] = None
     value out of range."""
     if not given:
         return {}
-    import importlib.util
-
     from immersim.fmus.common.options import check_options
 
     unit_dir = Path(unit_dir).resolve()
     script = unit_dir / f"{unit_dir.name}_fmu.py"
     if not script.exists():
         raise BuildError(f"unit folder {unit_dir}: no wrapper script {script.name}")
-    spec = importlib.util.spec_from_file_location(f"_immersim_options_{unit_dir.name}", script)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    declared = tuple(getattr(module, "BUILD_OPTIONS", ()))
+    declared = declared_options(script)
     try:
         values = check_options(who or f"unit {unit_dir.name}", declared, given)
     except ValueError as exc:
         raise BuildError(str(exc)) from None
     defaults = {o.name: o.default for o in declared}
     return {k: v for k, v in sorted(values.items()) if v != defaults[k]}
+
+
+def declared_options(script: Path) -> tuple:
+    """The ``BuildOption`` declarations of a wrapper script's ``BUILD_OPTIONS = (BuildOption(...),
+    ...)``, read from its source without running it (no import of the unit's model): each
+    argument must be a literal. None declared: ``()``."""
+    import ast
+
+    from immersim.fmus.common.options import BuildOption
+
+    for node in ast.parse(script.read_text(), str(script)).body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "BUILD_OPTIONS" for t in node.targets):
+            try:
+                return tuple(BuildOption(*map(ast.literal_eval, call.args),
+                                         **{k.arg: ast.literal_eval(k.value) for k in call.keywords})
+                             for call in node.value.elts)
+            except (AttributeError, TypeError, ValueError) as exc:
+                raise BuildError(f"{script}: BUILD_OPTIONS must be a tuple of BuildOption(...) with literal "
+                                 f"arguments ({exc})") from None
+    return ()
 
 
 def parse_options(items: Iterable[str]) -> Dict[str, int]:

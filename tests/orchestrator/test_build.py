@@ -4,6 +4,7 @@ import math
 import re
 import shutil
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -348,3 +349,15 @@ def test_the_smallest_and_largest_builds_validate(tmp_path, unit, options, count
 
     fmu = build_all([unit], tmp_path, options=options)[0]
     assert validate_fmu(str(fmu)) == [] and len(_names(fmu)) == count
+
+
+@pytest.mark.parametrize("unit", ["network", "collision"])
+def test_the_build_reads_the_options_the_wrapper_declares(unit):
+    """The build reads BUILD_OPTIONS from the wrapper's source (without importing its model):
+    the same declarations the wrapper itself sizes its variables from."""
+    import importlib
+
+    from immersim.orchestrator.build import declared_options
+
+    wrapper = importlib.import_module(f"immersim.fmus.{unit}.{unit}_fmu")
+    assert declared_options(Path(wrapper.__file__)) == wrapper.BUILD_OPTIONS
