@@ -251,12 +251,12 @@ def test_sized_builds_are_cached_by_their_options(sized):
     assert not any(n.endswith("build_options.json") for n in zipfile.ZipFile(sized["network"]).namelist())
 
 
-def test_a_sized_network_runs_in_fmpy_as_in_our_master(sized):
-    """FMPy's own master and ours step the 8-player FMU to the same values; players 5-8 drive
-    (constant throttle 0.1 p: the faster the larger p)."""
+def test_a_sized_network_runs_in_fmpy_and_libcosim_as_in_our_master(sized):
+    """FMPy's own master, OSP libcosim and ours step the 8-player FMU to the same values;
+    players 5-8 drive (constant throttle 0.1 p: the faster the larger p)."""
     from fmpy import simulate_fmu
 
-    from immersim.orchestrator.crosscheck import simulate_fmpy
+    from immersim.orchestrator.crosscheck import simulate_fmpy, simulate_libcosim
 
     fmu, n = sized["network8"], 30
     start = {"players": 8, "render_nodes": 2, **{f"avatar[{p}].throttle": 0.1 * p for p in range(1, 9)}}
@@ -264,8 +264,10 @@ def test_a_sized_network_runs_in_fmpy_as_in_our_master(sized):
     theirs = simulate_fmu(str(fmu), start_values=start, stop_time=n * 0.033, step_size=0.033,
                           output_interval=0.033, output=outs)
     ours = simulate_fmpy(fmu, start, n, outs)[0]
+    osp = simulate_libcosim(fmu, start, n, outs)[0]
     for name in outs:
         np.testing.assert_array_equal(theirs[name][1:], ours[name], err_msg=name)
+        np.testing.assert_array_equal(osp[name], ours[name], err_msg=name)
     speed = [math.hypot(ours[f"avatar[{p}].vx"][-1], ours[f"avatar[{p}].vy"][-1]) for p in range(1, 9)]
     assert speed[0] > 0.1 and all(np.diff(speed) > 0)
 
