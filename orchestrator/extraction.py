@@ -22,7 +22,6 @@ run, also one that may not write bytecode itself (``PYTHONDONTWRITEBYTECODE``).
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import importlib
 import json
@@ -37,6 +36,11 @@ from pathlib import Path
 from typing import Any, Dict, Optional
 
 from .errors import FmuLoadError
+
+try:
+    import fcntl
+except ImportError:   # not POSIX: no shared locks, no cache
+    fcntl = None
 
 log = logging.getLogger(__name__)
 
@@ -57,9 +61,10 @@ _HELD: Dict[str, int] = {}
 
 def cache_root() -> Optional[Path]:
     """The extraction cache's folder: ``$IMMERSIM_FMU_CACHE``, else ``extracted/`` in the
-    user's cache folder; None when ``IMMERSIM_FMU_CACHE`` is ``0`` (no cache)."""
+    user's cache folder; None when ``IMMERSIM_FMU_CACHE`` is ``0`` or without POSIX file locks
+    (no cache)."""
     env = os.environ.get("IMMERSIM_FMU_CACHE", "")
-    if env.lower() in ("0", "off", "no", "false"):
+    if env.lower() in ("0", "off", "no", "false") or fcntl is None:
         return None
     if env:
         return Path(env)
