@@ -19,12 +19,17 @@ JOLT_GAIN = 0.03   # net.avatar[1].jolt_acc -> plat.jolt cue gain
 
 
 @pytest.fixture(scope="module")
-def log(tmp_path_factory):
+def mcap(tmp_path_factory):
     out = tmp_path_factory.mktemp("campus8") / "campus8.mcap"
     res = run_scenario(CAMPUS8, out, overrides={"simulation.stop": STOP})
     assert res.status == "completed" and res.steps_done == res.steps_total == round(STOP / 0.033)
     assert {"unit:net", "unit:coll", "unit:plat"} <= set(res.timing)
-    return {name: values for name, (_, values, _) in read_series(out, ["*"]).items()}
+    return out
+
+
+@pytest.fixture(scope="module")
+def log(mcap):
+    return {name: values for name, (_, values, _) in read_series(mcap, ["*"]).items()}
 
 
 def test_the_units_are_the_sized_builds(log):
@@ -72,3 +77,13 @@ def test_the_platform_cues_player_1(log):
     k = int(np.flatnonzero(log["coll.pair[1].in_contact"] > 0)[0])
     assert acc[k] > 0 and pj[k] == pytest.approx(JOLT_GAIN * acc[k], rel=1e-15) and not pj[:k].any()
     assert np.abs(log["plat.stroke[1]"]).max() > 1e-3 and not log["plat.flag.outside_workspace"].any()
+
+
+def test_the_3d_view_draws_the_eight_avatars_at_their_poses(mcap, log):
+    from immersim.orchestrator.foxglove import read_transforms
+
+    tf = [transforms for _, transforms in read_transforms(mcap)]
+    assert len(tf) == len(log["net.avatar[1].x"])   # one set per logged step
+    for p in range(1, 9):
+        frames = [next(x for x in f if x["child_frame_id"] == f"coll/avatar_{p}") for f in tf]
+        np.testing.assert_array_equal([x["translation"]["x"] for x in frames], log[f"coll.body[{p}].x"])
