@@ -20,7 +20,18 @@
    steps (4.) and the scale step (3.) with one shortcut switched to its plain form against the
    default, fresh processes alternated, CPU medians; writes ``paths.md``.
 
-Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus,paths] [--baseline DIR] [--campus-log LOG]
+7. ownerless (``--only ownerless``): entities outside every ownership region without an owner
+   (``NetworkConfig.ownerless``, §3.6.3) against keeping the last owner, over WAN latencies: the
+   display error, published objects, traffic, releases and claims; writes ``ownerless.md``.
+
+8. campus_drive loop (``--loop-ab DIR``): ``immersim run scenarios/campus_drive.toml`` of this
+   checkout and of another commit's whole package in ``DIR`` (``mkdir -p DIR/immersim && git
+   archive COMMIT api models orchestrator fmus scenarios | tar -x -C DIR/immersim && cp -r
+   DIR/immersim/api/. DIR/immersim/``), alternated in fresh processes: the loop time and the
+   network unit's share that the command prints, medians; writes ``loop_ab.md``.
+
+Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus,paths,ownerless] [--baseline DIR]
+       [--campus-log LOG] [--loop-ab DIR] [--rounds N]
 """
 from __future__ import annotations
 
@@ -36,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from immersim.models.network import LinkClass, NetworkConfig, NetworkModel, Paths
+from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "network"
@@ -147,6 +158,7 @@ def bench_scale(quick: bool):
 def scale_cpu(steps: int, dis: float, paths: dict = None, fmu_dir: str = NETWORK_DIR):
     """Median CPU time (ms) of the scale step (1000 render nodes, 10,000 entities, every frame
     or DIS ``dis``) over ``steps`` steps after 5 warm-up steps, with ``paths`` (fields of :class:`Paths`)."""
+    from immersim.models.network import Paths
     cfg = NetworkConfig(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform",
                         dis_threshold=dis, seed=4)
     m = NetworkModel(cfg, Paths(**(paths or {})))
@@ -164,29 +176,43 @@ def scale_cpu(steps: int, dis: float, paths: dict = None, fmu_dir: str = NETWORK
 CAMPUS_SWITCHES = [("memo_pairs", dict(memo_pairs=-1)), ("reuse_views", dict(reuse_views=False)),
                    ("scalar_view", dict(scalar_view=-1)), ("few_records", dict(few_records=-1)),
                    ("rest_display", dict(rest_display=False)), ("float_batch", dict(float_batch=-1)),
-                   ("merge_draws", dict(merge_draws=False)), ("scalar_owners", dict(scalar_owners=-1)),
+                   ("merge_draws", dict(merge_draws=False)), ("scalar_grid", dict(scalar_grid=-1)),
+                   ("scalar_owners", dict(scalar_owners=-1)), ("scalar_messages", dict(scalar_messages=-1)),
                    ("scalar_avatars + scalar_entities", dict(scalar_avatars=-1, scalar_entities=-1)),
                    ("rest_skip", dict(rest_skip=False)), ("scalar_contacts", dict(scalar_contacts=-1))]
 SCALE_SWITCHES = [("groups_min_pairs", dict(groups_min_pairs=10 ** 12))]
 
 
-def bench_paths(quick: bool):
+def bench_paths(quick: bool, log: str = ""):
     """Each shortcut against the default, A/B in one run (fresh processes, the variants in turn,
-    the order reversed every other round): campus CPU medians per step (us) and the scale step's
-    (ms), medians over the rounds, and their ratio to the default's."""
+    the order reversed every other round): campus CPU medians per step (us), with ``log`` also
+    the mean and median of campus_drive's logged inputs replayed (:func:`campus_replay`), and the
+    scale step's (ms), medians over the rounds, and their ratio to the default's."""
+    import tempfile
+
+    from immersim.models.network import Paths
     rounds, steps = (2, 300) if quick else (3, 600)
+    inputs = ""
+    if log:
+        inputs = str(Path(tempfile.mkdtemp(prefix="bench_net_paths_")) / "inputs.json")
+        with open(inputs, "w") as f:
+            json.dump(campus_log_inputs(log), f)
     variants = [("default (every shortcut)", {})] + CAMPUS_SWITCHES + [("all (Paths.plain())", "plain")]
     camp = {name: [] for name, _ in variants}
     for rnd in range(rounds):
         for name, kw in (variants if rnd % 2 == 0 else variants[::-1]):
             kw = {f.name: getattr(Paths.plain(), f.name) for f in fields(Paths)} if kw == "plain" else kw
             r = in_tree(None, "campus_inprocess", steps, paths=kw)
-            camp[name].append((1e3 * r[0]["cpu_median_ms"], 1e3 * r[1]["cpu_median_ms"]))
+            rp = in_tree(None, "campus_replay", inputs, passes=2, paths=kw) if log else {}
+            camp[name].append((1e3 * r[0]["cpu_median_ms"], 1e3 * r[1]["cpu_median_ms"],
+                               rp.get("cpu_mean_us", np.nan), rp.get("cpu_median_us", np.nan)))
     campus_rows = []
-    d0 = np.median([x[0] for x in camp[variants[0][0]]]), np.median([x[1] for x in camp[variants[0][0]]])
+    med = {name: [float(np.median([x[j] for x in v])) for j in range(4)] for name, v in camp.items()}
+    d0 = med[variants[0][0]]
     for name, _ in variants:
-        d, i = np.median([x[0] for x in camp[name]]), np.median([x[1] for x in camp[name]])
-        campus_rows.append(dict(plain=name, drive_us=d, drive_ratio=d / d0[0], idle_us=i, idle_ratio=i / d0[1]))
+        d = med[name]
+        campus_rows.append(dict(plain=name, drive_us=d[0], drive_ratio=d[0] / d0[0], idle_us=d[1], idle_ratio=d[1] / d0[1],
+                                replay_mean_us=d[2], replay_mean_ratio=d[2] / d0[2], replay_median_ratio=d[3] / d0[3]))
     srounds, ssteps = (2, 10) if quick else (2, 20)
     scale_rows = []
     for dis in (0.0, 0.1):
@@ -201,6 +227,30 @@ def bench_paths(quick: bool):
             scale_rows.append(dict(plain=name, dis_threshold=dis, cpu_median_ms=s, ratio=s / s0,
                                    rounds=", ".join(f"{x:.1f}" for x in got[name])))
     return campus_rows, scale_rows
+
+
+def bench_ownerless(quick: bool):
+    """The bench_latency scene (8 groups x 2 render nodes, 300 entities, 200 m, order 1,
+    mahalanobis) with and without ``ownerless``, per WAN latency: mean RMS and max display error,
+    objects published, bytes per step, hand-overs, releases and claims per simulated minute."""
+    steps = 90 if quick else 300
+    base = NetworkConfig(groups=8, render_nodes=2, entities=300, scene_size=200.0, ownership_min_axis=2.0, seed=1)
+    rows = []
+    for L in ((0.0, 100.0) if quick else (0.0, 25.0, 100.0)):
+        for ownerless in (False, True):
+            cfg = replace(base, ownerless=ownerless, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0),
+                                                            "wan": LinkClass(L, 0.2 * L, 0.0, 100.0)})
+            m, out = run(cfg, steps)
+            minutes = len(out) * T / 60.0
+            rows.append(dict(latency_ms=L, ownerless=ownerless, rms=np.mean([s.inconsistency_rms for s in out]),
+                             max=np.max([s.inconsistency_max for s in out]),
+                             published=np.mean([s.published for s in out]),
+                             bytes_per_step=np.mean([s.bytes for s in out]),
+                             handovers_per_min=sum(s.handovers for s in out) / minutes,
+                             released_per_min=sum(s.released for s in out) / minutes,
+                             claimed_per_min=sum(s.claimed for s in out) / minutes,
+                             ownerless_share=float(np.mean(m.owner[cfg.groups:] < 0))))
+    return rows
 
 
 #: the campus scenes' network parameters, and the driven case's constant driver inputs
@@ -250,6 +300,8 @@ def campus_inprocess(steps: int, fmu_dir: str = NETWORK_DIR, paths: dict = None)
     for label, entities, drive in CAMPUS:
         s = campus_slave(network, entities, "bench")
         if paths:
+            from immersim.models.network import Paths   # (this tree's: a baseline tree may have none)
+
             s.model = NetworkModel(s.model.cfg, Paths(**paths))   # (a fresh model: the same state)
         if drive:
             for p, (thr, steer) in enumerate(CAMPUS_DRIVE, start=1):
@@ -360,14 +412,16 @@ def campus_log_inputs(log: str):
     return t_ns, steps
 
 
-def campus_replay(inputs_path: str, fmu_dir: str = NETWORK_DIR, passes: int = 3, outputs_path: str = ""):
+def campus_replay(inputs_path: str, fmu_dir: str = NETWORK_DIR, passes: int = 3, outputs_path: str = "",
+                  paths: dict = None):
     """Replay campus_drive's logged inputs through the FMU class's ``do_step`` in process
     (model + wrapper + the base class's checks), ``passes`` times with a fresh instance each;
     the first pass warms up. Step ``k`` sets the logged inputs and steps from the log's
     ``t[k-1]`` by ``t[k] - t[k-1]`` (the master's ns times as seconds), timed with
     ``perf_counter_ns`` and ``thread_time_ns``. ``outputs_path``: every output of every step of
     the last pass (float64, (n, outputs), bools and integers as floats) saved there (.npy).
-    Returns the per-step CPU and wall times (us) of the passes after the first."""
+    Returns the per-step CPU and wall times (us) of the passes after the first. ``paths``: fields
+    of :class:`Paths` for the model (this tree only, as in :func:`campus_inprocess`)."""
     network = network_class(fmu_dir)
     with open(inputs_path) as f:
         t_ns, steps = json.load(f)
@@ -375,6 +429,10 @@ def campus_replay(inputs_path: str, fmu_dir: str = NETWORK_DIR, passes: int = 3,
     cpu, wall, table_ = [], [], []
     for rep in range(passes):
         s = campus_slave(network, 8, "replay")
+        if paths:
+            from immersim.models.network import Paths
+
+            s.model = NetworkModel(s.model.cfg, Paths(**paths))
         v, do_step = s.values, s.do_step
         keep = outputs_path and rep == passes - 1
         for k, ins in enumerate(steps, start=1):
@@ -445,15 +503,22 @@ REPLAY_COLS = (["code", "round", "steps", "passes", "cpu_mean_us", "cpu_median_u
                 "load", "outputs"],
                {"cpu_mean_us": "{:.1f}", "cpu_median_us": "{:.1f}", "wall_mean_us": "{:.1f}",
                 "wall_median_us": "{:.1f}", "load": "{:.1f}"})
-PATHS_CAMPUS_COLS = (["plain", "drive_us", "drive_ratio", "idle_us", "idle_ratio"],
-                     {"drive_us": "{:.1f}", "drive_ratio": "{:.3f}", "idle_us": "{:.1f}", "idle_ratio": "{:.3f}"})
+PATHS_CAMPUS_COLS = (["plain", "drive_us", "drive_ratio", "idle_us", "idle_ratio", "replay_mean_us", "replay_mean_ratio",
+                      "replay_median_ratio"],
+                     {"drive_us": "{:.1f}", "drive_ratio": "{:.3f}", "idle_us": "{:.1f}", "idle_ratio": "{:.3f}",
+                      "replay_mean_us": "{:.1f}", "replay_mean_ratio": "{:.3f}", "replay_median_ratio": "{:.3f}"})
 PATHS_SCALE_COLS = (["plain", "dis_threshold", "cpu_median_ms", "ratio", "rounds"],
                     {"cpu_median_ms": "{:.1f}", "ratio": "{:.3f}"})
+OWNERLESS_COLS = (["latency_ms", "ownerless", "rms", "max", "published", "bytes_per_step", "handovers_per_min",
+                   "released_per_min", "claimed_per_min", "ownerless_share"],
+                  {"rms": "{:.4f}", "max": "{:.3f}", "published": "{:.1f}", "bytes_per_step": "{:.0f}",
+                   "handovers_per_min": "{:.0f}", "released_per_min": "{:.0f}", "claimed_per_min": "{:.0f}",
+                   "ownerless_share": "{:.2f}"})
 AB_COLS = (["scene", "code", "round", "median_ms", "cpu_median_ms", "load", "unchanged"],
            {"median_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "load": "{:.1f}"})
 
 
-def only(parts, quick: bool, baseline: str = "") -> None:
+def only(parts, quick: bool, baseline: str = "", log: str = "") -> None:
     """Run some parts only and write their tables (the README is then edited by hand)."""
     head = f"<!-- {' '.join(sys.argv)} at {commit()} on {machine()} -->\n"
     if "campus" in parts:
@@ -467,13 +532,23 @@ def only(parts, quick: bool, baseline: str = "") -> None:
         (OUT / "campus.md").write_text(text)
         print(text)
     if "paths" in parts:
-        camp, scale = bench_paths(quick)
+        camp, scale = bench_paths(quick, log)
         text = (head + "One shortcut of `Paths` in its plain form (column `plain`) against the default: the campus "
                 "scenes' FMU step (model + wrapper, CPU median per step, us; drive: 3 players driving, 8 "
-                "entities; idle: at rest, no entities) and the 1000-node / 10,000-entity step (CPU median, ms); "
+                "entities; idle: at rest, no entities; replay: campus_drive's logged inputs, `--campus-log`, CPU mean "
+                "per step, the sum a run costs) and the 1000-node / 10,000-entity step (CPU median, ms); "
                 "fresh processes, the variants in turn; ratio > 1: the shortcut saves that share.\n\n"
                 + table(camp, *PATHS_CAMPUS_COLS) + "\n" + table(scale, *PATHS_SCALE_COLS))
         (OUT / "paths.md").write_text(text)
+        print(text)
+    if "ownerless" in parts:
+        text = (head + "Entities outside every ownership region: `ownerless` True (no owner, nobody publishes "
+                "them, every node shows its own prediction, claimed again by a region or a touching avatar; "
+                "§3.6.3) against False (the last owner keeps them). 8 groups x 2 render nodes, 300 entities, "
+                "200 m scene, order 1, mahalanobis, WAN jitter 20 % of the latency; per 33 ms step after 5 "
+                "warm-up steps; `ownerless_share`: entities without an owner at the end.\n\n"
+                + table(bench_ownerless(quick), *OWNERLESS_COLS))
+        (OUT / "ownerless.md").write_text(text)
         print(text)
     if "scale" in parts:
         (OUT / "scale.md").write_text(head + table(bench_scale(quick), *SCALE_COLS))
@@ -505,6 +580,42 @@ def campus_log_report(log: str, baseline: str, rounds: int) -> None:
     print(text)
 
 
+def loop_ab(base: str, rounds: int, this: str = "") -> None:
+    """campus_drive's loop, this checkout (or the package in ``this``, made as ``base``) against
+    the whole package of another commit in ``base`` (see the module docstring), alternated;
+    writes ``loop_ab.md``."""
+    import re
+    import tempfile
+
+    out = Path(tempfile.mkdtemp(prefix="bench_net_loop_")) / "run.mcap"
+    def tree(d):
+        return (d, str(Path(d) / "immersim" / "scenarios" / "campus_drive.toml"), {"PYTHONPATH": d})
+
+    runs = {"this": tree(this) if this else (str(ROOT), str(ROOT / "scenarios" / "campus_drive.toml"), {}),
+            "baseline": tree(base)}
+    got = {k: [] for k in runs}
+    for rnd in range(rounds):
+        for code in (("this", "baseline") if rnd % 2 == 0 else ("baseline", "this")):
+            cwd, scenario, extra = runs[code]
+            res = subprocess.run([sys.executable, "-m", "immersim.orchestrator.cli", "run", scenario, "-q", "-o", str(out)],
+                                 cwd=cwd, env=dict(os.environ, **extra), capture_output=True, text=True, check=True)
+            text = res.stdout + res.stderr
+            got[code].append((float(re.search(r"loop ([0-9.]+) s", text).group(1)),
+                              float(re.search(r"net ([0-9.]+) s", text).group(1)), os.getloadavg()[0]))
+    rows = [dict(code=c, loop_s=", ".join(f"{x[0]:.3f}" for x in v), loop_median_s=float(np.median([x[0] for x in v])),
+                 net_median_s=float(np.median([x[1] for x in v])), load=float(np.mean([x[2] for x in v])))
+            for c, v in got.items()]
+    ratio = rows[0]["loop_median_s"] / rows[1]["loop_median_s"]
+    text = (f"<!-- {' '.join(sys.argv)} at {commit()} on {machine()} -->\n"
+            f"`immersim run scenarios/campus_drive.toml -q` (607 steps, 20 s), this checkout and the baseline package "
+            f"alternated, {rounds} runs each; `loop` and `net` as the command prints them (wall s):\n\n"
+            + table(rows, ["code", "loop_s", "loop_median_s", "net_median_s", "load"],
+                    {"loop_median_s": "{:.3f}", "net_median_s": "{:.3f}", "load": "{:.1f}"})
+            + f"\nloop this / baseline: {ratio:.3f} (target within 10 %: {'met' if ratio <= 1.10 else 'NOT met'})\n")
+    (OUT / "loop_ab.md").write_text(text)
+    print(text)
+
+
 def table(rows, cols, fmt=None):
     fmt = fmt or {}
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
@@ -516,7 +627,7 @@ def table(rows, cols, fmt=None):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer points and steps (about a minute)")
-    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths")
+    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths, ownerless")
     ap.add_argument("--baseline", default="", help="campus: directory with another commit's immersim/models and "
                     "immersim/fmus (git archive COMMIT models fmus | tar -x -C DIR/immersim; touch DIR/immersim/__init__.py), "
                     "alternated with this tree")
@@ -524,14 +635,21 @@ def main() -> None:
                     "run scenarios/campus_drive.toml -o LOG --set log.encoding='\"json\"' --set net:process=0) "
                     "through the FMU class, this tree and --baseline alternated, outputs compared bit for bit; "
                     "writes campus_replay.md")
-    ap.add_argument("--rounds", type=int, default=3, help="--campus-log: rounds of alternated runs")
+    ap.add_argument("--rounds", type=int, default=3, help="--campus-log, --loop-ab: rounds of alternated runs")
+    ap.add_argument("--loop-ab", default="", help="directory with another commit's whole immersim package: "
+                    "campus_drive's loop alternated with this checkout's; writes loop_ab.md")
+    ap.add_argument("--loop-this", default="", help="--loop-ab: a package directory made the same way for this "
+                    "side (e.g. this commit without the work tree's uncommitted edits)")
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
+    if args.loop_ab:
+        loop_ab(args.loop_ab, args.rounds, args.loop_this)
+        return
+    if args.only:   # (--campus-log: the replayed inputs of the paths part)
+        only(set(args.only.split(",")), args.quick, args.baseline, args.campus_log)
+        return
     if args.campus_log:
         campus_log_report(args.campus_log, args.baseline, args.rounds)
-        return
-    if args.only:
-        only(set(args.only.split(",")), args.quick, args.baseline)
         return
     import matplotlib
     matplotlib.use("Agg")
@@ -576,9 +694,6 @@ def main() -> None:
     tr_tab = table(traffic_rows, ["topology", "nodes", "messages", "bytes", "dropped", "rms"],
                    {"messages": "{:.0f}", "bytes": "{:.0f}", "rms": "{:.4f}"})
     sc_tab = table(scale, *SCALE_COLS)
-    (OUT / "inconsistency_vs_latency.md").write_text(lat_tab)
-    (OUT / "traffic_vs_nodes.md").write_text(tr_tab)
-    (OUT / "scale.md").write_text(sc_tab)
     fit_lines = "\n".join(f"- `{t}`: messages ~ n^{k[0]:.2f}, bytes ~ n^{k[1]:.2f}" for t, k in fits.items())
     best = min(s["median_ms"] for s in scale if s["measure"])
     best_any = min(s["median_ms"] for s in scale)
@@ -586,13 +701,12 @@ def main() -> None:
     order_means = {o: np.mean([x["rms"] for x in lat_rows if x["order"] == o and x["latency_ms"] > 0]) for o in (0, 1, 2)}
     rule_remote = {r: sum(x["remote_contacts"] for x in lat_rows if x["ownership"] == r) for r in RULES}
     rule_hand = {r: sum(x["handovers"] for x in lat_rows if x["ownership"] == r) for r in RULES}
-    readme = f"""# network benchmarks
-
-Command: `python benchmarks/bench_network.py{' --quick' if args.quick else ''}` (total {wall:.0f} s)
+    head = f"""Command: `python benchmarks/bench_network.py{' --quick' if args.quick else ''}` (total {wall:.0f} s)
 Commit: `{commit()}` (the working tree may hold later uncommitted edits of other units)
 Machine: {machine()}; shared with other jobs while it ran, so times are noisy.
 
-## Scale: 1000 render nodes, 10,000 entities (target: a 33 ms step in <= 33 ms)
+"""
+    sections = {"scale.md": f"""# Scale: 1000 render nodes, 10,000 entities (target: a 33 ms step in <= 33 ms)
 
 250 groups x 4 render nodes (+250 control platforms, 1 supernode), 10,000 free entities,
 2 km scene (10x10 grid of 200 m cells), hybrid P2P, dead reckoning order 1, every frame
@@ -609,8 +723,8 @@ record groups (one evaluation per distinct record and object, updated only where
 changed; `models/network/display.py`); when every frame is published (`dis_threshold` 0)
 nearly every one of the ~235,000 copies gets a new record each frame, so the error is
 evaluated per copy and the ~206,000 cache writes per frame dominate.
-
-## Traffic vs number of render nodes (4 render nodes per group, 10 entities per group, 1 km scene)
+""",
+                "traffic_vs_nodes.md": f"""# Traffic vs number of render nodes (4 render nodes per group, 10 entities per group, 1 km scene)
 
 {tr_tab}
 Fitted log-log exponents:
@@ -619,8 +733,8 @@ Fitted log-log exponents:
 Full mesh grows as n^2 in messages; hybrid P2P stays near-linear in messages. Its bytes stay
 super-linear because a FRAME PDU carries the whole 9-cell view and the view's entity count
 grows with the entity density (the scene and its 10x10 grid are fixed).
-
-## Inconsistency vs latency, every prediction order and ownership rule
+""",
+                "inconsistency_vs_latency.md": f"""# Inconsistency vs latency, every prediction order and ownership rule
 
 8 groups x 2 render nodes, 300 entities, 200 m scene, WAN jitter 20 % of the latency.
 Mean RMS inconsistency over latencies > 0: order 0 {order_means[0]:.4f} m, order 1 {order_means[1]:.4f} m,
@@ -640,9 +754,10 @@ above) are far fewer with any ownership rule than with `none`, fewest with
 
 {lat_tab}
 Plots: `inconsistency_vs_latency.png`, `traffic_vs_nodes.png`.
-"""
-    (OUT / "README.md").write_text(readme)
-    print(readme)
+"""}
+    for name, text in sections.items():   # (README.md: the table of current figures, kept by hand)
+        (OUT / name).write_text(head + text)
+        print(head + text)
 
 
 if __name__ == "__main__":

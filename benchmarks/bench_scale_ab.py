@@ -79,7 +79,7 @@ def main(argv=None) -> int:
             there.append(b["cpu_ms"])
     mh, mb = float(np.median(here)), float(np.median(there))
     lines = ["# Network scale step: this tree against a baseline commit (A/B in one run)", "",
-             stamp(".venv/bin/python benchmarks/bench_scale_ab.py" + (" --quick" if args.quick else "")), "",
+             stamp(".venv/bin/python benchmarks/bench_scale_ab.py " + " ".join(sys.argv[1:] if argv is None else argv)), "",
              f"Baseline `{base}`; 1000 render nodes (250 x 4), 10,000 entities, {args.steps} steps after 5 warm-up "
              f"steps, {args.rounds} alternated rounds in fresh processes; CPU time per 33 ms step (median of the "
              "steps, then of the rounds).", "",

@@ -23,11 +23,14 @@ class SceneGrid:
     """``C x C`` grid over a square scene of side ``size``; 9-cell neighbourhoods (fig. 3-5a).
 
     Cell ``(i, j)`` has index ``i * C + j`` with ``i`` along x. Its neighbourhood is
-    ``S_{i+di, j+dj}`` for ``di, dj in {-1, 0, 1}`` inside the grid.
+    ``S_{i+di, j+dj}`` for ``di, dj in {-1, 0, 1}`` inside the grid. Up to ``scalar_pairs``
+    candidates or view pairs, :meth:`view_pairs` and :meth:`not_in_view` run in Python.
     """
 
-    def __init__(self, size: float, cells: int = 10, enabled: bool = True) -> None:
+    def __init__(self, size: float, cells: int = 10, enabled: bool = True,
+                 scalar_pairs: int = _DEFAULT.scalar_grid) -> None:
         self.size, self.C, self.enabled = float(size), int(cells), enabled
+        self.scalar_pairs = scalar_pairs
         C = self.C
         i, j = np.divmod(np.arange(C * C), C)
         nb = []
@@ -37,6 +40,7 @@ class SceneGrid:
                 ok = (ii >= 0) & (ii < C) & (jj >= 0) & (jj < C)
                 nb.append(np.where(ok, ii * C + jj, -1))
         self.neigh = np.stack(nb, axis=1)  # (C*C, 9), -1 outside
+        self._neigh_list = None            # its cells inside the grid per row, as lists (built on first use)
 
     def cell(self, pos: np.ndarray, pos_list=None) -> np.ndarray:
         """Cell index of each position (n, 2) -> (n,) int. ``pos_list``: the same positions as
@@ -99,6 +103,9 @@ class SceneGrid:
         """
         if not self.enabled:
             return np.flatnonzero(~np.take(old_online, vg))
+        if len(vg) <= self.scalar_pairs:
+            return self._not_in_view_scalar(old_cells.tolist(), old_online.tolist(), cells.tolist(), vg.tolist(),
+                                            vo.tolist())
         moved = cells != old_cells
         changed_v = moved[:len(old_online)] | ~old_online
         cand = np.flatnonzero(np.take(moved, vo) | np.take(changed_v, vg))
@@ -118,6 +125,8 @@ class SceneGrid:
         M, O = len(viewer_cells), len(object_cells)
         if not self.enabled:
             return np.repeat(np.arange(M), O), np.tile(np.arange(O), M)
+        if M * O <= self.scalar_pairs:
+            return self._view_pairs_scalar(viewer_cells.tolist(), object_cells.tolist())
         order = np.argsort(object_cells, kind="stable")
         counts = np.bincount(object_cells, minlength=self.C * self.C)
         starts = np.cumsum(counts) - counts
@@ -127,6 +136,44 @@ class SceneGrid:
         cells, owner = cells[valid], owner[valid]
         lens = counts[cells]
         return np.repeat(owner, lens), order[concat_ranges(starts[cells], lens)]
+
+
+    def _not_in_view_scalar(self, old_cells: list, old_online: list, cells: list, vg: list, vo: list) -> np.ndarray:
+        """:meth:`not_in_view` of a few pairs in Python (the same test: a pair whose object and
+        viewer kept their cells and whose viewer was online is still in view; else it was in
+        view iff its viewer was online and the cells were adjacent)."""
+        C = self.C
+        out = []
+        for p, (g, o) in enumerate(zip(vg, vo)):
+            og, oo = old_cells[g], old_cells[o]
+            if oo == cells[o] and og == cells[g] and old_online[g]:
+                continue
+            if old_online[g]:
+                ia, ja = divmod(oo, C)
+                ib, jb = divmod(og, C)
+                if -1 <= ia - ib <= 1 and -1 <= ja - jb <= 1:
+                    continue
+            out.append(p)
+        return np.array(out, np.int64)
+
+    def _view_pairs_scalar(self, viewer_cells: list, object_cells: list) -> Tuple[np.ndarray, np.ndarray]:
+        """:meth:`view_pairs` of a few viewers and objects in Python: the same pairs in the same
+        order (viewer by viewer, its neighbourhood's cells in ``neigh`` order, the objects of a
+        cell in index order)."""
+        if self._neigh_list is None:
+            self._neigh_list = [[c for c in row if c >= 0] for row in self.neigh.tolist()]
+        by_cell = {}
+        for o, c in enumerate(object_cells):
+            by_cell.setdefault(c, []).append(o)
+        vl, vo = [], []
+        for v, c in enumerate(viewer_cells):
+            for nc in self._neigh_list[c]:
+                objs = by_cell.get(nc)
+                if objs:
+                    vo += objs
+                    vl += [v] * len(objs)
+        return np.array(vl, np.int64), np.array(vo, np.int64)
+
 
 
 class PointIndex:

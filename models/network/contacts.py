@@ -21,21 +21,23 @@ class Contacts:
     pending : (E,) bool, an entity's contact report is in flight (no second one is sent)
     """
 
-    def __init__(self, entities: int) -> None:
-        self.pending = np.zeros(entities, bool)
+    def __init__(self, cfg, paths) -> None:
+        self.pending = np.zeros(cfg.entities, bool)
+        n_obj = cfg.groups + cfg.entities
+        # one k-d tree of the entities shared by contacts and ownership (large scenes only:
+        # small ones use brute force, cheaper than a tree built every frame)
+        self._tree = bool(cfg.entities) and cfg.groups * cfg.entities > 4096
+        # a small scene without DIS below order 2 takes its positions first as a list too (again
+        # when a contact's separation moved them), and its velocities only where read (lazy)
+        self._lazy = cfg.dis_threshold <= 0 and cfg.prediction_order < 2 and n_obj <= paths.scalar_view
 
     def respond(self, net, fr) -> None:
         """Find this frame's contacts and respond (phase 1); fills ``fr.etree``, ``fr.lazy``
         and, for a lazy frame, ``fr.P`` and ``fr.pl`` (positions after overlaps are separated)."""
         cfg, w = net.cfg, net.world
         G = cfg.groups
-        # one k-d tree of the entities shared by contacts and ownership (large scenes only:
-        # small ones use brute force, cheaper than a tree built every frame)
-        etree = w.entity_index() if cfg.entities and cfg.groups * cfg.entities > 4096 else None
-        # a small scene without DIS below order 2 takes its positions first as a list too (again
-        # when a contact's separation moved them), and its velocities only where read (lazy)
-        lazy = (cfg.dis_threshold <= 0 and cfg.prediction_order < 2 and net.n_obj <= net.paths.scalar_view
-                and (cfg.entities or w._fixed_key is None))    # (a resting scene: state()'s kept arrays)
+        etree = w.entity_index() if self._tree else None
+        lazy = self._lazy and (cfg.entities or w._fixed_key is None)    # (a resting scene: state()'s kept arrays)
         pl = None
         if lazy:
             fr.P = w.positions()

@@ -139,7 +139,7 @@ class Messaging:
         else:
             send_pair = pub[vo] if newly is None else pub[vo] | newly
         tr = build_messages(cfg, net.reg, t, grp.master, grp.slaves, fr.pub_obj, owner, vg, vo, frame_size,
-                            send_pair, og)
+                            send_pair, og, net.paths.scalar_messages)
         tr.plan = TrafficPlan(tr, cfg.links, net.paths)
         if fast is None and len(vg) > net.paths.memo_pairs:
             return tr, None

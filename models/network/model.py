@@ -85,7 +85,7 @@ class NetworkModel:
         self.rng = np.random.default_rng(cfg.seed)
         self.world = World(cfg, self.rng, self.paths)
         self.reg = NodeRegistry(cfg)
-        self.grid = SceneGrid(cfg.scene_size, cfg.grid_cells, cfg.grid)
+        self.grid = SceneGrid(cfg.scene_size, cfg.grid_cells, cfg.grid, self.paths.scalar_grid)
         G, n_obj = cfg.groups, cfg.groups + cfg.entities
         if n_obj >= 2 ** 21:
             raise ValueError(f"network model: {n_obj} objects, at most 2^21 - 1 (record ids object * 2^32 + table)")
@@ -96,7 +96,7 @@ class NetworkModel:
         self.groups = Membership(cfg, self.reg)
         self.inputs = DriverInputs(G)
         self.own = Ownership(cfg, self.world)
-        self.contacts = Contacts(cfg.entities)
+        self.contacts = Contacts(cfg, self.paths)
         self.records = RecordCache(G, n_obj, cfg.prediction_order)
         self.pub = Publisher(n_obj)
         self.msgs = Messaging(self.reg.n)
@@ -162,9 +162,11 @@ class NetworkModel:
     def count_batch(self, plan) -> None:
         """Count a frame's messages (a :class:`nodes.TrafficPlan`): step, interval and per-type totals."""
         n, nb = plan.n, plan.nbytes
-        self.metrics.messages += n
-        self.metrics.bytes += nb
-        self.traffic.add(n, nb)
+        m, iv = self.metrics, self.traffic.interval
+        m.messages += n
+        m.bytes += nb
+        iv[0] += n
+        iv[1] += nb
         bt = self.totals.by_type
         for name, b in plan.by_type:
             bt[name] = bt.get(name, 0) + b

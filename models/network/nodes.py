@@ -193,7 +193,8 @@ def _cat(parts) -> np.ndarray:
 
 def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.ndarray, slaves: List[np.ndarray],
                    pub_obj: np.ndarray, owner: np.ndarray, view_g: np.ndarray, view_o: np.ndarray,
-                   frame_size: np.ndarray, send_pair: np.ndarray, view_owner=None) -> Traffic:
+                   frame_size: np.ndarray, send_pair: np.ndarray, view_owner=None,
+                   scalar_pairs: int = Paths().scalar_messages) -> Traffic:
     """Aggregated messages of one frame at time ``t``.
 
     Parameters
@@ -206,6 +207,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
     frame_size : (G,) objects in each group's frame
     send_pair : (len(view_g),) bool, the pair's object is sent to the viewer this frame (it was
         published, or it has just entered the viewer's neighbourhood)
+    scalar_pairs : int, up to this many view pairs the hybrid_p2p messages are built in Python
     """
     G = reg.G
     rec = record_bytes(cfg.prediction_order)
@@ -244,6 +246,8 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
     else:
         # STATE: owner's master -> viewer's master for published objects in the viewer's neighbourhood
         vown = owner[view_o] if view_owner is None else view_owner
+        if cfg.topology == "hybrid_p2p" and len(view_g) <= scalar_pairs:
+            return _hybrid_messages_scalar(cfg, reg, t, master, slaves, view_g, view_o, vown, frame_size, send_pair)
         if send_pair.all():                        # every frame published: no filtering copy
             vg, vo, og = view_g, view_o, vown
         else:
@@ -292,6 +296,53 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
         hop1 = np.full(len(rmsg), -1, np.int64)
     return Traffic(arr["send_t"], arr["sender"], arr["receiver"], arr["link"], arr["nbytes"], arr["ptype"],
                    arr["hop_of"], rmsg, cat(rec_view), cat(rec_obj), cat(fr_msg), cat(fr_slave), hop1)
+
+
+def _hybrid_messages_scalar(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.ndarray,
+                            slaves: List[np.ndarray], view_g: np.ndarray, view_o: np.ndarray, vown: np.ndarray,
+                            frame_size: np.ndarray, send_pair: np.ndarray) -> Traffic:
+    """The ``hybrid_p2p`` messages of :func:`build_messages` for a few view pairs, built in
+    Python: the same messages in the same order (STATE per (owner, viewer) group pair in key
+    order ``owner * G + viewer``, then FRAME and REPORT per slave of the online groups) and
+    the same record and frame deliveries."""
+    G = reg.G
+    rec = record_bytes(cfg.prediction_order)
+    ml = master.tolist()
+    rv, ro, rk = [], [], []      # records: viewer, object, (owner, viewer) key
+    for g, o, w, sent in zip(view_g.tolist(), view_o.tolist(), vown.tolist(), send_pair.tolist()):
+        if sent and w != g and ml[w] >= 0:
+            rv.append(g)
+            ro.append(o)
+            rk.append(w * G + g)
+    cnt: dict = {}
+    for k in rk:
+        cnt[k] = cnt.get(k, 0) + 1
+    keys = sorted(cnt)
+    at = {k: i for i, k in enumerate(keys)}
+    send_t = [t] * len(keys)
+    sender = [ml[k // G] for k in keys]
+    receiver = [ml[k % G] for k in keys]
+    link = [WAN] * len(keys)
+    nbytes = [H + cnt[k] * rec for k in keys]
+    ptype = [int(PduType.STATE)] * len(keys)
+    # FRAME and REPORT inside each group
+    sl = [node for g in range(G) if ml[g] >= 0 for node in slaves[g].tolist()]
+    n0 = len(keys)
+    if sl:
+        grp, fs = reg.group_list, frame_size.tolist()
+        m = [ml[grp[node]] for node in sl]
+        send_t += [t + cfg.compose_ms * 1e-3] * len(sl) + [t] * len(sl)
+        sender += m + sl
+        receiver += sl + m
+        link += [LAN] * (2 * len(sl))
+        nbytes += [H + fs[grp[node]] * rec for node in sl] + [H + report_bytes()] * len(sl)
+        ptype += [int(PduType.FRAME)] * len(sl) + [int(PduType.REPORT)] * len(sl)
+    n = len(send_t)
+    i64 = np.int64
+    return Traffic(np.array(send_t, float), np.array(sender, i64), np.array(receiver, i64), np.array(link, i64),
+                   np.array(nbytes, i64), np.array(ptype, i64), np.full(n, -1, i64), np.array([at[k] for k in rk], i64),
+                   np.array(rv, i64), np.array(ro, i64), np.arange(n0, n0 + len(sl), dtype=i64), np.array(sl, i64),
+                   np.full(len(rk), -1, i64))
 
 
 def control_bytes() -> int:

@@ -126,7 +126,6 @@ class Ownership:
         if cfg.ownership == "none" or not cfg.entities:
             return
         G = cfg.groups
-        sizes = dict(scalar_pairs=paths.scalar_owners, brute_pairs=paths.brute_owners)
         cur = self.owner[G:]
         # ownerless: every entity must be claimed by a region anew, else it has no owner
         held = np.full(len(cur), -1, np.int64) if cfg.ownerless else cur
@@ -136,13 +135,14 @@ class Ownership:
             fr.vl = w.avatar_velocities() if lazy else None
             new = assign_owners(cfg.ownership, w.apos, None if lazy else fr.V[:G], w.epos, held, cfg.frame_s,
                                 cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci, fr.etree,
-                                (fr.pl[:G], fr.vl, fr.pl[G:]) if lazy else None, **sizes)
+                                (fr.pl[:G], fr.vl, fr.pl[G:]) if lazy else None, paths.scalar_owners,
+                                paths.brute_owners)
         else:
             cur_local = (np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0)) if not cfg.ownerless
                          else held)
             new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
                                       cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis,
-                                      cfg.ownership_foci, fr.etree, **sizes)
+                                      cfg.ownership_foci, fr.etree, None, paths.scalar_owners, paths.brute_owners)
             claimed = new_local != cur_local
             new = held.copy()
             new[claimed] = cand[new_local[claimed]]

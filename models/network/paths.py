@@ -28,9 +28,12 @@ class Paths:
     measure_chunk : int, copies per chunk of the per-copy display error (fits a core's cache)
     reuse_views : bool, the last frame's view pairs reused while no object changes cell and
         the same groups are online
+    scalar_grid : int, at most this many (viewer, object) candidates or view pairs: the grid's
+        view pairs and view entries in Python (:class:`consistency.SceneGrid`)
     scalar_owners : int, at most this many (avatar, entity) pairs: ownership in Python floats
     brute_owners : int, below this many (avatar, entity) pairs ownership takes every pair
         instead of building a k-d tree
+    scalar_messages : int, at most this many view pairs: hybrid_p2p messages built in Python
     float_batch : int, a merged batch of at most this many messages timed in Python floats
     merge_draws : bool, the jitter of several exponential lossless link classes drawn in one call
     scalar_avatars, scalar_entities : int, up to this many avatars (entities): kinematics in
@@ -46,8 +49,10 @@ class Paths:
     groups_min_pairs: int = 4096
     measure_chunk: int = 16384
     reuse_views: bool = True
+    scalar_grid: int = 256
     scalar_owners: int = 256
     brute_owners: int = 4096
+    scalar_messages: int = 256
     float_batch: int = 64
     merge_draws: bool = True
     scalar_avatars: int = 8
@@ -60,6 +65,6 @@ class Paths:
         """Every step in its plain form (arrays, nothing reused), but for the fields in ``keep``
         (``brute_owners`` is kept: brute force and a k-d tree are both plain)."""
         return replace(cls(scalar_view=-1, memo_pairs=-1, few_records=-1, rest_display=False,
-                           groups_min_pairs=10 ** 12, reuse_views=False, scalar_owners=-1, float_batch=-1,
-                           merge_draws=False, scalar_avatars=-1, scalar_entities=-1, rest_skip=False,
-                           scalar_contacts=-1), **keep)
+                           groups_min_pairs=10 ** 12, reuse_views=False, scalar_grid=-1, scalar_owners=-1,
+                           scalar_messages=-1, float_batch=-1, merge_draws=False, scalar_avatars=-1,
+                           scalar_entities=-1, rest_skip=False, scalar_contacts=-1), **keep)

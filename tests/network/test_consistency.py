@@ -32,11 +32,12 @@ def test_nine_cell_neighbourhood_of_every_cell_is_the_brute_force_set(C):
     np.testing.assert_array_equal(adj, [int(y) in _brute_neighbourhood(int(x), C) for x, y in zip(a, b)])
 
 
-def test_view_pairs_of_objects_in_every_cell_are_the_brute_force_pairs():
+@pytest.mark.parametrize("scalar", [True, False])
+def test_view_pairs_of_objects_in_every_cell_are_the_brute_force_pairs(scalar):
     """One viewer and two objects in every cell of a 6 x 6 grid: the view pairs are exactly the
-    (viewer, object) pairs whose cells are neighbours."""
+    (viewer, object) pairs whose cells are neighbours, in the small (Python) and the array path."""
     C = 6
-    g = SceneGrid(60.0, C)
+    g = SceneGrid(60.0, C, scalar_pairs=10 ** 9 if scalar else -1)
     viewers = np.arange(C * C)
     objects = np.repeat(np.arange(C * C), 2)
     v, o = g.view_pairs(viewers, objects)
@@ -47,11 +48,12 @@ def test_view_pairs_of_objects_in_every_cell_are_the_brute_force_pairs():
     assert np.all(np.diff(v) >= 0)      # sorted by viewer
 
 
-def test_pairs_entering_the_view_are_those_not_adjacent_before():
+@pytest.mark.parametrize("scalar", [True, False])
+def test_pairs_entering_the_view_are_those_not_adjacent_before(scalar):
     """Of the pairs in view now, those whose viewer was offline or whose cells were not
     neighbours before."""
     C = 5
-    g = SceneGrid(50.0, C)
+    g = SceneGrid(50.0, C, scalar_pairs=10 ** 9 if scalar else -1)
     rng = np.random.default_rng(8)
     G, n = 4, 30
     old = rng.integers(0, C * C, n)
@@ -158,6 +160,36 @@ def test_dead_reckoning_orders(order):
     dt = np.array([0.1, 0.3])
     expected = p + (order >= 1) * v * dt[:, None] + (order >= 2) * 0.5 * a * dt[:, None] ** 2
     np.testing.assert_allclose(dead_reckon(p, v, a, dt, order), expected, rtol=1e-15)
+
+
+@pytest.mark.parametrize("cells", [1, 2, 5, 10])
+def test_small_view_pairs_equal_the_array_code(cells):
+    grid, plain = cons.SceneGrid(100.0, cells, True), cons.SceneGrid(100.0, cells, True, scalar_pairs=-1)
+    gen = np.random.default_rng(cells)
+    cases = [(gen.integers(0, cells * cells, gen.integers(0, 12)), gen.integers(0, cells * cells, gen.integers(0, 20)))
+             for _ in range(200)]
+    fast = [grid.view_pairs(v, o) for v, o in cases]
+    for (v, o), (a, b) in zip(cases, fast):
+        ra, rb = plain.view_pairs(v, o)
+        assert np.array_equal(a, ra) and np.array_equal(b, rb) and a.dtype == ra.dtype and b.dtype == rb.dtype
+
+
+@pytest.mark.parametrize("cells", [1, 3, 10])
+def test_small_view_entries_equal_the_array_code(cells):
+    grid, plain = cons.SceneGrid(100.0, cells, True), cons.SceneGrid(100.0, cells, True, scalar_pairs=-1)
+    gen = np.random.default_rng(cells)
+    cases = []
+    for _ in range(300):
+        G, O = int(gen.integers(1, 5)), int(gen.integers(0, 10))
+        old = gen.integers(0, cells * cells, G + O)
+        new = np.where(gen.random(G + O) < 0.3, gen.integers(0, cells * cells, G + O), old)   # some moved
+        k = int(gen.integers(0, 40))
+        cases.append((old, gen.random(G) < 0.7, new, gen.integers(0, G, k), gen.integers(0, G + O, k)))
+    fast = [grid.not_in_view(*c) for c in cases]
+    assert sum(len(f) for f in fast) > 100
+    for c, f in zip(cases, fast):
+        ref = plain.not_in_view(*c)
+        assert np.array_equal(f, ref) and f.dtype == ref.dtype
 
 
 def test_cells_from_a_positions_list_equal_the_array_code():

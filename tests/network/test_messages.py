@@ -1,12 +1,14 @@
 """Messages (frame phase 4): the grid's view and subscriptions, messages by topology, their reuse.
 
 * subscription (view entry) times from cell changes vs a dense per-pair "last frame in view" table;
-* messages and view pairs reused from the last frame (small scenes) vs built every frame.
+* messages and view pairs reused from the last frame (small scenes) vs built every frame;
+* the hybrid_p2p messages of a few view pairs in Python vs the array code.
 """
 import numpy as np
 import pytest
 
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network import nodes
 from immersim.models.network.paths import Paths
 
 
@@ -64,3 +66,30 @@ def test_subscription_times_match_a_dense_view_table():
         assert np.array_equal(m.cache[m.index(vg, vo), m.enter_col], enter[vo, vg])
         assert all(m.in_view(int(g), int(o)) for g, o in zip(vg[:50], vo[:50]))
     assert entered > 50   # the check saw many entries
+
+
+def test_small_hybrid_messages_equal_the_array_code():
+    gen = np.random.default_rng(0)
+    names = ("send_t", "sender", "receiver", "link", "nbytes", "ptype", "hop_of", "rec_msg", "rec_viewer", "rec_obj",
+             "frame_msg", "frame_slave", "rec_hop1")
+    cases = []
+    for trial in range(300):
+        G, R, E = int(gen.integers(1, 6)), int(gen.integers(1, 4)), int(gen.integers(0, 12))
+        cfg = NetworkConfig(groups=G, render_nodes=R, entities=E, prediction_order=int(gen.integers(0, 3)))
+        master = np.array([g * R if gen.random() < 0.8 else -1 for g in range(G)], np.int64)   # some offline
+        slaves = [np.arange(g * R + 1, (g + 1) * R)[gen.random(R - 1) < 0.7] if master[g] >= 0 else np.zeros(0, np.int64)
+                  for g in range(G)]
+        owner = np.r_[np.arange(G), gen.integers(0, G, E)]
+        k = int(gen.integers(0, 40))
+        vo, vg = np.sort(gen.integers(0, G + E, k)), gen.integers(0, G, k)
+        send = gen.random(k) < (0.5 if trial % 2 else 1.1)                     # DIS-like, or every pair
+        cases.append((cfg, nodes.NodeRegistry(cfg), float(gen.uniform(0, 10)), master, slaves,
+                      np.flatnonzero(gen.random(G + E) < 0.8), owner, vg, vo, np.bincount(vg, minlength=G), send,
+                      owner[vo]))
+    fast = [nodes.build_messages(*c) for c in cases]
+    assert sum(len(f.rec_msg) for f in fast) > 1000 and sum(len(f.frame_msg) for f in fast) > 200
+    for c, f in zip(cases, fast):
+        ref = nodes.build_messages(*c, scalar_pairs=-1)
+        for name in names:
+            a, b = getattr(f, name), getattr(ref, name)
+            assert np.array_equal(a, b) and a.dtype == b.dtype, name

@@ -4,8 +4,8 @@ whole runs with the shortcuts on and off give the same outputs, bit for bit.
 * the small-scene shortcuts (campus size): ownership, display error and contact pre-check in
   Python floats, a resting scene's display error and sub-steps skipped, memo'd messages and
   merged link draws, against the array code and per-frame messages (contacts, bounces);
-* the per-frame shortcuts: batches timed in Python floats, display, records and kinematics of
-  small scenes, against the array code, with joins, graceful leaves
+* the per-frame shortcuts: batches timed in Python floats, view pairs, messages, display,
+  records and kinematics of small scenes, against the array code, with joins, graceful leaves
   and crashes (the online-node count included);
 * every shortcut off at once (:meth:`Paths.plain`).
 """
@@ -25,9 +25,10 @@ LINKS = {"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(20.0, 5.0, 0.
 #: the small-scene shortcuts off (the array code and per-frame messages)
 SMALL_PLAIN = Paths(scalar_owners=-1, scalar_contacts=-1, merge_draws=False, rest_skip=False, rest_display=False,
                     scalar_view=-1, memo_pairs=-1)
-#: the per-frame shortcuts off: batches planned and timed, display and kinematics in arrays,
-#: every frame's records in a table
-FRAME_PLAIN = Paths(float_batch=-1, scalar_view=-1, few_records=-1, scalar_avatars=0, scalar_entities=0)
+#: the per-frame shortcuts off: batches planned and timed, view pairs, messages, display and
+#: kinematics in arrays, every frame's records in a table
+FRAME_PLAIN = Paths(float_batch=-1, scalar_grid=-1, scalar_messages=-1, scalar_view=-1, few_records=-1,
+                    scalar_avatars=0, scalar_entities=0)
 
 
 def _trace(cfg, steps, bounce_every=0, paths=None):
