@@ -132,13 +132,16 @@ class Shortcuts:
     """The speed mechanisms that change no output, one switch each: each is tested bit for bit
     against the backend without it; its A/B is in ``results/collision/ab.md``.
 
-    far_pairs: the far-pair skip (:mod:`.far`). flat_poses: the FMU's flat pose tuple is
-    sliced as it is, not converted by numpy. rotation_reuse: a body keeping the bits of its
-    roll, pitch and yaw keeps its rotation rows. toi_pretests (fcl): the fast-mover test
-    settled by the move's face shift or a scalar estimate before the travel itself.
+    far_pairs: the far-pair skip (:mod:`.far`). distance_bounds (fcl): lower bounds of a pair's
+    distance (:mod:`.pair_cache`, body-frame box gaps) skip ``fcl.collide`` of candidates they
+    prove apart and exact distances that cannot beat the best so far. flat_poses: the FMU's
+    flat pose tuple is sliced as it is, not converted by numpy. rotation_reuse: a body keeping
+    the bits of its roll, pitch and yaw keeps its rotation rows. toi_pretests (fcl): the
+    fast-mover test settled by the move's face shift or a scalar estimate before the travel.
     """
 
     far_pairs: bool = True
+    distance_bounds: bool = True
     flat_poses: bool = True
     rotation_reuse: bool = True
     toi_pretests: bool = True

@@ -6,10 +6,11 @@ Per monitored pair ``a vs members`` (shared BVHs and the static bodies' tree:
 * broad phase: the tree lists the static members whose AABB overlaps ``a``'s; dynamic members
   (and small static groups) are checked directly by their AABB gaps;
 * each candidate gets ``fcl.collide`` with contacts (depth = the deepest contact's
-  ``penetration_depth``);
+  ``penetration_depth``), unless a lower bound of its distance (:mod:`.pair_cache`, the
+  body-frame box gap) proves it apart; it then counts as tested without contact;
 * without contact, the nearest member: the tree's pruned distance traversal, each exact
-  ``fcl.distance`` on the distance triangulation (:mod:`.fans`) skipped when the AABB gap
-  reaches the best so far (at first ``max_distance``); a body of at most
+  ``fcl.distance`` on the distance triangulation (:mod:`.fans`) skipped when the AABB gap or
+  a lower bound reaches the best so far (at first ``max_distance``); a body of at most
   ``CHUNK_OTHER_MAX_FACES`` triangles against a large mesh goes chunk by chunk (:mod:`.chunks`);
 * time of impact for a body that moved (:mod:`.toi`): a contact that held from the start
   gets 0; a fast mover conservative advancement; a slow mover entering contact
@@ -30,6 +31,7 @@ from .backend import CollisionBackend, PairResult, PairSpec, aggregate
 from .chunks import chunked_distance
 from .fcl_objects import BodyShapes, FclObjects, bvh_model, fcl_transform
 from .geometry import norm3
+from .pair_cache import PairDistances
 from .toi import TimeOfImpact
 
 log = logging.getLogger(__name__)
@@ -42,11 +44,15 @@ class FclBackend(CollisionBackend):
 
     name = "fcl"
     FAR_SKIP = True
+    #: m; a lower bound of a candidate's distance above this proves it is not in contact (far
+    #: above the rounding of fcl's triangle tests at coordinates of 1e2..1e3 m)
+    SEPARATED = 1e-6
 
     def _setup(self) -> None:
         scene = self.scene
         self.fclo = FclObjects(scene, self.frames, self.arrays, self.config.max_contacts)
-        self.shapes = BodyShapes(scene, self.fclo, self.bounds.local, self.config.chunk_faces)
+        self.shapes = BodyShapes(scene, self.fclo, self.bounds.local, self.arrays.T(), self.config.chunk_faces)
+        self.exact = PairDistances(self.frames, self.shapes.radius)
         self.toi = TimeOfImpact(self.config, self.frames, self.arrays, self.bounds, self.fclo, self.shapes, scene,
                                 self.shortcuts.toi_pretests)
         n_static = len(self.fclo.static_idx)
@@ -81,6 +87,12 @@ class FclBackend(CollisionBackend):
             return None
         return min(self.bounds.gap(pair.a, b) for b in parts[4])
 
+    def _separated(self, a: int, b: int) -> bool:
+        """A broad-phase candidate is provably not in contact: the pair cache's lower bound or
+        the body-frame box gap exceeds ``SEPARATED`` (counted as a narrow-phase test)."""
+        return (self.exact.bound(a, b) > self.SEPARATED
+                or self.shapes.frame_gap(a, b, self.frames.rows) > self.SEPARATED)
+
     # -- narrow phase -------------------------------------------------------------------
     def _collide(self, a: int, b: int, obj_b=None) -> PairResult | None:
         # member first, as python-fcl's manager callbacks call it: fcl's BVH-BVH traversal
@@ -96,11 +108,18 @@ class FclBackend(CollisionBackend):
 
     def _distance(self, a: int, b: int, res: "fcl.DistanceResult") -> bool:
         """Exact distance of (a, b) into a shared result (it keeps the smallest distance and its
-        nearest points); True when ``b`` became the nearest. Skipped when the AABB gap reaches
-        the best so far."""
+        nearest points); True when ``b`` became the nearest. Skipped when the AABB gap, the
+        pair cache's lower bound or the body-frame box gap reaches the best so far (checks
+        left out when the pair cache's upper bound is below it: none could skip)."""
         before, fclo, shapes = res.min_distance, self.fclo, self.shapes
-        if self.bounds.gap(a, b) >= before:
-            return False
+        bounds = self.shortcuts.distance_bounds
+        since = self.exact.since(a, b) if bounds else None
+        if since is None or since[1] >= before:  # (else it is nearer than the best: no bound can skip it)
+            if self.bounds.gap(a, b) >= before:
+                return False
+            if bounds and ((since is not None and since[0] >= before)
+                           or shapes.frame_gap(a, b, self.frames.rows) >= before + shapes.FRAME_GAP_MARGIN):
+                return False
         # the larger BVH first: fcl's traversal is cheaper (member first otherwise, see _collide)
         fclo.sync(self._pair_now)
         faces = shapes.faces
@@ -110,12 +129,17 @@ class FclBackend(CollisionBackend):
             a_first, big, small = False, b, a
         chunks = shapes.chunks[big]
         if chunks is None or not shapes.chunk_partner[small]:
-            fcl.distance(fclo.dobj(big), fclo.dobj(small), fclo.dreq, res)
+            d = up = fcl.distance(fclo.dobj(big), fclo.dobj(small), fclo.dreq, res)
+            if not up >= 0:  # (fcl's -1: no distance, no bound)
+                up = math.inf
         else:  # the same triangle pairs, chunk by chunk (module docstring of .chunks)
             tag, tf = fclo.chunk_tf(big)
-            chunked_distance(chunks, tag, tf, self.arrays.T_of(big), self.arrays.T_of(small),
-                             (shapes.hull[small], shapes.box_c[small], shapes.box_h[small]), fclo.dobj(small), True,
-                             fclo.dreq, res)
+            d = chunked_distance(chunks, tag, tf, self.arrays.T_of(big), self.arrays.T_of(small),
+                                 (shapes.hull[small], shapes.box_c[small], shapes.box_h[small]), fclo.dobj(small), True,
+                                 fclo.dreq, res, math.inf if since is None else since[1])
+            # its distance when it became the nearest, else no bound above it
+            up = res.min_distance if 0 <= res.min_distance < before else math.inf
+        self.exact.store(a, b, d, up)
         if res.min_distance < before:
             self._a_first = a_first
             return True
@@ -162,6 +186,8 @@ class FclBackend(CollisionBackend):
             seen.add(b)
             counts[0] += 1
             counts[1] += 1
+            if self.shortcuts.distance_bounds and self._separated(a, b):
+                continue  # fcl.collide would find no intersecting triangles: no contact
             hit = self._collide(a, b)
             if hit is not None:
                 results.append((b, hit))

@@ -6,10 +6,11 @@
   ``DynamicAABBTreeCollisionManager`` built once. A body's fcl transform is set when a pair
   that needs it is evaluated after the body moved.
 * :class:`BodyShapes`: per body its mesh's hull, local box, radii and chunks, as lists for
-  scalar code.
+  scalar code, and the body-frame box gap (:meth:`BodyShapes.frame_gap`).
 """
 from __future__ import annotations
 
+import math
 from typing import Dict, List, Tuple
 
 import fcl
@@ -122,7 +123,10 @@ class BodyShapes:
     smallest mesh extent), ``chunks`` (:class:`.chunks.ChunkedMesh` or None) and
     ``chunk_partner`` (few enough triangles to be the other side of a chunked query)."""
 
-    def __init__(self, scene, fclo: FclObjects, local, chunk_faces: int) -> None:
+    #: m; the body-frame gap must beat the best distance by this much to skip a query
+    FRAME_GAP_MARGIN = 1e-9
+
+    def __init__(self, scene, fclo: FclObjects, local, T: np.ndarray, chunk_faces: int) -> None:
         bodies, meshes = scene.bodies, scene.meshes
         self.faces = [len(meshes[b.mesh_key].faces) for b in bodies]
         self.chunked: Dict[str, ChunkedMesh] = {}
@@ -138,6 +142,46 @@ class BodyShapes:
                  for key, m in meshes.items()}
         self.box_c = [(boxes[b.mesh_key][0] + boxes[b.mesh_key][1]) / 2 for b in bodies]
         self.box_h = [(boxes[b.mesh_key][1] - boxes[b.mesh_key][0]) / 2 for b in bodies]
+        lists = {key: (lo.tolist(), hi.tolist(), ((lo + hi) / 2).tolist(), ((hi - lo) / 2).tolist())
+                 for key, (lo, hi) in boxes.items()}
+        self._box_lists = [lists[b.mesh_key] for b in bodies]  # lo, hi, centre, half extents
+        self._sphere_r = [local[b.mesh_key][2] for b in bodies]
+        self._is_dyn = [b.dynamic for b in bodies]
+        self._unrotated = [not b.dynamic and bool((T[i, :3, :3] == np.eye(3)).all()) for i, b in enumerate(bodies)]
         self.thin = [float(meshes[b.mesh_key].extents.min()) for b in bodies]
-        self.radius = (np.array([local[b.mesh_key][2] for b in bodies])
-                       + np.linalg.norm(np.array([local[b.mesh_key][1] for b in bodies]), axis=1)).tolist()
+        self.radius = (np.array(self._sphere_r) + np.linalg.norm(np.array([local[b.mesh_key][1] for b in bodies]),
+                                                                 axis=1)).tolist()
+
+    def frame_gap(self, a: int, b: int, rows: list) -> float:
+        """Lower bound (m) of the distance of ``a`` and ``b`` (transforms ``rows[a]``, ``rows[b]``):
+        in the frame of each rotated body not smaller than the other, the gap between its local
+        AABB and the box bounding the other's local AABB there (centre ``M c + p``, half
+        extents ``|M| h``); the larger of the two. Both boxes contain their body."""
+        best = -math.inf
+        radius = self._sphere_r
+        for f, o in ((a, b), (b, a)):
+            if radius[o] > radius[f] or self._unrotated[f]:
+                continue  # a larger body's box in a smaller one's frame is rarely tighter
+            F, O = rows[f], rows[o]
+            (f00, f01, f02, ftx), (f10, f11, f12, fty), (f20, f21, f22, ftz) = F[0], F[1], F[2]
+            if (self._is_dyn[f] and f00 == 1.0 and f11 == 1.0 and f22 == 1.0 and f01 == 0.0 and f02 == 0.0
+                    and f10 == 0.0 and f12 == 0.0 and f20 == 0.0 and f21 == 0.0):
+                continue  # in the world axes its frame box is its world AABB: nothing to gain
+            (o00, o01, o02, otx), (o10, o11, o12, oty), (o20, o21, o22, otz) = O[0], O[1], O[2]
+            dx, dy, dz = otx - ftx, oty - fty, otz - ftz
+            # M = R_f^T R_o, p = R_f^T (t_o - t_f): o's frame in f's
+            m00, m01, m02 = f00 * o00 + f10 * o10 + f20 * o20, f00 * o01 + f10 * o11 + f20 * o21, f00 * o02 + f10 * o12 + f20 * o22
+            m10, m11, m12 = f01 * o00 + f11 * o10 + f21 * o20, f01 * o01 + f11 * o11 + f21 * o21, f01 * o02 + f11 * o12 + f21 * o22
+            m20, m21, m22 = f02 * o00 + f12 * o10 + f22 * o20, f02 * o01 + f12 * o11 + f22 * o21, f02 * o02 + f12 * o12 + f22 * o22
+            lo, hi = self._box_lists[f][0], self._box_lists[f][1]
+            (cx, cy, cz), (ex, ey, ez) = self._box_lists[o][2], self._box_lists[o][3]
+            g = 0.0
+            for (r0, r1, r2), t, l, h in (((m00, m01, m02), f00 * dx + f10 * dy + f20 * dz, lo[0], hi[0]),
+                                          ((m10, m11, m12), f01 * dx + f11 * dy + f21 * dz, lo[1], hi[1]),
+                                          ((m20, m21, m22), f02 * dx + f12 * dy + f22 * dz, lo[2], hi[2])):
+                c = r0 * cx + r1 * cy + r2 * cz + t
+                e = abs(r0) * ex + abs(r1) * ey + abs(r2) * ez
+                sep = max(l - (c + e), (c - e) - h, 0.0)
+                g += sep * sep
+            best = max(best, math.sqrt(g))
+        return best

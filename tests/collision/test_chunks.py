@@ -106,7 +106,8 @@ def test_chunked_distances_equal_the_whole_mesh_path_on_random_poses(body):
 def test_chunked_distance_within_a_bound_equals_the_full_order():
     """``chunked_distance`` bounding only the chunks nearer than ``within`` (a bound above the
     distance) gives the same distance and nearest points as the full order bit for bit, and so
-    does a ``within`` below the distance (not a bound: the full order is visited then)."""
+    does a ``within`` below the distance (not a bound: the full order is visited then); the
+    backend's upper bounds from the last exact distance plus the motion since are bounds."""
     from immersim.models.collision.chunks import chunked_distance
 
     be = make_backend("fcl", parse_scene(SPEC), "box vs t", BackendConfig(max_distance=2.0))
@@ -137,6 +138,14 @@ def test_chunked_distance_within_a_bound_equals_the_full_order():
             subsets += within < 1 and n_bounded[0] < len(chunks)
         assert all(o == out[0] for o in out), k
     assert subsets > 20
+    # the backend's upper bound (last distance plus the motion since) along a walk towards the tank
+    T0 = [9.0, 0.3, 2.5, 0, 0, 0.6]
+    for k in range(25):
+        pose = [[T0[0] - 0.12 * k, 0.3 + 0.01 * k, 2.5, 0, 0, 0.6 + 0.03 * k]] + [[30.0, 0, 0, 0, 0, 0], [0, 30.0, 0, 0, 0, 0]]
+        before = be.exact.since(box, t)
+        r = be.query(pose).pairs[0]
+        if before is not None and 0 < r.distance < 2.0:
+            assert r.distance <= before[1]
 
 
 def test_chunked_time_of_impact_equals_the_whole_mesh_path():

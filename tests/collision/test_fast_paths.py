@@ -63,6 +63,18 @@ def test_the_far_pair_skip_changes_no_output(scene):
     assert any(r.in_contact for r in fast.query(tuple(x for p in traj[len(traj) // 2] for x in p)).pairs)
 
 
+def test_skipped_contact_tests_change_no_output(scene):
+    traj = _trajectory()
+    fast = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
+    # every broad-phase candidate gets fcl.collide
+    full = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0), Shortcuts(distance_bounds=False))
+    skipped = []
+    real = fast._separated
+    fast._separated = lambda a, b: real(a, b) and not skipped.append((a, b))
+    assert _run(fast, traj) == _run(full, traj)
+    assert skipped  # candidates overlapping t's world AABB but apart in its frame
+
+
 def test_lazy_transforms_read_as_the_poses_say(scene):
     be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
     traj = _trajectory(12)
@@ -190,3 +202,4 @@ def test_a_pair_at_rest_reports_one_result_object(scene):
     assert (r.in_contact, r.distance, r.depth, r.partner, r.toi, r.closing_speed) == (
         moving.in_contact, moving.distance, moving.depth, moving.partner, -1.0, 0.0)
     assert r.point is moving.point and r.normal is moving.normal
+

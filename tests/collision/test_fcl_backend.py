@@ -282,6 +282,45 @@ def test_nan_pose_is_rejected_naming_the_body():
         be.query([[0, 0, 8, 0, float("nan"), 0]])
 
 
+@pytest.mark.parametrize("chunk_faces", [0, 32])
+def test_distance_lower_bound_cache_changes_no_output(chunk_faces):
+    """The skip rule 'last exact distance minus the travel since cannot beat the best so far'
+    is a pure speed-up: the same trajectory without it gives identical results, and on the
+    whole-mesh path (chunk_faces = 0) it does skip exact queries (a ball near the corner of
+    the tank's AABB: gap 0.87 m, distance 3.4 m; with chunks the chunk bounds already prune
+    these queries, and the cache keeps their lower bound; its upper bound limits the chunks
+    bounded to those nearer than it, with the same results)."""
+    from immersim.models.collision import fcl_backend
+
+    scene = parse_scene("tank:name=t,tris=5.4k;sphere:name=ball,r=0.3,dynamic=1,x=20")
+    cfg = BackendConfig(max_distance=2.0, chunk_faces=chunk_faces)
+    cached = make_backend("fcl", scene, "ball vs t", cfg)
+    # no bounds from the last exact distance (nor chunk subsets)
+    plain = make_backend("fcl", scene, "ball vs t", cfg, Shortcuts(distance_bounds=False))
+    calls = {"cached": 0, "plain": 0}
+    real = fcl_backend.fcl.distance
+    rng = np.random.default_rng(3)
+    p = np.array([5.7, 2.5, 4.7])
+    seen = []
+    for k in range(60):  # a random walk from the corner towards the tank, in and out of range
+        p = p + rng.uniform(-0.1, 0.04, 3)
+        pose = [[*p, *rng.uniform(-0.2, 0.2, 3)]]
+        out = {}
+        for name, be in (("cached", cached), ("plain", plain)):
+            fcl_backend.fcl.distance = lambda *a, _n=name: calls.__setitem__(_n, calls[_n] + 1) or real(*a)
+            try:
+                out[name] = be.query(pose).pairs[0]
+            finally:
+                fcl_backend.fcl.distance = real
+        rc, r = out["cached"], out["plain"]
+        seen.append(r.distance)
+        assert (rc.in_contact, rc.distance, rc.partner) == (r.in_contact, r.distance, r.partner)
+        np.testing.assert_array_equal(rc.normal, r.normal)
+        np.testing.assert_array_equal(rc.point, r.point)
+    assert calls["cached"] < calls["plain"] if chunk_faces == 0 else calls["cached"] <= calls["plain"]
+    assert min(seen) < 2.0 and max(seen) == 2.0  # the walk was in and out of range
+
+
 def test_cached_dynamic_boxes_equal_fresh_ones():
     scene = parse_scene("tank:name=t,tris=5.4k,dynamic=1;missile:z=8")
     be = make_backend("fcl", scene, "missile vs t")
@@ -339,3 +378,42 @@ def test_far_pair_skip_changes_no_output_and_skips_evaluations():
             seen["near"] += 0 < rp.distance < 2.0
     assert evaluations["fast"] < 0.8 * evaluations["plain"]
     assert all(seen.values()), seen  # contacts, times of impact and near misses were all compared
+
+
+@pytest.mark.parametrize("chunk_faces", [0, 32])
+def test_body_frame_gap_changes_no_output_and_skips_exact_queries(chunk_faces):
+    """The body-frame gap (the ball's box in the rotated tank's frame against the tank's own
+    box) is a lower bound of the distance: skipping exact queries with it changes no result,
+    and near the corner of the tank's loose world AABB it does skip them on the whole-mesh
+    path (time of impact off: only the narrow-phase distances are counted; with chunks their
+    own bounds, in both bodies' frames, already prune those queries)."""
+    from immersim.models.collision import fcl_backend
+
+    spec = "tank:name=t,tris=5.4k,yaw=0.785;sphere:name=ball,r=0.3,dynamic=1,x=20"
+    config = BackendConfig(max_distance=2.0, ccd=False, chunk_faces=chunk_faces)
+    with_gap = make_backend("fcl", parse_scene(spec), "ball vs t", config)
+    plain = make_backend("fcl", parse_scene(spec), "ball vs t", config, Shortcuts(distance_bounds=False))
+    calls = {"with_gap": 0, "plain": 0}
+    real = fcl_backend.fcl.distance
+    lo, hi = with_gap.aabb[0]
+    seen = []
+    # the corner of the world AABB on the tank's short axis is ~4 m from the tank itself
+    corner = np.array([hi[0], lo[1], (lo[2] + hi[2]) / 2])
+    for k in range(16):  # from outside that corner, through it, towards the tank, spinning
+        p = corner + np.array([1.0, -1.0, 0.0]) * (1.0 - 3.8 * k / 15) / math.sqrt(2)
+        out = {}
+        for name, be in (("with_gap", with_gap), ("plain", plain)):
+            fcl_backend.fcl.distance = lambda *a, _n=name: calls.__setitem__(_n, calls[_n] + 1) or real(*a)
+            try:
+                out[name] = be.query([[*p, 0, 0, 0.4 * k]])
+            finally:
+                fcl_backend.fcl.distance = real
+        g, r = out["with_gap"], out["plain"]
+        assert (g.n_candidates, g.n_narrow) == (r.n_candidates, r.n_narrow)
+        rg, rp = g.pairs[0], r.pairs[0]
+        assert (rg.in_contact, rg.distance, rg.depth, rg.partner) == (rp.in_contact, rp.distance, rp.depth, rp.partner)
+        np.testing.assert_array_equal(rg.point, rp.point)
+        np.testing.assert_array_equal(rg.normal, rp.normal)
+        seen.append(rp.distance)
+    assert calls["with_gap"] < calls["plain"] if chunk_faces == 0 else calls["with_gap"] <= calls["plain"]
+    assert min(seen) < 2.0 and max(seen) == 2.0
