@@ -252,15 +252,14 @@ def campus(folder: Path) -> list:
     """campus_drive as shipped (20 s): per avatar pair the largest reported bounce depth against
     ``|v| h + 5 cm`` and the largest depth of the avatar box in its pair's tank at the network's
     poses."""
-    import tomllib
-
     from immersim.orchestrator.execution import run_scenario
     from immersim.orchestrator.mcapio import read_series
+    from immersim.orchestrator.scenario import load_scenario
 
     path = ROOT / "scenarios" / "campus_drive.toml"
     log = folder / "campus.mcap"
     run_scenario(path, log, overrides={"net:process": 0})
-    spec = [u for u in tomllib.loads(path.read_text())["units"] if u["name"] == "coll"][0]["parameters"]["scene"]
+    spec = load_scenario(path).unit("coll").parameters["scene"]
     s = read_series(log, ["coll.pair*", "net.avatar*"])
     get = lambda name: s[name][1].astype(float)   # noqa: E731
     rows = []

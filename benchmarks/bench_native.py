@@ -205,7 +205,8 @@ def main() -> None:
                 loop, unit, n = run(demo.replace('fmu = "platform"', f'fmu = "{fmu}"'), tmp, f"demo_{b}_{r}")
                 rows_orch.append((b, loop / n * 1e6, unit / n * 1e6))
         if not args.quick or args.record:
-            campus = (ROOT / "scenarios" / "campus_drive.toml").read_text()
+            # (one [[connections]] table per signal and the units whole: the shipped system, tests/scenarios)
+            campus = (ROOT / "tests" / "scenarios" / "flat" / "campus_drive.toml").read_text()
             for b, fmu in (("python", "platform"), ("native", "platform-native")):
                 src = tmp / f"campus_{b}.toml"
                 src.write_text(campus.replace('fmu = "platform"', f'fmu = "{fmu}"'))

@@ -43,6 +43,16 @@ def list_examples() -> List[Example]:
     return out
 
 
+def _included(path: Path) -> List[Path]:
+    """The files a shipped scenario includes (``include = [...]``), and theirs."""
+    names = tomllib.loads(path.read_text()).get("include", [])
+    out: List[Path] = []
+    for name in [names] if isinstance(names, str) else names:
+        p = (path.parent / name).resolve()
+        out += [p] + _included(p)
+    return out
+
+
 def copy_examples(dest: Path | str, names: Optional[Sequence[str]] = None) -> List[Path]:
     """Copy the shipped files (all, or those named; a sweep brings its base scenario) to
     ``dest``, keeping the folder layout; an existing file is never overwritten.
@@ -62,6 +72,8 @@ def copy_examples(dest: Path | str, names: Optional[Sequence[str]] = None) -> Li
         if isinstance(base, str):  # a sweep file: its base scenario comes along
             rel = (known[key].path.parent / base).resolve().relative_to(examples_dir()).as_posix()
             wanted.append(rel)
+    for n in list(wanted):   # and a scenario the files it includes
+        wanted += [p.relative_to(examples_dir().resolve()).as_posix() for p in _included(known[n].path)]
     wanted = list(dict.fromkeys(wanted))
     for n in wanted:
         if (dest / n).exists():

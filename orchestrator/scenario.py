@@ -35,15 +35,19 @@ Example::
     include = ["*"]              # glob patterns over unit.variable
     exclude = []
 
-Every key, its type and range are declared once in :mod:`~immersim.orchestrator.schema`; every
-problem is reported as a :class:`ScenarioError` ``<file>: <key path>: <reason>``.
+A file may use the shorthand of :mod:`~immersim.orchestrator.expand` (signal groups such as
+``from = "net.avatar[1..3].{x,y,yaw}"``, parameter groups, the collision scene as tables) and
+``include = ["common.toml"]`` (:mod:`~immersim.orchestrator.include`); both expand into the
+one-signal-per-entry form before it is checked. Every key, its type and range are declared once
+in :mod:`~immersim.orchestrator.schema`; every problem is reported as a :class:`ScenarioError`
+``<file>: <key path>: <reason>``, naming the file and key where it was written.
 """
 from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from . import schema
 from .errors import ScenarioError
@@ -150,6 +154,20 @@ class Scenario:
     #: static-triangle budget of those meshes (``mesh_triangles``)
     view_units: bool = False
     mesh_triangles: int = 500_000
+    #: the text of every file the scenario includes, by path (the including file's folder
+    #: joined to the name it gives), for a copy of the scenario elsewhere (SSP, a sweep's worker)
+    included: Dict[str, str] = field(default_factory=dict)
+    #: ``place(loc)``: a key path of the expanded scenario (``("connections", 12, "from")``) as
+    #: ``<file>: <key path>`` where it was written (an included file, a signal group)
+    place: Optional[Callable[[tuple], str]] = field(default=None, repr=False, compare=False)
+
+    def where(self, *loc: Any) -> str:
+        """``<file>: <key path>`` of a key path of the expanded scenario, as written."""
+        if self.place is not None:
+            return self.place(tuple(loc))
+        from .schema import key_path
+
+        return f"{self.file}: {key_path(tuple(loc))}" if loc else str(self.file)
 
     @property
     def n_steps(self) -> int:
@@ -185,15 +203,15 @@ def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) 
     Parameters
     ----------
     path : path-like
-        The TOML file.
+        The TOML file (its ``include`` files are read relative to it).
     overrides : dict, optional
-        Applied on top of the file (used by sweeps and ``immersim run --set``):
-        ``"unit.param": value`` sets a parameter, ``"simulation.stop": value`` (or step,
-        algorithm, extrapolation, start, tolerance) a simulation setting, and
-        ``"unit:fmu": path`` swaps the unit's FMU for another one, ``"unit:process": N`` runs the
-        unit in worker process N (0: the master's process), ``"log.encoding": "json"`` (or
-        include, exclude, parameters) changes the ``[log]`` table. Overridden values are
-        checked as the file's own.
+        Applied on top of the file (used by sweeps and ``immersim run --set``), keys as
+        :func:`parse_override` reads them: ``"unit.param": value`` sets a parameter,
+        ``"simulation.stop": value`` (or step, algorithm, extrapolation, start, tolerance) a
+        simulation setting, ``"unit:fmu": path`` swaps the unit's FMU for another one,
+        ``"unit:process": N`` runs the unit in worker process N (0: the master's process),
+        ``"log.encoding": "json"`` (or include, exclude, parameters) changes the ``[log]``
+        table. Overridden values are checked as the file's own.
     """
     path = Path(path)
     if path.suffix.lower() == ".ssp":   # an SSP 1.0 archive (orchestrator/ssp/)
@@ -204,6 +222,26 @@ def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) 
     return parse_scenario(data, path, text, overrides)
 
 
+OVERRIDE_FORMS = "'unit.param', 'unit:fmu', 'unit:process', 'simulation.<key>' or 'log.<key>'"
+
+
+def parse_override(key: str) -> Tuple[str, str, str]:
+    """What an override key sets: ``(table, unit, key)``, one of ``("simulation", "", key)``,
+    ``("log", "", key)``, ``("parameters", unit, name)``, ``("fmu", unit, "")`` and
+    ``("process", unit, "")``. The one reader of override keys (``--set``, sweep grids and
+    variants); raises :class:`ScenarioError` ``override 'k': not of the form ...``."""
+    table, dot, rest = key.partition(".")
+    if table in ("simulation", "log") and dot and rest:
+        return table, "", rest
+    if ":" in key:
+        unit, field_ = key.rsplit(":", 1)
+        if field_ in ("fmu", "process") and unit and "." not in unit:
+            return field_, unit, ""
+    elif table and rest and table not in ("simulation", "log"):
+        return "parameters", table, rest
+    raise ScenarioError(f"override {key!r}: not of the form {OVERRIDE_FORMS}")
+
+
 def apply_overrides(data: Dict[str, Any], path: Path, overrides: Dict[str, Any]) -> Dict[tuple, str]:
     """Write ``overrides`` into the raw scenario ``data`` (in place); returns the key path
     (schema location) each override set, so that an error in it names the override too."""
@@ -211,39 +249,85 @@ def apply_overrides(data: Dict[str, Any], path: Path, overrides: Dict[str, Any])
     units = data.get("units") if isinstance(data.get("units"), list) else []
     index = {u.get("name"): i for i, u in enumerate(units) if isinstance(u, dict)}
     for key, value in overrides.items():
-        table, dot, rest = key.partition(".")
-        if table in ("simulation", "log") and dot:
+        table, unit, rest = parse_override(key)
+        if table in ("simulation", "log"):
             if not isinstance(data.setdefault(table, {}), dict):
                 continue   # the schema reports the table itself
             data[table][rest] = value
             origins[(table, rest)] = key
             continue
-        unit, field_ = (key.rsplit(":", 1) + [""])[:2] if ":" in key else (table, "parameters")
-        if field_ not in ("fmu", "process", "parameters") or not unit or (field_ == "parameters" and not rest):
-            raise ScenarioError(f"override {key!r}: not of the form 'unit.param', 'unit:fmu', 'unit:process', "
-                                "'simulation.<key>' or 'log.<key>'")
         if unit not in index:
             raise ScenarioError(f"override {key!r}: no unit {unit!r} in {path}"
                                 f"{schema.did_you_mean(unit, [n for n in index if isinstance(n, str)])}")
         i = index[unit]
-        if field_ == "parameters":
+        if table == "parameters":
             params = units[i].setdefault("parameters", {})
             if isinstance(params, dict):
                 params[rest] = value
             origins[("units", i, "parameters", rest)] = key
         else:
-            units[i][field_] = str(value) if field_ == "fmu" else value
-            origins[("units", i, field_)] = key
+            units[i][table] = str(value) if table == "fmu" else value
+            origins[("units", i, table)] = key
     return origins
 
 
-def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
-                   overrides: Optional[Dict[str, Any]] = None) -> Scenario:
-    """Validate raw TOML data against :class:`~immersim.orchestrator.schema.ScenarioFile` and
-    convert it into a :class:`Scenario`."""
-    data = copy.deepcopy(data)
+def _reader(texts: Optional[Dict[str, str]]):
+    """``read(path)`` for included files: from ``texts`` (a scenario shipped with its
+    included files' texts), else from the disk; None for no such file."""
+    def read(file: Path):
+        if texts is not None and str(file) in texts:
+            return tomllib.loads(texts[str(file)]), texts[str(file)]
+        if texts is not None or not file.is_file():
+            return None
+        return schema.read_toml(file, "scenario file")
+    return read
+
+
+def _placer(path: Path, sources: Dict[tuple, Tuple[Path, tuple]]):
+    """``place(loc)``, ``ref(loc)``: a key path of the expanded data named where it was
+    written (``<file>: <key path>``; the reference without the file when it is ``path``)."""
+    def written(loc: tuple) -> Tuple[Path, tuple]:
+        for n in range(len(loc), 0, -1):
+            if loc[:n] in sources:
+                file, at = sources[loc[:n]]
+                return file, at + tuple(loc[n:])
+        return path, tuple(loc)
+
+    def place(loc: tuple) -> str:
+        file, at = written(loc)
+        return f"{file}: {schema.key_path(at)}" if at else str(file)
+
+    def ref(loc: tuple) -> str:
+        file, at = written(loc)
+        return schema.key_path(at) if file == path else f"{file}: {schema.key_path(at)}"
+    return place, ref
+
+
+def expanded_data(data: Dict[str, Any], path: Path, overrides: Optional[Dict[str, Any]] = None,
+                  texts: Optional[Dict[str, str]] = None):
+    """The raw tables of a scenario with its includes merged, the overrides applied and every
+    group expanded (one signal per entry: :mod:`~immersim.orchestrator.expand`).
+
+    Returns ``(data, origins, place, ref, included)``: the override origins, the namers of
+    key paths (:func:`_placer`) and the included files' texts by path."""
+    from .expand import expand
+    from .include import compose
+
+    data, origin, included = compose(copy.deepcopy(data), path, _reader(texts))
     origins = apply_overrides(data, path, overrides) if overrides else {}
-    model: schema.ScenarioFile = schema.validate(schema.ScenarioFile, data, path, origins)
+    place, _ = _placer(path, origin)
+    sources = expand(data, origin, place)
+    place, ref = _placer(path, sources)
+    return data, origins, place, ref, included
+
+
+def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
+                   overrides: Optional[Dict[str, Any]] = None, texts: Optional[Dict[str, str]] = None) -> Scenario:
+    """Validate raw TOML data against :class:`~immersim.orchestrator.schema.ScenarioFile` and
+    convert it into a :class:`Scenario` (``texts``: the included files' texts by path, for a
+    scenario shipped without its folder; default: read from the disk)."""
+    data, origins, place, ref, included = expanded_data(data, path, overrides, texts)
+    model: schema.ScenarioFile = schema.validate(schema.ScenarioFile, data, path, origins, place, ref)
     sim = model.simulation
     start_ns, step_ns = seconds_to_ns(sim.start), seconds_to_ns(sim.step)
     if step_ns <= 0:
@@ -279,4 +363,5 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
                     live_inputs=[LiveInput(s.topic, s.field, s.target.strip(), s.scale, s.offset, s.initial)
                                  for s in model.live_inputs],
                     view_units=bool(model.foxglove and model.foxglove.units),
-                    mesh_triangles=model.foxglove.mesh_triangles if model.foxglove else 500_000)
+                    mesh_triangles=model.foxglove.mesh_triangles if model.foxglove else 500_000,
+                    included=included, place=place)

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Annotated, Any, Dict, List, Literal, Optional, Tuple, Union
 
 from pydantic import (AfterValidator, BaseModel, ConfigDict, Discriminator, Field, Tag,
-                      ValidationError, model_validator)
+                      ValidationError, ValidationInfo, model_validator)
 from pydantic_core import PydanticCustomError
 
 from .errors import ScenarioError
@@ -355,47 +355,50 @@ class ScenarioFile(Table):
     live_inputs: List[LiveInputTable] = Field(default_factory=list)
 
     @model_validator(mode="after")
-    def _references(self) -> "ScenarioFile":
+    def _references(self, info: ValidationInfo) -> "ScenarioFile":
+        ctx = info.context or {}
+        place = ctx.get("place", key_path)     # a key path as "<file>: <key path>" (where written)
+        ref = ctx.get("ref", key_path)         # ... as a short reference inside a message
+
+        def fail(loc: tuple, message: str) -> PydanticCustomError:
+            return PydanticCustomError("placed", "{text}", {"text": f"{place(loc)}: {message}"})
+
         sim = self.simulation
         if sim.stop is not None and sim.stop <= sim.start:
-            raise ValueError(f"simulation.stop = {sim.stop:g} s must be after simulation.start = {sim.start:g} s")
+            raise fail((), f"simulation.stop = {sim.stop:g} s must be after simulation.start = {sim.start:g} s")
         names: List[str] = []
         for i, u in enumerate(self.units):
             if u.name in names:
-                raise ValueError(f"units[{i}].name: duplicate unit instance name {u.name!r}")
+                raise fail(("units", i, "name"), f"duplicate unit instance name {u.name!r}")
             names.append(u.name)
 
-        def known(ref: str, where: str) -> Tuple[str, str]:
-            unit, var = (s.strip() for s in ref.split(".", 1))
+        def known(ref_: str, loc: tuple) -> Tuple[str, str]:
+            unit, var = (s.strip() for s in ref_.split(".", 1))
             if unit not in names:
-                raise ValueError(f"{where}: unknown unit {unit!r} in {ref!r}{did_you_mean(unit, names)}")
+                raise fail(loc, f"unknown unit {unit!r} in {ref_!r}{did_you_mean(unit, names)}")
             return unit, var
 
         fed: Dict[Tuple[str, str], str] = {}
         for i, c in enumerate(self.connections):
             src, dst = (c.split("->", 1) if isinstance(c, str) else (c.src, c.dst))
-            known(src, f"connections[{i}]")
-            target = known(dst, f"connections[{i}]")
+            known(src, ("connections", i))
+            target = known(dst, ("connections", i))
             if target in fed:
-                raise ValueError(f"connections[{i}]: input {'.'.join(target)} is already connected ({fed[target]})")
-            fed[target] = f"connections[{i}]"
-        for i, s in enumerate(self.inputs):
-            target = known(s.target, f"inputs[{i}].target")
-            if target in fed:
-                raise ValueError(f"inputs[{i}].target: {'.'.join(target)} is already driven by {fed[target]}")
-            fed[target] = f"inputs[{i}]"
-        for i, s in enumerate(self.live_inputs):
-            target = known(s.target, f"live_inputs[{i}].target")
-            if target in fed:
-                raise ValueError(f"live_inputs[{i}].target: {'.'.join(target)} is already driven by {fed[target]}")
-            fed[target] = f"live_inputs[{i}]"
+                raise fail(("connections", i), f"input {'.'.join(target)} is already connected ({fed[target]})")
+            fed[target] = ref(("connections", i))
+        for table in ("inputs", "live_inputs"):
+            for i, s in enumerate(getattr(self, table)):
+                target = known(s.target, (table, i, "target"))
+                if target in fed:
+                    raise fail((table, i, "target"), f"{'.'.join(target)} is already driven by {fed[target]}")
+                fed[target] = ref((table, i))
         for i, f in enumerate(self.faults):
-            known(f.target, f"faults[{i}].target")
+            known(f.target, ("faults", i, "target"))
         for i, b in enumerate(self.foxglove.bodies if self.foxglove else []):
             for key in ("position", "euler"):
                 for j, r in enumerate(getattr(b, key)):
                     if isinstance(r, str):
-                        known(r, f"foxglove.bodies[{i}].{key}[{j}]")
+                        known(r, ("foxglove", "bodies", i, key, j))
         return self
 
 
@@ -529,18 +532,23 @@ def _message(err: Dict[str, Any]) -> str:
     return f"{msg.replace('Input should be', 'must be')}, got {_show(err['input'])}"
 
 
-def validate(model: type, data: Dict[str, Any], path: Path, origins: Optional[Dict[tuple, str]] = None):
+def validate(model: type, data: Dict[str, Any], path: Path, origins: Optional[Dict[tuple, str]] = None,
+             place: Optional[Any] = None, ref: Optional[Any] = None):
     """Validate ``data`` against ``model``; the first violation as a :class:`ScenarioError`
-    ``<file>: <key path>: <reason>`` (``origins``: key paths set by an override, named too)."""
+    ``<file>: <key path>: <reason>`` (``origins``: key paths set by an override, named too;
+    ``place(loc)``: a key path as ``<file>: <key path>`` where it was written, for data merged
+    from several files or expanded, and ``ref(loc)`` as a reference inside a message)."""
+    place = place or (lambda loc: f"{path}: {key_path(loc)}" if loc else str(path))
     try:
-        return model.model_validate(data)
+        return model.model_validate(data, context={"place": place, "ref": ref or key_path})
     except ValidationError as exc:
         err = exc.errors(include_url=False)[0]
+        if err["type"] == "placed":
+            raise ScenarioError(err["msg"]) from None
         loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p.startswith("<") and p.endswith(">")))
-        where = key_path(loc)
+        where = place(loc)
         for n in range(len(loc), 0, -1):
             if loc[:n] in (origins or {}):
                 where += f" (set by override {origins[loc[:n]]!r})"
                 break
-        msg = _message(err)
-        raise ScenarioError(f"{path}: {where}: {msg}" if where else f"{path}: {msg}") from None
+        raise ScenarioError(f"{where}: {_message(err)}") from None

@@ -109,16 +109,6 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _family_of_value(value) -> str:
-    if isinstance(value, bool):
-        return "bool"
-    if isinstance(value, int):
-        return "int"
-    if isinstance(value, float):
-        return "float"
-    return "string"
-
-
 @dataclass
 class System:
     """The checked, loaded set of units of a scenario."""
@@ -198,52 +188,44 @@ def check_system(scenario: Scenario) -> System:
             close = [n for n in variables[unit] if n.split(".")[-1] == var.split(".")[-1]][:3]
             close = close or difflib.get_close_matches(var, list(variables[unit]), n=3, cutoff=0.75)
             hint = f"; did you mean {', '.join(close)}?" if close else ""
-            raise ScenarioError(f"{f}: {where}: unit {unit} ({paths[unit].name}) has no variable {var!r}{hint}") from None
+            raise ScenarioError(f"{where}: unit {unit} ({paths[unit].name}) has no variable {var!r}{hint}") from None
 
-    from .schema import key_path
-
+    at = scenario.where
     for i, u in enumerate(scenario.units):
-        for pname, value in u.parameters.items():
-            at = f"{key_path(('units', i, 'parameters', pname))}: parameter {u.name}.{pname}"
-            v = lookup(u.name, pname, at)
+        for pname in u.parameters:
+            where = f"{at('units', i, 'parameters', pname)}: parameter {u.name}.{pname}"
+            v = lookup(u.name, pname, where)
             if not settable(v):
-                raise ScenarioError(f"{f}: {at}: variable has causality {v.causality}, "
+                raise ScenarioError(f"{where}: variable has causality {v.causality}, "
                                     f"not parameter or input, and no initial = exact/approx start value")
-            fam = _family_of_value(value)
-            if fam != v.family and not (fam == "int" and v.family == "float") and not (
-                    fam == "string" and v.family == "binary"):   # a Binary as hex text, as in the XML
-                raise ScenarioError(f"{f}: {at}: type mismatch, the FMU declares "
-                                    f"{v.type} but the scenario gives {type(value).__name__} {value!r}")
     for i, c in enumerate(scenario.connections):
-        src = lookup(c.src_unit, c.src_var, f"connections[{i}].from: connection {c}")
-        dst = lookup(c.dst_unit, c.dst_var, f"connections[{i}].to: connection {c}")
+        src = lookup(c.src_unit, c.src_var, f"{at('connections', i, 'from')}: connection {c}")
+        dst = lookup(c.dst_unit, c.dst_var, f"{at('connections', i, 'to')}: connection {c}")
+        where = f"{at('connections', i)}: connection {c}"
         if src.causality != "output":
-            raise ScenarioError(f"{f}: connections[{i}]: connection {c}: source {c.src_unit}.{c.src_var} has causality "
+            raise ScenarioError(f"{where}: source {c.src_unit}.{c.src_var} has causality "
                                 f"{src.causality}, expected output")
         if dst.causality != "input":
-            raise ScenarioError(f"{f}: connections[{i}]: connection {c}: destination {c.dst_unit}.{c.dst_var} "
+            raise ScenarioError(f"{where}: destination {c.dst_unit}.{c.dst_var} "
                                 f"has causality {dst.causality}, expected input")
         if src.family != dst.family:
-            raise ScenarioError(f"{f}: connections[{i}]: connection {c}: type mismatch {src.type} -> {dst.type}")
+            raise ScenarioError(f"{where}: type mismatch {src.type} -> {dst.type}")
         if c.scaled and src.family != "float":
-            raise ScenarioError(f"{f}: connections[{i}]: connection {c}: gain and offset apply to Real variables only, "
-                                f"not {src.type}")
+            raise ScenarioError(f"{where}: gain and offset apply to Real variables only, not {src.type}")
     for i, s in enumerate(scenario.inputs):
-        v = lookup(s.unit, s.var, f"inputs[{i}].target: input {s.unit}.{s.var}")
+        where = f"{at('inputs', i, 'target')}: input {s.unit}.{s.var}"
+        v = lookup(s.unit, s.var, where)
         if v.causality != "input":
-            raise ScenarioError(f"{f}: inputs[{i}].target: input {s.unit}.{s.var}: variable has causality "
-                                f"{v.causality}, expected input")
+            raise ScenarioError(f"{where}: variable has causality {v.causality}, expected input")
         if v.family != "float":
-            raise ScenarioError(f"{f}: inputs[{i}].target: input {s.unit}.{s.var}: scenario signals drive Real inputs, "
-                                f"this one is {v.type}")
+            raise ScenarioError(f"{where}: scenario signals drive Real inputs, this one is {v.type}")
         if any((c.dst_unit, c.dst_var) == (s.unit, s.var) for c in scenario.connections):
-            raise ScenarioError(f"{f}: inputs[{i}].target: input {s.unit}.{s.var} is also the destination of a "
-                                "connection")
+            raise ScenarioError(f"{where} is also the destination of a connection")
     for i, s in enumerate(scenario.faults):
-        v = lookup(s.unit, s.var, f"faults[{i}].target: fault {s.unit}.{s.var}")
+        where = f"{at('faults', i, 'target')}: fault {s.unit}.{s.var}"
+        v = lookup(s.unit, s.var, where)
         if v.causality not in ("input", "parameter"):
-            raise ScenarioError(f"{f}: faults[{i}].target: fault {s.unit}.{s.var}: only inputs can be forced, "
-                                f"causality is {v.causality}")
+            raise ScenarioError(f"{where}: only inputs can be forced, causality is {v.causality}")
     from .values import check_values
 
     check_values(scenario, variables, paths)   # parameter and fault values against the FMI types
@@ -251,7 +233,7 @@ def check_system(scenario: Scenario) -> System:
     for i, b in enumerate(scenario.foxglove):
         for ref in b.refs():
             unit, var = ref.split(".", 1)
-            lookup(unit, var, f"foxglove.bodies[{i}]: foxglove body {b.name!r}")
+            lookup(unit, var, f"{at('foxglove', 'bodies', i)}: foxglove body {b.name!r}")
 
     # what is logged
     logged: Dict[str, List[str]] = {}

@@ -33,6 +33,22 @@ FLOAT32_MAX = 3.4028234663852886e38
 Bounds = Tuple[Optional[int], Optional[int]]
 
 
+def type_error(value: Any, fmi_type: str) -> Optional[str]:
+    """Why ``value`` is not of a kind an FMI ``fmi_type`` variable takes (a number for a Real,
+    an integer for an integer type, true/false for a Boolean, a string for a String or a
+    Binary given as hex text); None if it is. The one check of a scenario value's type."""
+    if fmi_type in REAL_TYPES:
+        ok = not isinstance(value, bool) and isinstance(value, (int, float))
+        return None if ok else f"{fmi_type} takes a number, got {_show(value)}"
+    if fmi_type == "Boolean":
+        return None if isinstance(value, bool) else f"Boolean takes true or false, got {_show(value)}"
+    if fmi_type in ("String", "Binary"):
+        return None if isinstance(value, str) else f"{fmi_type} takes a string, got {_show(value)}"
+    if fmi_type in INT_RANGES and (isinstance(value, bool) or not isinstance(value, int)):
+        return f"{fmi_type} takes an integer, got {_show(value)}"
+    return None
+
+
 def check_value(value: Any, fmi_type: str, bounds: Bounds = (None, None), non_finite: bool = False) -> Optional[str]:
     """Why ``value`` cannot be set into a variable of FMI type ``fmi_type``; None if it can.
 
@@ -47,9 +63,10 @@ def check_value(value: Any, fmi_type: str, bounds: Bounds = (None, None), non_fi
     non_finite : bool
         Accept NaN/inf for a Real (a fault forced into a Real input).
     """
+    why = type_error(value, fmi_type)
+    if why:
+        return why
     if fmi_type in REAL_TYPES:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return f"{fmi_type} takes a number, got {_show(value)}"
         try:
             number = float(value)
         except OverflowError:
@@ -58,14 +75,7 @@ def check_value(value: Any, fmi_type: str, bounds: Bounds = (None, None), non_fi
             return f"{fmi_type} value must be finite, got {_show(value)}"
         if fmi_type == "Float32" and math.isfinite(number) and abs(number) > FLOAT32_MAX:
             return f"{_show(value)} is outside the Float32 range +-{FLOAT32_MAX:.8g}"
-        return None
-    if fmi_type == "Boolean":
-        return None if isinstance(value, bool) else f"Boolean takes true or false, got {_show(value)}"
-    if fmi_type == "String":
-        return None if isinstance(value, str) else f"String takes a string, got {_show(value)}"
-    if fmi_type in INT_RANGES:
-        if isinstance(value, bool) or not isinstance(value, int):
-            return f"{fmi_type} takes an integer, got {_show(value)}"
+    elif fmi_type in INT_RANGES:
         lo, hi = INT_RANGES[fmi_type]
         lo = lo if bounds[0] is None else max(lo, bounds[0])
         hi = hi if bounds[1] is None else min(hi, bounds[1])
@@ -105,27 +115,32 @@ def check_values(scenario, variables: Dict[str, Dict[str, Any]], paths: Dict[str
     scenario uses exists: checked before). Raises :class:`ScenarioError` ``<file>: <key path>:
     <reason>``.
     """
-    from .schema import key_path
 
-    f = scenario.file
+    at = scenario.where
     bounds = {name: declared_bounds(p, name) for name, p in paths.items()}
     for i, u in enumerate(scenario.units):
         for pname, value in u.parameters.items():
             v = variables[u.name].get(pname)
-            why = v is not None and check_value(value, v.type, bounds[u.name].get(pname, (None, None)))
+            if v is None:
+                continue
+            where = at("units", i, "parameters", pname)
+            if type_error(value, v.type):
+                raise ScenarioError(f"{where}: parameter {u.name}.{pname}: type mismatch, the FMU declares "
+                                    f"{v.type} but the scenario gives {type(value).__name__} {value!r}")
+            why = check_value(value, v.type, bounds[u.name].get(pname, (None, None)))
             if why:
-                raise ScenarioError(f"{f}: {key_path(('units', i, 'parameters', pname))}: {u.name}.{pname}: {why}")
+                raise ScenarioError(f"{where}: {u.name}.{pname}: {why}")
     for i, s in enumerate(scenario.faults):
         v = variables[s.unit].get(s.var)
         if v is None:
             continue
         if v.causality in ("parameter", "structuralParameter") and v.variability != "tunable":
-            raise ScenarioError(f"{f}: faults[{i}].target: {s.unit}.{s.var} is a {v.variability or 'fixed'} "
+            raise ScenarioError(f"{at('faults', i, 'target')}: {s.unit}.{s.var} is a {v.variability or 'fixed'} "
                                 f"parameter; a fault forces an input or a tunable parameter")
         why = check_value(s.value, v.type, bounds[s.unit].get(s.var, (None, None)),
                           non_finite=v.causality == "input")
         if why:
-            raise ScenarioError(f"{f}: faults[{i}].value: {s.unit}.{s.var}: {why}")
+            raise ScenarioError(f"{at('faults', i, 'value')}: {s.unit}.{s.var}: {why}")
 
 
 _RAISED = re.compile(r"^\s*(\w+)\((['\"])(.*)\2\)\s*$", re.S)
@@ -153,15 +168,13 @@ def refused_at_initialization(scenario, unit: str, error: Exception) -> Scenario
     """The error of a unit that refused its parameters when initialized, as one line naming
     the scenario file, the key of the parameter the unit's reason names (its value) and the
     reason: ``<file>: units[1].parameters.M = -240.0: unit plat refused it: M = -240.0 must be > 0``."""
-    from .schema import key_path
-
     reason = unit_reason(str(error), unit)
     i, spec = next((i, u) for i, u in enumerate(scenario.units) if u.name == unit)
     named = [p for p in spec.parameters if re.search(rf"(?<![\w\[]){re.escape(p)}(?![\w\[\]])", reason)]
     named = named or [p for p, v in spec.parameters.items() if isinstance(v, str) and repr(v) in reason]
     if named:
         p = max(named, key=len)
-        where = f"{key_path(('units', i, 'parameters', p))} = {spec.parameters[p]!r}"
-        return ScenarioError(f"{scenario.file}: {where}: unit {unit} refused it at initialization: {reason}")
+        where = f"{scenario.where('units', i, 'parameters', p)} = {spec.parameters[p]!r}"
+        return ScenarioError(f"{where}: unit {unit} refused it at initialization: {reason}")
     return ScenarioError(f"{scenario.file}: units[{i}] ({unit}): the unit refused its parameters at "
                          f"initialization: {reason}")

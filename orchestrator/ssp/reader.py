@@ -266,6 +266,9 @@ def _merge_scenario(data: Dict[str, Any], el: ET.Element, folder: Path, where: s
         emb = tomllib.loads(text)
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ScenarioError(f"{where}: the immersim scenario annotation's file: {exc}") from None
+    from ..scenario import expanded_data
+
+    emb = expanded_data(emb, folder / el.get("source", ""))[0]   # its includes and signal groups
     source = el.get("sourceComponent") or None
     if source is not None:
         data["units"] = [u for u in data["units"] if u["name"] != source]

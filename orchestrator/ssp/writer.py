@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import logging
+import os
+import posixpath
 import tempfile
 import xml.etree.ElementTree as ET
 import zipfile
@@ -143,6 +145,12 @@ def export_ssp(scenario: Scenario | Path | str, output: Path | str,
         for name, data in ssv_files.items():
             z.writestr(name, data)
         z.writestr(SCENARIO_RESOURCE, sc.text)
+        for file, text in sc.included.items():   # the files it includes, at their relative place
+            name = posixpath.normpath(posixpath.join(posixpath.dirname(SCENARIO_RESOURCE),
+                                                     Path(os.path.relpath(file, sc.file.parent)).as_posix()))
+            if name.startswith(".."):
+                raise ScenarioError(f"{sc.file}: include {file!r} lies outside the archive's tree: copy it beside the scenario")
+            z.writestr(name, text)
         if sc.inputs:
             with tempfile.TemporaryDirectory(prefix="immersim_ssp_") as tmp:
                 fmu = build_source_fmu(sc.inputs, Path(tmp) / f"{SOURCE_MODEL}.fmu")

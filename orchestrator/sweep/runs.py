@@ -28,6 +28,8 @@ class RunTask:
     #: scenario's text, and per unit instance the sha256 and client path of its FMU
     text: str = ""
     fmus: Dict[str, Tuple[str, str]] = field(default_factory=dict)
+    #: the texts of the files the scenario includes, by path (``Scenario.included``)
+    included: Dict[str, str] = field(default_factory=dict)
 
 
 @dataclass

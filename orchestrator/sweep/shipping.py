@@ -47,6 +47,7 @@ def attach_inputs(tasks: Iterable, scenario_file: Path) -> Tuple[Dict[str, Path]
         task.text, task.fmus = text, {}
         try:
             sc = load_scenario(scenario_file, task.overrides)
+            task.included = sc.included
             for u in sc.units:
                 key = (u.fmu, tuple(sorted(u.build.items())))   # a built-in unit at its build size
                 if key not in resolved:
@@ -96,7 +97,8 @@ def shipped_scenario(task, local: Dict[str, Path]):
     from ..scenario import parse_scenario
     from ..schema import tomllib
 
-    sc = parse_scenario(tomllib.loads(task.text), Path(task.scenario), task.text, task.overrides)
+    sc = parse_scenario(tomllib.loads(task.text), Path(task.scenario), task.text, task.overrides,
+                        texts=task.included)
     for u in sc.units:
         if u.name not in task.fmus:
             raise ScenarioError(f"{task.scenario}: unit {u.name}: no FMU was shipped with the run")

@@ -154,20 +154,18 @@ def _parse_scenario_path(value: str, path: Path) -> Path:
 
 
 def _check_override_key(key: str, where: str, path: Path) -> None:
-    if key.endswith(":fmu"):
-        if not key[:-4]:
-            raise _err(path, f"{where}: {key!r} names no unit (expected 'unit:fmu')")
-        return
-    if key.startswith("simulation."):
-        sim_keys = tuple(schema.SimulationTable.model_fields)
-        if key.split(".", 1)[1] not in sim_keys:
-            raise _err(path, f"{where}: unknown simulation setting {key!r} "
-                             f"(expected simulation.{'|'.join(sim_keys)})")
-        return
-    unit, _, var = key.partition(".")
-    if not unit or not var:
-        raise _err(path, f"{where}: {key!r} is not an override key ('unit.param', 'simulation.<setting>' "
-                         "or 'unit:fmu')")
+    """The override keys ``immersim run --set`` takes (:func:`~immersim.orchestrator.scenario.parse_override`),
+    their ``simulation.`` and ``log.`` keys checked against the schema's tables."""
+    from ..scenario import OVERRIDE_FORMS, parse_override
+
+    try:
+        table, _, rest = parse_override(key)
+    except ScenarioError:
+        raise _err(path, f"{where}: {key!r} is not an override key ({OVERRIDE_FORMS})") from None
+    known = {"simulation": schema.SimulationTable, "log": schema.LogTable}.get(table)
+    if known is not None and rest not in known.model_fields:
+        raise _err(path, f"{where}: unknown {table} setting {key!r} "
+                         f"(expected {table}.{'|'.join(known.model_fields)})")
 
 
 def _parse_grid(grid: Dict[str, List[Any]], path: Path) -> Dict[str, List[Any]]:
@@ -227,8 +225,10 @@ def distinct_labels(values: Sequence[Any], min_len: int = 16) -> List[str]:
 def _resolve(overrides: Dict[str, Any], path: Path) -> Dict[str, Any]:
     """Make ``unit:fmu`` file paths absolute relative to the sweep file (built-in names stay)."""
     out = dict(overrides)
+    from ..scenario import parse_override
+
     for key, value in overrides.items():
-        if key.endswith(":fmu"):
+        if parse_override(key)[0] == "fmu":
             if not isinstance(value, str) or not value:
                 raise _err(path, f"{key!r} must be a built-in unit name or an FMU path, got {value!r}")
             p = Path(value)

@@ -676,12 +676,10 @@ class _Var:
         self.type, self.causality, self.variability = type_, causality, variability
 
 
-class _Scenario:
-    def __init__(self, faults):
-        from immersim.orchestrator.scenario import FaultSpec, UnitSpec
-        self.file = Path("s.toml")
-        self.units = [UnitSpec("u", "u.fmu", {})]
-        self.faults = [FaultSpec("u", name, 0, value) for name, value in faults]
+def _Scenario(faults):
+    from immersim.orchestrator.scenario import FaultSpec, LogSpec, Scenario, UnitSpec
+    return Scenario(Path("s.toml"), "", [UnitSpec("u", "u.fmu", {})], [], [],
+                    [FaultSpec("u", name, 0, value) for name, value in faults], LogSpec())
 
 
 def test_a_fault_may_force_a_tunable_parameter_only(monkeypatch):

@@ -66,41 +66,48 @@ def test_campus_drive_short_run(tmp_path):
     assert np.abs(series(out, "plat.stroke[1]")).max() > 1e-3
     # the scenario's washout gains keep the full-throttle launch inside the workspace
     assert not series(out, "plat.flag.outside_workspace").any()
-    # the 3D view: every body's frame on /tf each step, its shape on /scene once a second; an
-    # avatar's transform is its logged pose (+ the box centre's 2.5 m), its yaw a z rotation
+    # the 3D view, derived from the units ([foxglove] units = true): every dynamic body of the
+    # collision unit is a /tf frame posed by its inputs (R = Rz(yaw) Ry(pitch) Rx(roll)), the
+    # platform's plate one posed by its pose; the meshes go once on /scene/meshes (the tanks
+    # placed in the world), nothing is a primitive of /scene
     import json
 
     from mcap.reader import make_reader
 
     from immersim.orchestrator.foxglove import read_transforms
 
-    with open(out, "rb") as fh:   # /scene is JSON; /tf is ROS 1 in this ros1 log
-        scene = [json.loads(m.data)["entities"] for _, c, m in make_reader(fh).iter_messages(topics=["/scene"])]
+    with open(out, "rb") as fh:   # /scene* is JSON; /tf is ROS 1 in this ros1 log
+        msgs = {}
+        for _, c, m in make_reader(fh).iter_messages(topics=["/scene", "/scene/meshes"]):
+            msgs.setdefault(c.topic, []).append(json.loads(m.data)["entities"])
     tf = [transforms for _, transforms in read_transforms(out)]
-    names = {"avatar_1", "avatar_2", "avatar_3", "entity_1", "entity_2", "entity_3", "entity_4", "missile",
-             "tank_a", "tank_b", "tank_c", "tank_0", "tank_1", "tank_2", "tank_3", "platform", "platform_base"}
-    assert len(tf) == 62 and len(scene) == 2 and all({x["child_frame_id"] for x in f} == names for f in tf)
-    assert {e["id"] for e in scene[0]} == names
-    a1 = [next(x for x in f if x["child_frame_id"] == "avatar_1") for f in tf]
-    np.testing.assert_array_equal([x["translation"]["x"] for x in a1], x)
+    frames = {f"coll/{b}" for b in ("avatar_1", "avatar_2", "avatar_3", "missile", "entity_1", "entity_2",
+                                     "entity_3", "entity_4")} | {"plat/plate"}
+    assert len(tf) == 62 and all({x["child_frame_id"] for x in f} == frames for f in tf)
+    assert len(msgs["/scene"]) == 2 and msgs["/scene"][0] == [] and len(msgs["/scene/meshes"]) == 1
+    static = {e["id"] for e in msgs["/scene/meshes"][0] if e["frame_id"] == "world"}
+    assert static == {f"coll/tank_{t}" for t in "abc0123"} | {"plat/rails"}
+    a1 = [next(x for x in f if x["child_frame_id"] == "coll/avatar_1") for f in tf]
+    np.testing.assert_array_equal([x_["translation"]["x"] for x_ in a1], series(out, "coll.body[1].x"))
     assert all(x_["translation"]["z"] == 2.5 for x_ in a1)
-    yaw = series(out, "net.avatar[1].yaw")
+    yaw = series(out, "coll.body[1].yaw")
     np.testing.assert_allclose([x_["rotation"]["z"] for x_ in a1], np.sin(yaw / 2), rtol=0, atol=1e-15)
 
 
 def _campus_variant(tmp_path: Path, name: str, drop_jolt: bool) -> Path:
     """campus_drive with tank_a 6.5 m ahead of avatar 1 (contact within 2 s), optionally
-    without the net.avatar[1].jolt_acc -> plat.jolt connection."""
+    without the net.avatar[1].jolt_acc -> plat.jolt connection (of the included file)."""
     text = CAMPUS.read_text()
-    text, n = re.subn(r"tank:name=tank_a,tris=5\.4k,x=[0-9.]+,y=[0-9.]+",
-                      "tank:name=tank_a,tris=5.4k,x=48.123,y=53.310", text)
+    text, n = re.subn(r'(name = "tank_a", tris = "5\.4k"), x = [0-9.]+, y = [0-9.]+', r"\1, x = 48.123, y = 53.310", text)
     assert n == 1
+    common = (SCEN / "campus_common.toml").read_text()
     if drop_jolt:
-        text, n = re.subn(r"\[\[connections\]\][^\n]*\nfrom = \"net\.avatar\[1\]\.jolt_acc\"[^\n]*\n"
-                          r"to = \"plat\.jolt\"\ngain = [0-9.]+\nextrapolation = \"zoh\"[^\n]*\n", "", text)
+        common, n = re.subn(r"\[\[connections\]\][^\n]*\nfrom = \"net\.avatar\[1\]\.jolt_acc\"\n"
+                            r"to = \"plat\.jolt\"\ngain = [0-9.]+\nextrapolation = \"zoh\"\n", "", common)
         assert n == 1
+    (tmp_path / f"common_{name}").write_text(common)
     path = tmp_path / name
-    path.write_text(text)
+    path.write_text(text.replace('include = ["campus_common.toml"]', f'include = ["common_{name}"]'))
     return path
 
 
