@@ -52,6 +52,7 @@ CAMPUS_COLLISION = {
               "missile vs any tank*; avatar_1 vs any entity_*"),
 }
 CAMPUS_REPS = 5  # repetitions of each variant in the campus_drive replay (interleaved step by step)
+AB_REPS = 12  # repetitions of the A/B and shortcut replays (--ab)
 #: ms; the collision model's share of the 0.33 ms per step of campus_drive at 100x real time that this replay is held to (mean
 #: per step, outputs identical to the baseline), and the speed-up over the baseline asked with it
 CAMPUS_TARGET_MS, CAMPUS_TARGET_SPEEDUP = 0.07, 2.0
@@ -823,42 +824,49 @@ def bench_ab(tree, log=None, reps=10):
         camp = {tag: (lambda tag=tag: mods[tag][0]("fcl", (parse_scene if tag == "this" else base.parse_scene)(params["scene"]),
                                                      params["pairs"], mods[tag][1](max_distance=FMU_MAX_DISTANCE)))
                 for tag in mods}
-        times, same = _interleaved(camp, poses, CAMPUS_REPS)
+        times, same = _interleaved(camp, poses, AB_REPS)
         row(f"campus_drive replay, mean per step{'' if same else ' (outputs DIFFER)'}", times["this"], times["base"],
             stat=np.mean)
+        per_step = lambda t: np.median(np.reshape(t, (AB_REPS, -1)), 0)  # noqa: E731
+        row("campus_drive replay, sum of the per-step medians (a whole replay)", per_step(times["this"]),
+            per_step(times["base"]), stat=np.sum)
         row("campus_drive replay, median per step", times["this"], times["base"])
     header = ["figure (thread CPU time)", "this tree ms", "baseline ms", "this / baseline", "this / raw",
               "baseline / raw"]
     return header, rows
 
 
-def bench_shortcuts(log, reps=CAMPUS_REPS):
+def bench_shortcuts(log, reps=None):
     """Each :class:`Shortcuts` switch off against all on: the campus_drive replay of ``log``
-    and the 5040-tank field at the FMU's max_distance, interleaved; thread CPU per step, mean
-    and median."""
+    and the 5040-tank field at the FMU's max_distance, interleaved; thread CPU per step: the
+    mean, the sum over the steps of their medians over the repetitions (a whole run, robust to
+    a noisy repetition) and the median step."""
     from immersim.models.collision import Shortcuts
 
+    reps = AB_REPS if reps is None else reps
     params, poses = _campus_inputs(log)
     field = parse_scene("tanks:n=5040,tris=26.4k;missile:z=8")
     traj = [[p] for p in field_trajectory(field, 30)]
     names = ["all on"] + [f"{f} off" for f in Shortcuts.__dataclass_fields__]
-    switch = lambda name: Shortcuts() if name == "all on" else Shortcuts(**{name[:-4]: False})
+    switch = lambda name: Shortcuts() if name == "all on" else Shortcuts(**{name[:-4]: False})  # noqa: E731
     rows = []
-    for label, make, inputs, r in (
+    for label, make, inputs in (
             ("campus_drive replay", lambda name: make_backend("fcl", parse_scene(params["scene"]), params["pairs"],
                                                                 BackendConfig(max_distance=FMU_MAX_DISTANCE), switch(name)),
-             poses, reps),
+             poses),
             ("5040-tank field", lambda name: make_backend("fcl", field, "missile vs any tank",
                                                             BackendConfig(max_distance=FMU_MAX_DISTANCE), switch(name)),
-             traj, 10)):
-        times, same = _interleaved({n: (lambda n=n: make(n)) for n in names}, inputs, r, fresh=inputs is poses)
-        on = {f: float(f(times["all on"])) * 1e3 for f in (np.mean, np.median)}
+             traj)):
+        times, same = _interleaved({n: (lambda n=n: make(n)) for n in names}, inputs, reps, fresh=inputs is poses)
+        stats = {n: (float(np.mean(t)) * 1e3, float(np.median(np.reshape(t, (reps, -1)), 0).sum()) * 1e3,
+                     float(np.median(t)) * 1e3) for n, t in times.items()}
+        on = stats["all on"]
         for n in names[1:]:
-            off = {f: float(f(times[n])) * 1e3 for f in (np.mean, np.median)}
-            rows.append([label, n, on[np.mean], off[np.mean], off[np.mean] / on[np.mean], on[np.median],
-                         off[np.median], off[np.median] / on[np.median], "yes" if same else "NO"])
-    return ["workload", "variant", "all on: mean ms/step", "variant: mean", "mean ratio", "all on: median ms/step",
-            "variant: median", "median ratio", "outputs identical"], rows
+            off = stats[n]
+            rows.append([label, n] + [x for k in range(3) for x in (on[k], off[k], off[k] / on[k])]
+                        + ["yes" if same else "NO"])
+    return ["workload", "variant", "all on: mean ms/step", "variant", "ratio", "all on: sum of step medians ms",
+            "variant", "ratio", "all on: median step ms", "variant", "ratio", "outputs identical"], rows
 
 
 def ab_main(tree, baseline_name, log=None):
@@ -876,8 +884,9 @@ def ab_main(tree, baseline_name, log=None):
         sh, srows = bench_shortcuts(log)
         write_csv("shortcuts.csv", sh, srows)
         text += ["## Shortcuts (each switched off against all on)", "",
-                 "`Shortcuts` of `models/collision/backend.py`; thread CPU per step (mean: the total; median: the "
-                 "typical step), FMU default max_distance; ratio > 1: the shortcut saves that much.", "",
+                 f"`Shortcuts` of `models/collision/backend.py`, {AB_REPS} repetitions; thread CPU per step: mean, "
+                 "sum over the steps of their median (a whole run) and the median step; FMU default max_distance; "
+                 "ratio > 1: the shortcut saves that much.", "",
                  md_table(sh, srows)]
     (OUT / "ab.md").write_text("\n".join(text))
     print("\n".join(text))
@@ -1030,7 +1039,7 @@ def main():
             f"* Nothing moves: a cached step of the 5040-tank scene costs {big[4] * 1e3:.1f} us (median).",
             "* The missile (192 triangles) keeps fcl's whole-mesh distance query in all these workloads: the chunked "
             "exact distances of the FMU default (`chunk_faces = 32`) serve bodies of at most 64 triangles (boxes such "
-            "as campus_drive's avatars) against meshes of at least 1024; their effect is in the campus_drive section. "
+            "as campus_drive's avatars) against meshes of at least 1024; their effect shows in the campus_drive replay. "
             "The backend's exact distances run on the tank's distance triangulation (its turret caps, fans of "
             "slivers, re-triangulated: `models/collision/fans.py`); raw python-fcl here queries the tank mesh "
             "itself, fans included, for both collide and distance.",
@@ -1040,9 +1049,11 @@ def main():
                      f"impact): median **{big[8]:.3f} ms** per step. Not comparable with raw python-fcl, which "
                      "computes the exact distance to the nearest tank however far it is; this reports "
                      "`max_distance` then.")
-    campus = OUT / "campus.md"
-    if campus.exists():  # written by --campus (a separate run: it needs a campus_drive log)
-        lines += ["", campus.read_text().replace("## campus_drive", "## campus_drive (separate run)", 1)]
+    for name in ("ab.md", "startup.md", "campus.md"):  # separate runs (--ab, --startup, --campus)
+        part = OUT / name
+        if part.exists():
+            lines += ["", part.read_text().replace("# ", "## ", 1).replace("## ", "## (separate run) ", 1)]
+    lines += ["", "Measured effects behind design choices of the model: `design.md`."]
     lines += [
         "",
         "## Accuracy against FCL (random missile poses around a 5.4k tank)",
