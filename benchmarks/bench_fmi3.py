@@ -11,6 +11,7 @@ medians over the repeats. Target: FMI 3.0 per-step CPU time within 1.2x of FMI 2
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import tempfile
@@ -46,6 +47,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
     rows = []
+    load = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         for name in CASES:
             got = {"fmi2": [], "fmi3": []}
@@ -79,9 +81,11 @@ def main() -> None:
               "Integer, Boolean and String, four) and logs 32 variables against 12, so its FMI 3.0 build does more "
               "per step by construction; VanDerPol reads and logs the same Float64 variables in both."]
     for name, (l2, u2, g2, _), (l3, u3, g3, _) in rows:
-        lines.append(f"{name}: the FMI 3.0 build's step loop takes {l3 - l2:+.2f} us per step more, of which "
-                     f"{u3 - u2:+.2f} us in its FMI calls and {g3 - g2:+.2f} us in logging (wall times).")
-    lines.append("")
+        lines.append(f"{name}: step loop FMI 3.0 - FMI 2.0 {l3 - l2:+.2f} us per step, of which "
+                     f"{u3 - u2:+.2f} us in the FMI calls and {g3 - g2:+.2f} us in logging (wall times).")
+    lines += ["", f"Load average of the machine (1 min) before and after the runs: {load[0]:.1f} and "
+              f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (other jobs inflate the wall figures; the "
+              "CPU figures and the ratios of interleaved runs less).", ""]
     out.write_text("\n".join(lines))
     print("\n".join(lines))
 
