@@ -15,16 +15,13 @@ log = logging.getLogger(__name__)
 
 
 class SharedValues:
-    """A worker unit's outputs in a shared file mapping (``/dev/shm``), instead of a reply.
+    """A worker unit's outputs in a shared file mapping, instead of a reply.
 
-    Two buffers, used in turn by the posts (post ``seq`` writes buffer ``seq % 2``), so the
-    worker can answer a unit's next post while the master has not read the last one yet.
-    Layout of a buffer, float64: a header ``[sequence, status, busy ns, 0]`` then the values
-    (Reals, Integers, Booleans, in the reader's order). The worker writes the values, then the
-    status, busy time and, last, the sequence number of the post; the master waits for its
-    sequence number (x86 keeps the order of stores, so the values are complete when it
-    appears; used only where :data:`STORE_ORDERED`). A status 1 means the step failed: its
-    error comes as a normal reply.
+    Two buffers used in turn (post ``seq`` writes buffer ``seq % 2``), so the worker can answer
+    a unit's next post before the master has read the last one. A buffer is float64: a header
+    ``[sequence, status, busy ns, 0]``, then the values (Reals, Integers, Booleans in the
+    reader's order). The worker writes the values, the status and busy time, and last the
+    sequence number the master waits for; status 1: the step failed, its error is a reply.
 
     Parameters
     ----------
