@@ -70,12 +70,21 @@ def check_options(who: str, declared: Tuple[BuildOption, ...], given: Mapping[st
     return out
 
 
+def _read_chosen() -> dict:
+    path = Path(__file__).with_name(CHOSEN_FILE)
+    return json.loads(path.read_text()) if path.exists() else {"unit": "?", "options": {}}
+
+
+#: the build's values, read once, when this copy of the package is imported: a packed package's
+#: name belongs to one build (its digest covers the options), so a copy imported earlier from
+#: another folder (an FMU extracted by another importer, since removed) holds the same values
+_CHOSEN = _read_chosen()
+
+
 def build_options(*declared: BuildOption) -> Dict[str, int]:
     """The values of the declared options in this build: those the build wrote into
     :data:`CHOSEN_FILE`, the defaults for the others (all defaults without the file)."""
-    path = Path(__file__).with_name(CHOSEN_FILE)
-    chosen = json.loads(path.read_text()) if path.exists() else {"unit": "?", "options": {}}
-    return check_options(f"unit {chosen['unit']}", declared, chosen["options"])
+    return check_options(f"unit {_CHOSEN['unit']}", declared, _CHOSEN["options"])
 
 
 def options_table(declared: Tuple[BuildOption, ...]) -> str:

@@ -363,3 +363,15 @@ def test_the_build_reads_the_options_the_wrapper_declares(unit):
 
     wrapper = importlib.import_module(f"immersim.fmus.{unit}.{unit}_fmu")
     assert declared_options(Path(wrapper.__file__)) == wrapper.BUILD_OPTIONS
+
+
+def test_a_size_built_again_after_another_importer_ran_it(tmp_path, sized):
+    """libcosim ran the sized FMU in this process from a folder it has since removed; the
+    packed package stays imported under the build's name. A second build of that size (into
+    another folder) imports it again and must still declare 8 players."""
+    from immersim.orchestrator.build import build_all
+    from immersim.orchestrator.crosscheck import simulate_libcosim
+
+    simulate_libcosim(sized["network8"], {"players": 8}, 2, ["avatar[8].x"])
+    again = build_all(["network"], tmp_path, options={"players": 8})[0]
+    assert _names(again) == _names(sized["network8"])
