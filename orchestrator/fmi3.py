@@ -365,15 +365,17 @@ def stepper(inst: "FmuInstance") -> Callable[[int, int], Optional[int]]:
     without advancing raises :class:`~.errors.FmuCallError` (it would never reach the end)."""
     fn, comp, no_set = inst._do_step, inst._c_component, inst._c_true
     event, terminate, early, last = ctypes.c_bool(), ctypes.c_bool(), ctypes.c_bool(), ctypes.c_double()
-    refs = (ctypes.byref(event), ctypes.byref(terminate), ctypes.byref(early), ctypes.byref(last))
     c_t, c_h = ctypes.c_double(), ctypes.c_double()
+    #: the call's arguments, made once (the times are set in c_t and c_h)
+    args = (comp, c_t, c_h, no_set, ctypes.byref(event), ctypes.byref(terminate), ctypes.byref(early),
+            ctypes.byref(last))
 
     def do_step(t_ns: int, h_ns: int) -> Optional[int]:
         end = t_ns + h_ns
         c_t.value, c_h.value = t_ns / 1e9, h_ns / 1e9
         while True:
             try:
-                status = fn(comp, c_t, c_h, no_set, *refs)
+                status = fn(*args)
             except Exception as exc:
                 raise inst._raised("fmi3DoStep", exc) from None
             if status > 1:
