@@ -1,0 +1,21 @@
+"""Importing the collision model (what building or loading the unit does) leaves the heavy
+libraries alone; a scene imports trimesh when it builds a mesh (trimesh itself loads scipy's
+spatial package and python-fcl)."""
+import subprocess
+import sys
+
+HEAVY = ("trimesh", "scipy.spatial", "fcl")
+
+
+def _loaded(code: str) -> list:
+    out = subprocess.run([sys.executable, "-c", f"import sys\n{code}\nprint(*[m for m in {HEAVY!r} if m in sys.modules])"],
+                         capture_output=True, text=True, check=True)
+    return out.stdout.split()
+
+
+def test_the_model_package_imports_no_heavy_library():
+    assert _loaded("import immersim.models.collision") == []
+
+
+def test_a_scene_of_primitives_brings_trimesh():
+    assert "trimesh" in _loaded("from immersim.models.collision import parse_scene\nparse_scene('box:sx=1,sy=1,sz=1')")
