@@ -1,8 +1,9 @@
 """Collision unit (thesis ch. 4-5): scenes of meshes and three interchangeable detectors.
 
-``make_backend(name, scene, pairs, config)`` returns a :class:`CollisionBackend` whose
-``query(poses, dt)`` gives per-pair contact, distance, penetration depth, contact point and
-normal, time of impact and closing speed, plus candidate / narrow-phase counts:
+``make_backend(name, scene, pairs, config, shortcuts)`` returns a :class:`CollisionBackend`
+whose ``query(poses, dt)`` gives per-pair contact, distance, penetration depth, contact point
+and normal, time of impact and closing speed, plus candidate / narrow-phase counts
+(:class:`Shortcuts`: the speed mechanisms, all on by default, none changing an output):
 
 * ``fcl`` (default): python-fcl BVHs and dynamic AABB tree, exact (:mod:`.fcl_backend`);
 * ``basis_point``: the scan-line basis-point detector of ch. 5 (:mod:`.basis_point`);
