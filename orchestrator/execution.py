@@ -145,7 +145,7 @@ class Execution:
             if scene is not None:
                 params.setdefault("scene", scene.start)
             units.append((name, read_model(system.paths[name], name)[0].modelName, params))
-        bodies, self.meshes, self.view_steps = unit_view(units, sc.mesh_triangles)
+        bodies, self.meshes, self.view_steps = unit_view(units, sc.mesh_triangles, sc.view_rods)
         self.scenario = system.scenario = replace(sc, foxglove=list(sc.foxglove) + bodies)
 
     # -- set-up --------------------------------------------------------------------------

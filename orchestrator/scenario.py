@@ -154,6 +154,8 @@ class Scenario:
     #: static-triangle budget of those meshes (``mesh_triangles``)
     view_units: bool = False
     mesh_triangles: int = 500_000
+    #: ``[foxglove] rods``: draw the platforms' rods (redrawn every step)
+    view_rods: bool = True
     #: the text of every file the scenario includes, by path (the including file's folder
     #: joined to the name it gives), for a copy of the scenario elsewhere (SSP, a sweep's worker)
     included: Dict[str, str] = field(default_factory=dict)
@@ -364,4 +366,5 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
                                  for s in model.live_inputs],
                     view_units=bool(model.foxglove and model.foxglove.units),
                     mesh_triangles=model.foxglove.mesh_triangles if model.foxglove else 500_000,
+                    view_rods=model.foxglove.rods if model.foxglove else True,
                     included=included, place=place)

@@ -338,6 +338,7 @@ class FoxgloveTable(Table):
     units: bool = Field(False, description="also draw what the units describe (the collision unit's meshes)")
     mesh_triangles: Annotated[int, Field(ge=0)] = Field(
         500_000, description="static triangles drawn as meshes; beyond, static bodies as bounding boxes")
+    rods: bool = Field(True, description="draw a platform's rods, redrawn every step (its inverse kinematics each step)")
 
 
 class ScenarioFile(Table):

@@ -140,6 +140,8 @@ class PlatformRods:
         self.unit, self.params, self._ik = unit, params, ik_full
         self.topic = f"/scene/{unit}"
         self.refs = [f"{unit}.pose.{ax}" for ax in ("x", "y", "z", "gamma", "beta", "alpha")]
+        self._pose: List[float] = []
+        self._lines: List[dict] = []
 
     def points(self, pose: Sequence[float]) -> np.ndarray:
         """(12, 3): B_1, C_1, B_2, C_2, ... in the base frame, m."""
@@ -149,8 +151,10 @@ class PlatformRods:
         return np.stack([B, C], axis=1).reshape(12, 3)
 
     def entities(self, values: Sequence[float], stamp: dict) -> List[dict]:
+        if list(values) != self._pose:   # a platform at rest: the rods of its last pose
+            self._pose, self._lines = list(values), [line_list(self.points(values), ROD_COLOR)]
         return [{"timestamp": stamp, "frame_id": "world", "id": f"{self.unit}/rods", "frame_locked": False,
-                 "lifetime": {"sec": 0, "nsec": 0}, "lines": [line_list(self.points(values), ROD_COLOR)]}]
+                 "lifetime": {"sec": 0, "nsec": 0}, "lines": self._lines}]
 
 
 def platform_view(unit: str, parameters: dict) -> Tuple[List[Any], List[MeshEntity], List[PlatformRods]]:
@@ -172,11 +176,12 @@ def platform_view(unit: str, parameters: dict) -> Tuple[List[Any], List[MeshEnti
     return [body], meshes, [PlatformRods(unit, p)]
 
 
-def unit_view(units: Sequence[Tuple[str, str, dict]], mesh_triangles: int
+def unit_view(units: Sequence[Tuple[str, str, dict]], mesh_triangles: int, rods: bool = True
               ) -> Tuple[List[Any], List[MeshEntity], List[PlatformRods]]:
     """The view of every instance given as ``(instance name, model name, parameters)``
     (the parameters as the scenario sets them; the collision unit's ``scene`` with its
-    default filled in); instances of models without a view are skipped."""
+    default filled in); instances of models without a view are skipped. ``rods = False``
+    leaves out the platforms' rods (the part redrawn every step)."""
     bodies: List[Any] = []
     meshes: List[MeshEntity] = []
     steps: List[PlatformRods] = []
@@ -185,7 +190,7 @@ def unit_view(units: Sequence[Tuple[str, str, dict]], mesh_triangles: int
             b, m = collision_view(name, str(params["scene"]), mesh_triangles)
         elif model == PLATFORM_MODEL:
             b, m, r = platform_view(name, params)
-            steps += r
+            steps += r if rods else []
         else:
             continue
         bodies += b

@@ -87,6 +87,8 @@ def test_campus_drive_short_run(tmp_path):
     assert len(msgs["/scene"]) == 2 and msgs["/scene"][0] == [] and len(msgs["/scene/meshes"]) == 1
     static = {e["id"] for e in msgs["/scene/meshes"][0] if e["frame_id"] == "world"}
     assert static == {f"coll/tank_{t}" for t in "abc0123"} | {"plat/rails"}
+    with open(out, "rb") as fh:   # [foxglove] rods = false: no per-step redraw of the platform's rods
+        assert "/scene/plat" not in {c.topic for c in make_reader(fh).get_summary().channels.values()}
     a1 = [next(x for x in f if x["child_frame_id"] == "coll/avatar_1") for f in tf]
     np.testing.assert_array_equal([x_["translation"]["x"] for x_ in a1], series(out, "coll.body[1].x"))
     assert all(x_["translation"]["z"] == 2.5 for x_ in a1)
