@@ -264,13 +264,32 @@ def apply_overrides(data: Dict[str, Any], path: Path, overrides: Dict[str, Any])
         i = index[unit]
         if table == "parameters":
             params = units[i].setdefault("parameters", {})
-            if isinstance(params, dict):
-                params[rest] = value
-            origins[("units", i, "parameters", rest)] = key
+            for name, v in _override_group(key, rest, value):
+                if isinstance(params, dict):
+                    params[name] = v
+                origins[("units", i, "parameters", name)] = key
         else:
             units[i][table] = str(value) if table == "fmu" else value
             origins[("units", i, table)] = key
     return origins
+
+
+def _override_group(key: str, name: str, value: Any) -> List[Tuple[str, Any]]:
+    """The parameters an override sets: a group (``coll.body[1..3].z``) sets each of its
+    variables, to one value or to one value each from an array."""
+    from .expand import is_group, names
+
+    if not is_group(name):
+        return [(name, value)]
+    try:
+        keys = names(name)
+    except ValueError as exc:
+        raise ScenarioError(f"override {key!r}: {exc}") from None
+    if not isinstance(value, list):
+        return [(k, value) for k in keys]
+    if len(value) != len(keys):
+        raise ScenarioError(f"override {key!r}: names {len(keys)} variables, the array has {len(value)} values")
+    return list(zip(keys, value))
 
 
 def _reader(texts: Optional[Dict[str, str]]):
@@ -316,10 +335,10 @@ def expanded_data(data: Dict[str, Any], path: Path, overrides: Optional[Dict[str
     from .include import compose
 
     data, origin, included = compose(copy.deepcopy(data), path, _reader(texts))
-    origins = apply_overrides(data, path, overrides) if overrides else {}
     place, _ = _placer(path, origin)
     sources = expand(data, origin, place)
     place, ref = _placer(path, sources)
+    origins = apply_overrides(data, path, overrides) if overrides else {}   # onto the expanded names
     return data, origins, place, ref, included
 
 

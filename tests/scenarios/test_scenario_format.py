@@ -219,3 +219,11 @@ def test_a_shipped_scenario_carries_its_included_files(tmp_path):
     (tmp_path / "common.toml").unlink()
     sc = shipped_scenario(task, files)
     assert [(u.name, u.parameters) for u in sc.units] == [("a", {}), ("b", {"M": 250.0})]
+
+
+def test_an_override_sets_one_variable_of_a_group_or_a_whole_group():
+    sc = load_scenario(SCEN / "campus_drive.toml", {"coll.body[2].z": 3.0, "coll.body[5..6].z": [0.5, 0.7]})
+    params = sc.unit("coll").parameters
+    assert [params[f"body[{j}].z"] for j in (1, 2, 3, 5, 6, 7)] == [2.5, 3.0, 2.5, 0.5, 0.7, 1.0]
+    with pytest.raises(ScenarioError, match=r"override 'coll\.body\[1\.\.2\]\.z': names 2 variables, the array has 3"):
+        load_scenario(SCEN / "campus_drive.toml", {"coll.body[1..2].z": [1.0, 2.0, 3.0]})
