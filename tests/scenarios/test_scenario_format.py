@@ -227,3 +227,21 @@ def test_an_override_sets_one_variable_of_a_group_or_a_whole_group():
     assert [params[f"body[{j}].z"] for j in (1, 2, 3, 5, 6, 7)] == [2.5, 3.0, 2.5, 0.5, 0.7, 1.0]
     with pytest.raises(ScenarioError, match=r"override 'coll\.body\[1\.\.2\]\.z': names 2 variables, the array has 3"):
         load_scenario(SCEN / "campus_drive.toml", {"coll.body[1..2].z": [1.0, 2.0, 3.0]})
+
+
+@pytest.mark.parametrize("text, message", [
+    ('[[connections]]\nfrom = "a.stroke[1..3]"\nto = "b.cue.{f_x,f_y}"\n', r"s\.toml: connections\[0\]: 'from' "
+     r"'a\.stroke\[1\.\.3\]' names 3 signals, 'to' 'b\.cue\.\{f_x,f_y\}' names 2: they must name as many"),
+    ('[[connections]]\nfrom = "a.pose.{x,y}"\nto = "b.cue.{f_x,f_yy}"\n', r"s\.toml: connections\[0\]\.to: connection "
+     r"a\.pose\.y -> b\.cue\.f_yy: unit b \(platform\.fmu\) has no variable 'cue\.f_yy'"),
+])
+def test_the_command_line_reports_a_group_error_in_one_line(tmp_path, capsys, text, message):
+    """``immersim run``: exit status 2, one line ``immersim: error: <file>: <key>: ...``, no traceback."""
+    import re
+
+    from immersim.orchestrator.cli import main
+
+    rc = main(["run", str(write(tmp_path, OSC + text)), "-o", str(tmp_path / "x.mcap"), "-q"])
+    lines = capsys.readouterr().err.splitlines()
+    assert rc == 2 and len(lines) == 1 and lines[0].startswith("immersim: error: "), (rc, lines)
+    assert re.search(message, lines[0]), lines[0]
