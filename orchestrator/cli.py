@@ -359,9 +359,12 @@ _COMMAND: dict = {}
 
 def _exit_now(code: int) -> None:
     """Flush the standard streams, run the exit handlers and end the process with ``code``
-    (returns, for the interpreter's own exit, when a stream cannot be flushed)."""
+    (returns, for the interpreter's own exit, when a stream cannot be flushed or a profiler or
+    tracer watches the process: it writes its results after ``main``)."""
     import atexit
 
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        return
     try:
         sys.stdout.flush()
         sys.stderr.flush()
