@@ -316,3 +316,16 @@ def check_build_options(name: str, options: Mapping[str, Any], who: Optional[str
     if name in NATIVE_UNITS:
         raise BuildError(f"{who or f'unit {name}'}: takes no build options")
     return unit_options(_fmus_dir() / name, options, who)
+
+
+def capacity_hint(name: str, options: Optional[Mapping[str, Any]] = None) -> str:
+    """For an error about a variable a built-in unit lacks: ``" (built with players = 4,
+    entity_outputs = 16; build = { ... } in its [[units]] table sizes it)"``, or ``""`` for
+    a unit without build options (or not built in)."""
+    if name not in unit_names():
+        return ""
+    declared = declared_options(_fmus_dir() / name / f"{name}_fmu.py")
+    if not declared:
+        return ""
+    built = ", ".join(f"{o.name} = {(options or {}).get(o.name, o.default)}" for o in declared)
+    return f" (built with {built}; build = {{ ... }} in its [[units]] table sizes it)"

@@ -9,6 +9,7 @@ from __future__ import annotations
 import difflib
 import hashlib
 import logging
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Set
@@ -188,6 +189,11 @@ def check_system(scenario: Scenario) -> System:
             close = [n for n in variables[unit] if n.split(".")[-1] == var.split(".")[-1]][:3]
             close = close or difflib.get_close_matches(var, list(variables[unit]), n=3, cutoff=0.75)
             hint = f"; did you mean {', '.join(close)}?" if close else ""
+            if re.sub(r"\[\d+\]", "[1]", var) in variables[unit]:   # an index beyond a capacity
+                from .build import capacity_hint
+
+                spec = next(u for u in scenario.units if u.name == unit)
+                hint += capacity_hint(spec.fmu, spec.build) if not spec.path else ""
             raise ScenarioError(f"{where}: unit {unit} ({paths[unit].name}) has no variable {var!r}{hint}") from None
 
     at = scenario.where

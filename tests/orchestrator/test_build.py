@@ -309,6 +309,13 @@ def test_a_scenario_sizes_its_units(tmp_path, sized, monkeypatch):
     scn.write_text(body.format("").replace("build = {  }\n", "").split("[[inputs]]")[0])
     with pytest.raises(Exception, match=r"parameter players = 8 must be in 1\.\.4 \(build option players\)"):
         run_scenario(scn, tmp_path / "four.mcap")
+    # and a variable beyond its capacity is refused with how the unit was built
+    scn.write_text(body.format("").replace("build = {  }\n", "").replace("players = 8\n", "players = 4\n"))
+    with pytest.raises(ScenarioError, match=re.escape(
+            "unit net (network.fmu) has no variable 'avatar[8].throttle'; did you mean avatar[1].throttle, "
+            "avatar[2].throttle, avatar[3].throttle? (built with players = 4, entity_outputs = 16; build = { ... } "
+            "in its [[units]] table sizes it)")):
+        run_scenario(scn, tmp_path / "four.mcap")
 
 
 def test_a_sweep_ships_the_sized_build(tmp_path, sized, monkeypatch):
