@@ -64,6 +64,8 @@ after(execution, "check_system", "scenario check")
 after(F, "_extract", lambda a: "extract " + a[0].name)
 after(F, "_instantiate", lambda a: "instantiate " + a[0].name)
 after(F, "initialize", lambda a: "initialise " + a[0].name)
+if hasattr(E, "_add_unit_view"):
+    after(E, "_add_unit_view", "3D view of the units")
 observe = E._observe
 def observed(self, master, k, t_ns):
     observe(self, master, k, t_ns)
@@ -207,10 +209,14 @@ def write(sides: List[Side], whole, phases, args, repeats: int, imports: List[tu
         w0, c0 = median([r[0] for r in whole[ref]]), median([r[1] for r in whole[ref]])
         lines.append(f"| {n} | {median(w):.3f} | {min(w):.3f} | {max(w):.3f} | {median(w) / w0:.2f} "
                      f"| {median(c):.3f} | {median(c) / c0:.2f} |")
-    keys: List[str] = []
+    keys: List[str] = []   # every side's phases, each after the phase it follows on its side
     for n in names:
         for rec in phases[n]:
-            keys += [k for k in rec if k not in keys]
+            prev = None
+            for k in rec:
+                if k not in keys:
+                    keys.insert(keys.index(prev) + 1 if prev is not None else 0, k)
+                prev = k
     lines += ["", f"Phases of one run (harness timing the same functions on each side, no supervising "
                   f"parent), wall seconds, median of {repeats}:", "",
               "| phase | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]

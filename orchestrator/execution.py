@@ -122,6 +122,7 @@ class Execution:
         self.view_steps: List[Any] = []   # ... and redrawn every step (the platform's rods)
         if self.scenario.view_units:
             self._add_unit_view()
+            phases.mark("3D view of the units")
         supervisor.remove_stale()   # what runs killed outright left behind
         supervisor.reset()
         self._tmp = tempfile.TemporaryDirectory(prefix=f"immersim_run_{os.getpid()}_")
