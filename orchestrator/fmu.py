@@ -212,13 +212,12 @@ class FmuInstance:
 
     def _setup_fast_path(self) -> None:
         self._fmi2 = self.fmi_version.startswith("2")
-        self._component = self.fmu.component
         gen = getattr(self.model_description, "generationTool", None) or ""
         #: the FMU runs Python code in this interpreter (pythonfmu): its hot functions are
         #: called without releasing the GIL, which the FMU would take back at once
         self.in_process_python = gen.startswith("PythonFMU")
+        self._c_component = ctypes.c_void_p(self.fmu.component)
         if self._fmi2:
-            self._c_component = ctypes.c_void_p(self._component)
             self._c_t, self._c_h, self._h_ns = ctypes.c_double(), ctypes.c_double(), None
             self._c_true = ctypes.c_int(1)  # noSetFMUStatePriorToCurrentPoint
             self._do_step = self._fast_function("fmi2DoStep")
@@ -226,7 +225,6 @@ class FmuInstance:
         else:
             from .fmi3 import stepper
 
-            self._c_component = ctypes.c_void_p(self._component)
             self._c_true = ctypes.c_bool(True)  # noSetFMUStatePriorToCurrentPoint
             self._do_step = self._fast_function("fmi3DoStep")
             self._step3 = stepper(self)
