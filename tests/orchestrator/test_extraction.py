@@ -193,19 +193,23 @@ def test_a_run_logs_the_same_with_and_without_the_cache(test_fmus, tmp_path, mon
 
 
 def test_the_program_runs_exit_handlers_and_keeps_its_output(test_fmus, tmp_path):
-    """``immersim run`` ends the process itself (no interpreter teardown) after the exit
-    handlers, with its output, its log and its exit status."""
+    """``immersim -v run`` ends the process itself (no interpreter teardown) after the exit
+    handlers, with its output, its log, its exit status and its phases from the interpreter's
+    start."""
     scenario = oscillator_scenario(tmp_path, test_fmus["oscillator"], stop=0.5)
     marker, out = tmp_path / "atexit_ran", tmp_path / "run.mcap"
     program = ("import atexit, sys\n"
                f"atexit.register(lambda: open({str(marker)!r}, 'w').write('ran'))\n"
                "from immersim.orchestrator.cli import main\n"
-               f"sys.argv = ['immersim', 'run', {str(scenario)!r}, '-q', '-o', {str(out)!r}]\n"
+               f"sys.argv = ['immersim', '-v', 'run', {str(scenario)!r}, '-q', '-o', {str(out)!r}]\n"
                "sys.exit(main())\n")
     res = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, timeout=300,
                          env={**os.environ, "IMMERSIM_FMU_CACHE": str(tmp_path / "cache")})
     assert res.returncode == 0, res.stderr
-    assert res.stderr == ""
+    assert all(line.startswith("INFO ") for line in res.stderr.splitlines()), res.stderr
+    phases = [line for line in res.stderr.splitlines() if line.startswith("INFO immersim: phases (s): ")]
+    assert len(phases) == 1 and phases[0].split(": ", 1)[1].startswith("phases (s): interpreter "), phases
+    assert ", imports " in phases[0] and phases[0].endswith(" s to the end of the first step")
     assert "osc.toml: 50 steps to t = 0.5 s" in res.stdout
     assert marker.read_text() == "ran"
     assert len([m for m in _messages(out) if not m[0].endswith("/parameters")]) == 2 * 51   # steps 0..50
