@@ -52,7 +52,8 @@ def test_installed_wheel_runs_every_shipped_scenario_from_an_empty_folder(dists_
     listing = run(env.immersim, "examples")
     assert "demo.toml" in listing and "campus_drive.toml" in listing and "sweeps/platform_ablation.toml" in listing
     run(env.immersim, "examples", "--copy", ".", "demo", "campus_drive")
-    assert sorted(p.name for p in cwd.iterdir()) == ["campus_drive.toml", "demo.toml"]
+    # a scenario comes with the files it includes
+    assert sorted(p.name for p in cwd.iterdir()) == ["campus_common.toml", "campus_drive.toml", "demo.toml"]
 
     out = run(env.immersim, "run", "demo.toml", "-q", "-o", "demo.mcap")
     assert "243 steps to t = 8 s" in out
