@@ -37,7 +37,7 @@ from .modeldesc import _MODELS, VarInfo, _unit_of, check_archive, read_model
 from .pythonfmu_exit import install as _install_pythonfmu_exit
 
 __all__ = ["FmuInstance", "VarInfo", "ValueReader", "RealSetter", "DiscreteSetter", "read_model", "check_archive",
-           "forget_python_code", "clear_caches", "step_error", "ns_to_s", "ENDED", "IN_WORKER"]
+           "forget_python_code", "clear_caches", "step_error", "ns_to_s", "ENDED"]
 
 
 log = logging.getLogger(__name__)
@@ -65,10 +65,9 @@ def ns_to_s(t_ns: int) -> float:
 
 
 #: (unit, time in ns) of every unit that asked to end the simulation (FMI 2.0 fmi2Terminated,
-#: FMI 3.0 terminateSimulation) since the execution cleared it; the step it ends is complete
+#: FMI 3.0 terminateSimulation) since the execution cleared it; the step it ends is complete (a
+#: worker process sends its entries to the master with the step's reply: orchestrator/transport)
 ENDED: List[tuple] = []
-#: this is a worker process (orchestrator/transport): see FmuInstance._ended
-IN_WORKER = False
 
 
 def step_error(unit: str, t_ns: int, h_ns: int, instance_ns: int) -> FmuCallError:
@@ -340,12 +339,7 @@ class FmuInstance:
 
     def _ended(self, t_ns: int) -> None:
         """The unit asked to end the simulation at ``t_ns``: recorded in :data:`ENDED` (the
-        execution ends the run after this step). A unit in a worker process cannot end the run
-        cleanly (its reply carries outputs only): there it is an error that says so."""
-        if IN_WORKER:
-            raise FmuCallError(self.name, "doStep", self.t_ns, 2,
-                               f"the unit asked to end the simulation at t = {t_ns / 1e9:.9g} s; a unit in a "
-                               f"worker process cannot end the run cleanly: run it in the master's (process = 0)")
+        execution ends the run after this step)."""
         ENDED.append((self.name, t_ns))
 
     def terminate(self) -> None:

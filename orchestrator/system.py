@@ -147,7 +147,7 @@ class System:
                 self.workers[n] = WorkerProcess(n)
             folder = unzip_root / name if unzip_root else None
             if n:
-                inst = RemoteInstance(name, self.paths[name], folder, self.workers[n])
+                inst = RemoteInstance(name, self.paths[name], folder, self.workers[n], self.variables[name])
                 self.instances[name] = inst
                 inst.start_loading()
         for name in self.needed:

@@ -3,10 +3,12 @@
 A :class:`RemoteInstance` implements :class:`~immersim.orchestrator.instance.Instance` for a
 unit loaded by a :class:`~.process.WorkerProcess`. Calls that return nothing (set inputs,
 ``doStep``) are queued and sent with the next read of the outputs as one message
-(:meth:`RemoteInstance.post`); the reply carries the outputs (through shared memory unless a
-String is read). A unit its worker steps itself (``Master._ahead``) is posted a step at a time
-with the inputs the master gathered (:meth:`RemoteInstance.post_step`), two posts in flight at
-most, answered through two shared buffers in turn.
+(:meth:`RemoteInstance.post`); the reply carries the outputs (through shared memory when a
+float64 holds each exactly: no String, Binary or 64-bit integer) and, for a unit that asked to
+end the simulation in that step, the end (added to ``fmu.ENDED`` here, as in this process). A
+unit its worker steps itself (``Master._ahead``) is posted a step at a time with the inputs the
+master gathered (:meth:`RemoteInstance.post_step`), two posts in flight at most, answered
+through two shared buffers in turn.
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Sequence
 
 from ..errors import FmuLoadError
-from ..fmu import FmuInstance, VarInfo, read_model, step_error
+from ..fmu import ENDED, FmuInstance, VarInfo, read_model, step_error
 from .process import WorkerProcess
 from .shm import SharedValues, shared_file
 
@@ -24,6 +26,17 @@ log = logging.getLogger(__name__)
 
 #: what a posted step's errors name as the function: its inputs, doStep and output read
 _RUN = "fmi2DoStep/read"
+
+
+def _exact_in_float64(inst: "RemoteInstance", name: str) -> bool:
+    """A value of ``name`` is carried exactly by a float64 slot of :class:`SharedValues`: a
+    Real (Float32 too), a Boolean, an integer of at most 32 bits (FMI 2.0 Integer and
+    Enumeration); not a String or Binary, nor an FMI 3.0 Int64, UInt64 or Enumeration (64 bits)."""
+    v = inst.var(name)
+    if v.family in ("float", "bool"):
+        return True
+    return v.family == "int" and not (v.type in ("Int64", "UInt64")
+                                       or (v.type == "Enumeration" and inst.fmi_version.startswith("3")))
 
 
 class RemoteReader:
@@ -36,7 +49,7 @@ class RemoteReader:
         self.inst = inst
         self.names = inst.worker.call(inst.name, "reader", list(names), True, function="reader")
         fams = [inst.var(n).family for n in self.names]
-        if "string" not in fams:   # the outputs through shared memory
+        if all(_exact_in_float64(inst, n) for n in self.names):   # the outputs through shared memory
             layout = (fams.count("float"), fams.count("int"), fams.count("bool"))
 
             def attach(path: str) -> None:
@@ -74,7 +87,8 @@ class RemoteInstance:
 
     remote = True
 
-    def __init__(self, name: str, path: Path | str, unzip_dir: Optional[Path], worker: WorkerProcess) -> None:
+    def __init__(self, name: str, path: Path | str, unzip_dir: Optional[Path], worker: WorkerProcess,
+                 variables: Optional[Dict[str, VarInfo]] = None) -> None:
         self.name = name
         self.path = Path(path)
         self.worker = worker
@@ -92,6 +106,11 @@ class RemoteInstance:
         if not self.path.exists():
             raise FmuLoadError(f"unit {name}: FMU file {self.path} does not exist")
         md, self.variables = read_model(self.path, name)
+        #: FMI 3.0 arrays sized by the scenario's structural parameters (``system.read_variables``):
+        #: the worker's instance gets the same variables
+        self._sized = variables if variables is not None and variables != self.variables else None
+        if self._sized is not None:
+            self.variables = variables
         self.model_description = md
         self.fmi_version = md.fmiVersion
         self._unzip = str(unzip_dir) if unzip_dir else None
@@ -99,7 +118,7 @@ class RemoteInstance:
 
     # -- loading (split so that workers load while the master loads its own units) --------------
     def start_loading(self) -> None:
-        self.worker.send(("load", self.name, str(self.path), self._unzip))
+        self.worker.send(("load", self.name, str(self.path), self._unzip, self._sized))
         self._loading = True
 
     def finish_loading(self) -> None:
@@ -136,6 +155,8 @@ class RemoteInstance:
         posted before the last post's reply is taken (:attr:`queues`)."""
         if h_ns <= 0 or t_ns != self.t_ns:
             raise step_error(self.name, t_ns, h_ns, self.t_ns)
+        if ENDED:   # a unit asked to end the simulation: the run ends with this step, no next one
+            return
         self._step_start, self.t_ns = t_ns, t_ns + h_ns
         self._send(lambda seq: ("step", self.name, t_ns, h_ns, inputs, True, seq), True, hold, t_ns,
                    2 if self.queues else 1)
@@ -161,14 +182,16 @@ class RemoteInstance:
             sv = self.shared
             self.busy_ns += int(sv.head(seq)[2])
             return sv.values(seq)
-        values, busy = self.worker.receive(self.name, _RUN, start)
+        values, busy, *ended = self.worker.receive(self.name, _RUN, start)
         self.busy_ns += busy
+        if ended:   # the unit asked to end the simulation: as if it ran here (FmuInstance._ended)
+            ENDED.extend(ended[0])
         return values
 
     def _wait_shared(self, seq: int, start: int) -> bool:
         """Wait for the worker to write the outputs of post ``seq`` (polling the shared
         header, yielding the core between polls, checking now and then that the worker is
-        alive). True when they are there, False when the step failed (its error is a reply)."""
+        alive). True when they are there, False when the reply is a message (an error, an end)."""
         w = self.worker
         w.flush()
         head, target = self.shared.head(seq), float(seq)

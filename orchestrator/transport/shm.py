@@ -21,7 +21,8 @@ class SharedValues:
     a unit's next post before the master has read the last one. A buffer is float64: a header
     ``[sequence, status, busy ns, 0]``, then the values (Reals, Integers, Booleans in the
     reader's order). The worker writes the values, the status and busy time, and last the
-    sequence number the master waits for; status 1: the step failed, its error is a reply.
+    sequence number the master waits for; status 1: the reply goes through the socket (the
+    step failed: its error; or its unit asked to end the simulation).
 
     Parameters
     ----------

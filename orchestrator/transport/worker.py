@@ -14,6 +14,7 @@ import time
 from pickle import dumps, loads
 from typing import Any, Callable, Dict, List, Optional
 
+from .. import fmu
 from ..fmu import FmuInstance
 from ..stepping import FloatFeed, OtherFeed, Slot, Stepper
 from .process import RemoteConfig, portable
@@ -89,7 +90,15 @@ class Worker:  # pragma: no cover - runs in the worker process
         return self.slots[name]
 
     def answer(self, name: str, msg: tuple, values: Any, t0: int) -> Optional[tuple]:
+        """The reply to a step or run: ``(values, busy ns)``, and the ends of the simulation its
+        unit asked for (``fmu.ENDED``, moved here) as a third item; the outputs of a step that
+        ended nothing through shared memory when set up (no message)."""
         sv = self.shared.get(name) if msg[-2] else None
+        if fmu.ENDED:   # the master ends the run after this step: the reply says so
+            ended, fmu.ENDED[:] = list(fmu.ENDED), []
+            if sv is not None:
+                sv.fail(msg[-1])   # the master reads this reply
+            return name, "ok", (values, self.clock() - t0, ended)
         if sv is not None:   # the outputs through shared memory: no message
             sv.put(msg[-1], values, self.clock() - t0)
             return None
@@ -157,8 +166,10 @@ class Worker:  # pragma: no cover - runs in the worker process
         return name, "ok", None
 
     def op_load(self, name: str, msg: tuple) -> tuple:
-        """("load", unit, path, unzip dir)"""
-        self.units[name] = FmuInstance(name, msg[2], msg[3])
+        """("load", unit, path, unzip dir, variables or None: those of the model description)"""
+        inst = self.units[name] = FmuInstance(name, msg[2], msg[3])
+        if msg[4] is not None:   # FMI 3.0 arrays sized by structural parameters
+            inst.variables = msg[4]
         return name, "ok", os.getpid()
 
     def op_reader(self, name: str, msg: tuple) -> tuple:
@@ -205,9 +216,6 @@ def serve(conn, config: RemoteConfig) -> None:  # pragma: no cover - runs in the
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):   # the master acts on them
         signal.signal(sig, signal.SIG_IGN)
     logging.basicConfig(level=logging.WARNING, format="worker %(process)d: %(levelname)s %(name)s: %(message)s")
-    from .. import fmu
-
-    fmu.IN_WORKER = True   # a unit asking to end the simulation is an error here (FmuInstance._ended)
     worker = Worker()
     take = next_message(conn, config.spin_s, worker.mailbox)
     while True:

@@ -13,7 +13,7 @@ import pytest
 from immersim.orchestrator import fmi3
 from immersim.orchestrator.cli import main
 from immersim.orchestrator.errors import FmuLoadError, ImmersimError, ScenarioError
-from immersim.orchestrator.execution import RunFailed, run_scenario
+from immersim.orchestrator.execution import run_scenario
 from immersim.orchestrator.mcapio import _messages, channel_schema
 
 ROOT = Path(__file__).resolve().parents[1] / "conformance" / "reference-fmus"
@@ -376,12 +376,3 @@ def test_an_fmu_returning_early_completes_each_macro_step(tmp_path, monkeypatch,
     plain, early_rows = log_rows(tmp_path / "plain.mcap")[0], log_rows(tmp_path / "early.mcap")[0]
     assert len(plain) == res.steps_done + 1 and plain == early_rows
 
-
-def test_a_worker_unit_asking_to_end_fails_the_run_saying_why(tmp_path):
-    """In a worker process the request cannot end the run cleanly: one error naming it, not a
-    confusing failure of the next step."""
-    scn = scenario(tmp_path, ROOT / "fmi3" / "Stair.fmu", 1.0, 12.0, {})
-    scn.write_text(scn.read_text().replace('name = "u"\n', 'name = "u"\nprocess = 1\n'))
-    with pytest.raises(RunFailed, match=r"unit u: doStep returned discard at t = 8 s: the unit asked to end the "
-                                        r"simulation at t = 9 s; a unit in a worker process cannot end the run cleanly"):
-        run_scenario(scn, tmp_path / "w.mcap")
