@@ -82,6 +82,7 @@ class network(TableSlave):
         Var("prediction_order", "parameter", "Integer", 1, "", "dead-reckoning order 0, 1, 2 (§3.6.3)"),
         Var("ownership", "parameter", "String", "mahalanobis", "", "entity ownership rule: mahalanobis (eq. 3-11/3-12) | euclidean | none"),
         Var("ownership_foci", "parameter", "String", "reach", "", "reading of eq. 3-12: reach (foci a apart, the region reaches ahead) | frame (literal: foci one frame apart, a circle)"),
+        Var("ownerless", "parameter", "Boolean", False, "", "an entity outside every ownership region has no owner: nobody publishes it, every node shows its own prediction (§3.6.3); false: it keeps its last owner"),
         Var("grid", "parameter", "Boolean", True, "", "10x10 scene grid with 9-cell neighbourhoods (§3.3)"),
         Var("latency_ms", "parameter", "Real", 20.0, "ms", "base one-way latency of WAN links (between sites)"),
         Var("jitter_ms", "parameter", "Real", 5.0, "ms", "mean of the exponential jitter added to WAN latency"),
@@ -121,6 +122,8 @@ class network(TableSlave):
             raise self._param_error("ownership", f"must be one of {', '.join(OWNERSHIP_RULES)}")
         if v["ownership_foci"] not in OWNERSHIP_FOCI:
             raise self._param_error("ownership_foci", "must be reach or frame")
+        if v["ownerless"] and v["ownership"] == "none":
+            raise self._param_error("ownerless", "needs an ownership rule (ownership is none)")
         if v["prediction_order"] not in (0, 1, 2):
             raise self._param_error("prediction_order", "must be 0, 1 or 2")
         for name in ("latency_ms", "jitter_ms", "scene_size"):
@@ -134,7 +137,7 @@ class network(TableSlave):
         cfg = NetworkConfig(
             groups=v["players"], render_nodes=v["render_nodes"], entities=v["entities"], driven_groups=v["players"],
             seed=v["seed"], topology=v["topology"], prediction_order=v["prediction_order"], ownership=v["ownership"],
-            ownership_foci=v["ownership_foci"],
+            ownership_foci=v["ownership_foci"], ownerless=bool(v["ownerless"]),
             grid=bool(v["grid"]), dis_threshold=v["dis_threshold"], scene_size=v["scene_size"],
             entity_speed=v["entity_speed"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
         self.model = NetworkModel(cfg)

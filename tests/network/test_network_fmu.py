@@ -269,3 +269,25 @@ if __name__ == "__main__" and "--write-reference" in sys.argv:
     header = ",".join(["time"] + [n.replace("[", "_").replace("]", "").replace(".", "_") for n in REF_OUTPUTS])
     np.savetxt(UNIT / "reference.csv", data, delimiter=",", header=header, comments="", fmt="%.12g")
     print(f"wrote {UNIT / 'reference.csv'} ({len(data)} rows)")
+
+
+def test_fmu_ownerless_parameter_reaches_the_model_and_needs_an_ownership_rule():
+    """``ownerless`` (off by default) is the model's ``NetworkConfig.ownerless``: with it the
+    entities outside every region have no owner (-1) and are not published, so fewer objects
+    are published than without it; with ``ownership = none`` it is an error naming the
+    parameter."""
+    cls = _load_wrapper()
+    assert next(v for v in cls.VARIABLES if v.name == "ownerless").start is False
+    params = dict(players=2, render_nodes=2, entities=24, seed=3, scene_size=200.0)
+    published = {}
+    for flag in (False, True):
+        s = _instance(cls, {**params, "ownerless": flag}, f"own{int(flag)}")
+        assert s.model.cfg.ownerless is flag
+        for k in range(60):
+            assert s.do_step(k * T, T), s.failed
+        owners = s.model.owner[2:]
+        assert (owners >= 0).all() if not flag else (owners == -1).any()
+        published[flag] = s.model.metrics.published
+    assert published[True] < published[False] == 2 + 24
+    with pytest.raises(ValueError, match=r"parameter ownerless = True needs an ownership rule \(ownership is none\)"):
+        _instance(cls, {**params, "ownerless": True, "ownership": "none"}, "bad")
