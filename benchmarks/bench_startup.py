@@ -1,7 +1,7 @@
 """Start-up of a short run: ``immersim run scenarios/campus_drive.toml`` as a whole command, and
 each phase up to the first step, side by side with another commit.
 
-Each side is a source tree (this checkout; ``--base REV``: a temporary git worktree of REV)
+Each side is a source tree (this checkout; each ``--base REV``: a temporary git worktree of REV)
 imported through its own ``immersim`` package folder on ``PYTHONPATH`` (so each side runs its
 own orchestrator; its units are built from its own sources into its own ``build/fmus``) and
 runs its own copy of the scenario. Two measurements, interleaved side by side:
@@ -13,10 +13,11 @@ runs its own copy of the scenario. Two measurements, interleaved side by side:
   and initialisation, the set-up to step 0, the first step, the other steps, the log's close,
   the exit).
 
-Sides of this checkout: ``cache`` (the extraction cache warm, as every run after the first),
-``no cache`` (``IMMERSIM_FMU_CACHE=0``: each run extracts and compiles anew).
+Sides of this checkout: ``cache`` (the extraction and mesh caches warm, as every run after the
+first), ``no mesh cache`` (``IMMERSIM_MESH_CACHE=0``: each run builds the scene's meshes with
+trimesh), ``no cache`` (both caches off: each run extracts and compiles anew as well).
 
-    python benchmarks/bench_startup.py [--base REV] [--repeats N] [--quick]
+    python benchmarks/bench_startup.py [--base REV ...] [--repeats N] [--quick]
 """
 from __future__ import annotations
 
@@ -161,23 +162,25 @@ class Side:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--base", default=None, help="git revision to compare with (a temporary worktree)")
+    ap.add_argument("--base", action="append", default=[],
+                    help="git revision to compare with (a temporary worktree); may be given more than once")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--quick", action="store_true", help="3 repeats")
     args = ap.parse_args()
     repeats = 3 if args.quick else args.repeats
     work = Path(tempfile.mkdtemp(prefix="immersim_bench_startup_"))
-    base_tree = None
+    base_trees: List[Path] = []
     try:
         sides: List[Side] = []
-        cache = work / "fmu_cache"
-        if args.base:
-            base_tree = work / "base"
-            subprocess.run(["git", "worktree", "add", "--detach", str(base_tree), args.base], cwd=ROOT, check=True,
+        cache, meshes = work / "fmu_cache", work / "mesh_cache"
+        for k, rev in enumerate(args.base):
+            base_trees.append(work / f"base_{k}")
+            subprocess.run(["git", "worktree", "add", "--detach", str(base_trees[-1]), rev], cwd=ROOT, check=True,
                            capture_output=True)
-            sides.append(Side(f"{args.base}", base_tree, work, {}))
-        sides.append(Side("cache", ROOT, work, {"IMMERSIM_FMU_CACHE": str(cache)}))
-        sides.append(Side("no cache", ROOT, work, {"IMMERSIM_FMU_CACHE": "0"}))
+            sides.append(Side(rev, base_trees[-1], work, {}))
+        sides.append(Side("cache", ROOT, work, {"IMMERSIM_FMU_CACHE": str(cache), "IMMERSIM_MESH_CACHE": str(meshes)}))
+        sides.append(Side("no mesh cache", ROOT, work, {"IMMERSIM_FMU_CACHE": str(cache), "IMMERSIM_MESH_CACHE": "0"}))
+        sides.append(Side("no cache", ROOT, work, {"IMMERSIM_FMU_CACHE": "0", "IMMERSIM_MESH_CACHE": "0"}))
         for s in sides:
             s.check()
         whole: Dict[str, List[tuple]] = {s.name: [] for s in sides}
@@ -187,10 +190,10 @@ def main() -> None:
                 whole[s.name].append(s.whole())
             for s in sides:
                 phases[s.name].append(s.phases())
-        write(sides, whole, phases, args, repeats, sides[-2].imports())
+        write(sides, whole, phases, args, repeats, sides[-3].imports())
     finally:
-        if base_tree is not None:
-            subprocess.run(["git", "worktree", "remove", "--force", str(base_tree)], cwd=ROOT, capture_output=True)
+        for tree in base_trees:
+            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, capture_output=True)
         shutil.rmtree(work, ignore_errors=True)
 
 
@@ -198,7 +201,7 @@ def write(sides: List[Side], whole, phases, args, repeats: int, imports: List[tu
     names = [s.name for s in sides]
     ref = names[0]
     lines = ["# Start-up of a short run", "",
-             stamp(f"python benchmarks/bench_startup.py{' --base ' + args.base if args.base else ''}"
+             stamp(f"python benchmarks/bench_startup.py{''.join(' --base ' + b for b in args.base)}"
                    f"{' --quick' if args.quick else ''}"), "",
              f"Whole command `immersim run {SCENARIO} -q -o LOG` (20 s simulated, 607 steps), wall seconds, "
              f"median of {repeats} interleaved runs per side, and the CPU seconds they used (user + system, less "

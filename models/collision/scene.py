@@ -53,6 +53,7 @@ from typing import TYPE_CHECKING, Dict, List, Optional, Tuple
 import numpy as np
 
 from .geometry import pose_matrix
+from .meshcache import generated
 
 if TYPE_CHECKING:  # trimesh (~0.5 s to import) is imported where a mesh is built or loaded
     import trimesh
@@ -281,6 +282,12 @@ def make_missile(length: float = 3.0, radius: float = 0.15, sections: int = 32) 
     return trimesh.util.concatenate([body, nose])
 
 
+def _creation():
+    import trimesh.creation
+
+    return trimesh.creation
+
+
 # -- spec parsing -------------------------------------------------------------------------
 def _parse_tris(value, where: str) -> int:
     text = str(value).strip().lower()
@@ -347,7 +354,7 @@ def _add_item(scene: Scene, item: _Item, counter: Dict[str, int]) -> None:
         dynamic = item.flag("dynamic", False)
         offset = item.pose()
         key = f"tank:{tris + tris % 2}"
-        mesh = scene.meshes.get(key) or make_tank(tris)
+        mesh = scene.meshes.get(key) or generated(key, lambda: make_tank(tris))
         cols = int(math.ceil(math.sqrt(n)))
         for k in range(n):
             pose = offset.copy()
@@ -357,34 +364,32 @@ def _add_item(scene: Scene, item: _Item, counter: Dict[str, int]) -> None:
     elif kind == "tank":
         tris = _parse_tris(item.get("tris", 5442), item.where)
         key = f"tank:{tris + tris % 2}"
-        mesh = scene.meshes.get(key) or make_tank(tris)
+        mesh = scene.meshes.get(key) or generated(key, lambda: make_tank(tris))
         scene.add(Body(str(item.get("name", default_name)), key, item.flag("dynamic", False), item.pose(), "tank"), mesh)
     elif kind == "missile":
         length, radius = item.num("length", 3.0), item.num("radius", 0.15)
         if length <= 0 or radius <= 0:
             raise SceneError(f"{item.where}: missile length and radius must be > 0")
         key = f"missile:{length:g}:{radius:g}"
-        mesh = scene.meshes.get(key) or make_missile(length, radius)
+        mesh = scene.meshes.get(key) or generated(key, lambda: make_missile(length, radius))
         scene.add(Body(str(item.get("name", default_name)), key, item.flag("dynamic", True), item.pose(), "missile"), mesh)
     elif kind in ("box", "sphere", "cylinder"):
-        import trimesh
-
         if kind == "box":
             size = (item.num("sx", 1.0), item.num("sy", 1.0), item.num("sz", 1.0))
             if min(size) <= 0:
                 raise SceneError(f"{item.where}: box sizes must be > 0")
-            key, make = f"box:{size}", lambda: trimesh.creation.box(size)
+            key, make = f"box:{size}", lambda: _creation().box(size)
         elif kind == "sphere":
             r, sub = item.num("r", 0.5), int(item.num("subdiv", 3))
             if r <= 0:
                 raise SceneError(f"{item.where}: sphere r must be > 0")
-            key, make = f"sphere:{r}:{sub}", lambda: trimesh.creation.icosphere(subdivisions=sub, radius=r)
+            key, make = f"sphere:{r}:{sub}", lambda: _creation().icosphere(subdivisions=sub, radius=r)
         else:
             r, hh = item.num("r", 0.5), item.num("h", 1.0)
             if r <= 0 or hh <= 0:
                 raise SceneError(f"{item.where}: cylinder r and h must be > 0")
-            key, make = f"cylinder:{r}:{hh}", lambda: trimesh.creation.cylinder(radius=r, height=hh, sections=32)
-        mesh = scene.meshes.get(key) or make()
+            key, make = f"cylinder:{r}:{hh}", lambda: _creation().cylinder(radius=r, height=hh, sections=32)
+        mesh = scene.meshes.get(key) or generated(key, make)
         scene.add(Body(str(item.get("name", default_name)), key, item.flag("dynamic", False), item.pose(), kind), mesh)
     elif kind == "mesh":
         file = item.get("file")
