@@ -64,7 +64,7 @@ def merged(new_rows, mutants):
     for m in mutants:
         r = new.get(m.id) or old.get(m.id)
         if r is not None and (r["original"], r["replacement"], r["file"]) == (m.original, m.replacement, m.file):
-            out.append(r)
+            out.append(dict(r, why=m.why))   # the reason as declared now (its line number follows the file)
     return out
 
 
