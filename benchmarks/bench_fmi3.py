@@ -83,6 +83,10 @@ def main() -> None:
     for name, (l2, u2, g2, _), (l3, u3, g3, _) in rows:
         lines.append(f"{name}: step loop FMI 3.0 - FMI 2.0 {l3 - l2:+.2f} us per step, of which "
                      f"{u3 - u2:+.2f} us in the FMI calls and {g3 - g2:+.2f} us in logging (wall times).")
+    lines += ["", "Units in a worker process (`process = N`) are not timed here; every Reference FMU of the "
+              "conformance table logs there, record for record, what it logs in the master's process (a unit "
+              "asking to end the simulation, Binary, String and 64-bit integers included), and arrays sized by "
+              "structural parameters are sized alike there (tests/orchestrator/test_worker_fmi3.py)."]
     lines += ["", f"Load average of the machine (1 min) before and after the runs: {load[0]:.1f} and "
               f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (other jobs inflate the wall figures; the "
               "CPU figures and the ratios of interleaved runs less).", ""]

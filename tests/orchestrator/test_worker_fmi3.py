@@ -15,7 +15,7 @@ from immersim.orchestrator.mcapio import _messages
 from immersim.orchestrator.scenario import load_scenario
 from immersim.orchestrator.system import check_system
 
-from .test_conformance import FEED_INPUTS, ROOT, STATESPACE, log_rows, scenario
+from .test_conformance import CASES, FEED_INPUTS, ROOT, RUN, STATESPACE, log_rows, scenario
 
 
 def _records(path: Path) -> dict:
@@ -37,6 +37,19 @@ def _in_worker(scn: Path, unit: str = "u") -> None:
     scn.write_text(scn.read_text().replace(f'name = "{unit}"\n', f'name = "{unit}"\nprocess = 1\n', 1))
 
 
+@pytest.mark.parametrize("version,name,params", CASES,
+                         ids=lambda x: x if isinstance(x, str) else "-".join(x) or "default")
+def test_reference_fmu_in_a_worker_logs_as_in_process(tmp_path, version, name, params):
+    """Each case of the conformance table (its outputs FMPy's at every step) in a worker: the
+    one-process log, record for record, and the same run status."""
+    step, stop = RUN[name]
+    scn = scenario(tmp_path, ROOT / version / f"{name}.fmu", step, stop, params)
+    here = run_scenario(scn, tmp_path / "here.mcap")
+    there = run_scenario(scn, tmp_path / "there.mcap", overrides={"u:process": 1})
+    assert there.remote_units == ["u"] and (there.status, there.reason) == (here.status, here.reason)
+    assert _records(tmp_path / "there.mcap") == _records(tmp_path / "here.mcap")
+
+
 @pytest.mark.parametrize("version,algorithm", [("fmi2", "jacobi"), ("fmi3", "jacobi"), ("fmi3", "gauss-seidel")])
 def test_worker_unit_asking_to_end_ends_the_run_as_in_process(tmp_path, capsys, version, algorithm):
     """Stair asks to end the simulation in its step to t = 9 s: in a worker as here, exit 0,
@@ -56,6 +69,30 @@ def test_worker_unit_asking_to_end_ends_the_run_as_in_process(tmp_path, capsys, 
     assert got["worker"][1] == got["here"][1]
     assert got["here"][1]["run"]["status"] == "ended" and got["here"][1]["run"]["steps_done"] == "9"
     assert len(got["here"][1]["Message"]) == 10   # t = 0 .. 9 s
+
+
+@pytest.mark.parametrize("algorithm,where", [("gauss-seidel", {"u": 1, "f": 1}), ("jacobi", {"d": 1}),
+                                             ("jacobi", {"u": 1, "f": 2, "d": 1})])
+def test_an_end_asked_in_or_out_of_a_worker_ends_every_unit_at_that_step(tmp_path, algorithm, where):
+    """Stair (u) feeding a Feedthrough (f) beside a Dahlquist (d): whichever units run in
+    workers (f stepped by u's worker after it; a worker unit posted ahead while the unit here
+    ends; Stair in one worker, f in another), the log and status of the one-process run."""
+    scn = tmp_path / "three.toml"
+    scn.write_text("[simulation]\nstop = 12.0\nstep = 1.0\n" + "".join(
+        f'[[units]]\nname = "{u}"\nfmu = "{ROOT / "fmi3" / f"{n}.fmu"}"\n'
+        for u, n in (("u", "Stair"), ("d", "Dahlquist"), ("f", "Feedthrough")))
+        + '[[connections]]\nfrom = "u.counter"\nto = "f.Int32_input"\n')
+    ov = {"simulation.algorithm": algorithm}
+    here = run_scenario(scn, tmp_path / "here.mcap", overrides=ov)
+    ov_there = {**ov, **{f"{u}:process": n for u, n in where.items()}}
+    there = run_scenario(scn, tmp_path / "there.mcap", overrides=ov_there)
+    assert sorted(there.remote_units) == sorted(where)
+    assert (there.status, there.steps_done) == (here.status, 9)
+    assert there.reason == here.reason == "unit u asked to end the simulation at t = 9 s"
+    f, _ = log_rows(tmp_path / "there.mcap", "f")
+    u, _ = log_rows(tmp_path / "there.mcap", "u")
+    assert len(f) == 10 and {r["Int32_output"] for _, r in f} <= {r["counter"] for _, r in u} | {0}
+    assert _records(tmp_path / "there.mcap") == _records(tmp_path / "here.mcap")
 
 
 def test_worker_unit_asking_to_end_through_the_socket(tmp_path, monkeypatch):
