@@ -3,6 +3,7 @@ process, record for record: a unit asking to end the simulation (Stair) ends the
 that step; Binary, String and 64-bit integers cross the pipe exactly; FMI 3.0 arrays are sized
 by the scenario's structural parameters in the worker too; every FMI 3.0 type through
 connections to and from a worker unit."""
+import os
 from pathlib import Path
 
 import pytest
@@ -184,3 +185,34 @@ def test_a_structural_parameter_refused_in_a_worker_fails_as_in_process(tmp_path
             run_scenario(scn, tmp_path / "err.mcap", overrides=ov)
         messages.append(str(e.value))
     assert messages[0] == messages[1]
+
+
+def test_an_fmu_returning_early_in_a_worker_completes_each_macro_step(tmp_path, monkeypatch):
+    """BouncingBall (FMI 3.0) made to return early at each bounce in the worker (instantiated
+    with ``earlyReturnAllowed = true`` there, and its early returns logged to a file, through a
+    ``sitecustomize`` on the worker's path):
+    the worker calls it again to each step's end, as the master's process does, so the log is
+    the one of the run without early returns, record for record."""
+    fmu, (step, stop) = ROOT / "fmi3" / "BouncingBall.fmu", RUN["BouncingBall"]
+    scn = scenario(tmp_path, fmu, step, stop, {})
+    run_scenario(scn, tmp_path / "plain.mcap")
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(
+        "from fmpy.fmi3 import FMU3Slave\n"
+        "_instantiate = FMU3Slave.instantiate\n"
+        "def instantiate(self, **kw):\n"
+        "    open(%r, 'a').write('early return allowed\\n')\n"
+        "    return _instantiate(self, earlyReturnAllowed=True, **kw)\n"
+        "FMU3Slave.instantiate = instantiate\n"
+        "import logging\n"
+        "_log = logging.getLogger('immersim.orchestrator.fmi3')\n"
+        "_log.setLevel(logging.DEBUG)\n"
+        "_log.addHandler(logging.FileHandler(%r))\n" % (str(tmp_path / "marker"), str(tmp_path / "early.log")))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")])))
+    res = run_scenario(scn, tmp_path / "early.mcap", overrides={"u:process": 1})
+    assert (tmp_path / "marker").read_text() == "early return allowed\n"   # the worker's instance, once
+    early = [ln for ln in (tmp_path / "early.log").read_text().splitlines() if "fmi3DoStep returned early" in ln]
+    assert len(early) >= 3   # the bounces (see the conformance test of early return)
+    assert res.status == "completed" and res.remote_units == ["u"]
+    assert _records(tmp_path / "early.mcap") == _records(tmp_path / "plain.mcap")
