@@ -24,13 +24,17 @@
    (``NetworkConfig.ownerless``, §3.6.3) against keeping the last owner, over WAN latencies: the
    display error, published objects, traffic, releases and claims; writes ``ownerless.md``.
 
+   state_traffic (``--only state_traffic``): STATE records to every viewer of the object against
+   the owner's neighbour nodes only (``NetworkConfig.state_traffic``, §3.3): display error over
+   WAN latencies and traffic vs render nodes of both; writes ``state_traffic.md``.
+
 8. campus_drive loop (``--loop-ab DIR``): ``immersim run scenarios/campus_drive.toml`` of this
    checkout and of another commit's whole package in ``DIR`` (``mkdir -p DIR/immersim && git
    archive COMMIT api models orchestrator fmus scenarios | tar -x -C DIR/immersim && cp -r
    DIR/immersim/api/. DIR/immersim/``), alternated in fresh processes: the loop time and the
    network unit's share that the command prints, medians; writes ``loop_ab.md``.
 
-Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus,paths,ownerless] [--baseline DIR]
+Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus,paths,ownerless,state_traffic] [--baseline DIR]
        [--campus-log LOG] [--loop-ab DIR] [--rounds N]
 """
 from __future__ import annotations
@@ -251,6 +255,48 @@ def bench_ownerless(quick: bool):
                              claimed_per_min=sum(s.claimed for s in out) / minutes,
                              ownerless_share=float(np.mean(m.owner[cfg.groups:] < 0))))
     return rows
+
+
+def bench_state_traffic(quick: bool):
+    """Both ``state_traffic`` rules (object_view, neighbour_nodes; hybrid_p2p): (1) the
+    bench_latency scene (8 groups x 2 render nodes, 300 entities, 200 m, order 1, mahalanobis)
+    per WAN latency: display error, STATE records sent and bytes per step; (2) the bench_traffic
+    scenes (4 render nodes per group, 10 entities per group, 1000 m, avatars uniform) per node
+    count: messages and bytes per step and the log-log exponents of both."""
+    steps = 90 if quick else 300
+    base = NetworkConfig(groups=8, render_nodes=2, entities=300, scene_size=200.0, ownership_min_axis=2.0, seed=1)
+    err = []
+    for L in ((0.0, 100.0) if quick else (0.0, 25.0, 100.0)):
+        for rule in ("object_view", "neighbour_nodes"):
+            cfg = replace(base, state_traffic=rule, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0),
+                                                          "wan": LinkClass(L, 0.2 * L, 0.0, 100.0)})
+            m, out = run(cfg, steps)
+            err.append(dict(latency_ms=L, state_traffic=rule, rms=np.mean([s.inconsistency_rms for s in out]),
+                            max=np.max([s.inconsistency_max for s in out]),
+                            messages=np.mean([s.messages for s in out]), bytes_per_step=np.mean([s.bytes for s in out]),
+                            state_bytes_per_step=m.totals.by_type.get("STATE", 0) / steps))
+    for rule in ("object_view", "neighbour_nodes"):   # the default configuration (4 x 3 nodes, 100 m), 600 steps
+        n = 150 if quick else 600
+        m, out = run(NetworkConfig(seed=0, state_traffic=rule), n)
+        err.append(dict(latency_ms="default (20)", state_traffic=rule, rms=np.mean([s.inconsistency_rms for s in out]),
+                        max=np.max([s.inconsistency_max for s in out]),
+                        messages=np.mean([s.messages for s in out]), bytes_per_step=np.mean([s.bytes for s in out]),
+                        state_bytes_per_step=m.totals.by_type.get("STATE", 0) / n))
+    traffic = []
+    for rule in ("object_view", "neighbour_nodes"):
+        for g in ([2, 4, 8, 16, 32] if quick else [2, 4, 8, 16, 32, 64]):
+            cfg = NetworkConfig(groups=g, render_nodes=4, entities=10 * g, scene_size=1000.0, avatar_start="uniform",
+                                seed=2, state_traffic=rule)
+            m, out = run(cfg, 12, warm=2)
+            traffic.append(dict(state_traffic=rule, nodes=g * 4, messages=np.mean([s.messages for s in out]),
+                                bytes=np.mean([s.bytes for s in out]), rms=np.mean([s.inconsistency_rms for s in out])))
+    fits = {}
+    for rule in ("object_view", "neighbour_nodes"):
+        r = [x for x in traffic if x["state_traffic"] == rule]
+        n = np.log([x["nodes"] for x in r])
+        fits[rule] = (np.polyfit(n, np.log([x["messages"] for x in r]), 1)[0],
+                      np.polyfit(n, np.log([x["bytes"] for x in r]), 1)[0])
+    return err, traffic, fits
 
 
 #: the campus scenes' network parameters, and the driven case's constant driver inputs
@@ -514,6 +560,11 @@ OWNERLESS_COLS = (["latency_ms", "ownerless", "rms", "max", "published", "bytes_
                   {"rms": "{:.4f}", "max": "{:.3f}", "published": "{:.1f}", "bytes_per_step": "{:.0f}",
                    "handovers_per_min": "{:.0f}", "released_per_min": "{:.0f}", "claimed_per_min": "{:.0f}",
                    "ownerless_share": "{:.2f}"})
+STATE_ERR_COLS = (["latency_ms", "state_traffic", "rms", "max", "messages", "bytes_per_step", "state_bytes_per_step"],
+                  {"rms": "{:.4f}", "max": "{:.3f}", "messages": "{:.1f}", "bytes_per_step": "{:.0f}",
+                   "state_bytes_per_step": "{:.0f}"})
+STATE_TRAFFIC_COLS = (["state_traffic", "nodes", "messages", "bytes", "rms"],
+                      {"messages": "{:.1f}", "bytes": "{:.0f}", "rms": "{:.4f}"})
 AB_COLS = (["scene", "code", "round", "median_ms", "cpu_median_ms", "load", "unchanged"],
            {"median_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "load": "{:.1f}"})
 
@@ -549,6 +600,20 @@ def only(parts, quick: bool, baseline: str = "", log: str = "") -> None:
                 "warm-up steps; `ownerless_share`: entities without an owner at the end.\n\n"
                 + table(bench_ownerless(quick), *OWNERLESS_COLS))
         (OUT / "ownerless.md").write_text(text)
+        print(text)
+    if "state_traffic" in parts:
+        err, traffic, fits = bench_state_traffic(quick)
+        text = (head + "Who gets a published object's STATE record: `object_view` (every master whose 9-cell "
+                "neighbourhood holds the object) against `neighbour_nodes` (only those whose avatar is in the "
+                "9-cell neighbourhood of the owner's avatar, §3.3). Display error over WAN latencies: 8 groups x 2 "
+                "render nodes, 300 entities, 200 m scene, order 1, mahalanobis, WAN jitter 20 % of the latency; "
+                "per 33 ms step after 5 warm-up steps; last rows: `NetworkConfig(seed=0)` (4 groups x 3 render nodes, "
+                "32 entities, 100 m, WAN 20 ms + 5 ms exponential jitter), 600 steps.\n\n" + table(err, *STATE_ERR_COLS)
+                + "\nTraffic vs render nodes (hybrid_p2p, 4 render nodes and 10 entities per group, 1000 m scene, "
+                "avatars uniform, 10 steps after 2 warm-up):\n\n" + table(traffic, *STATE_TRAFFIC_COLS)
+                + "\nLog-log exponents (messages, bytes): "
+                + ", ".join(f"{k} {a:.2f}, {b:.2f}" for k, (a, b) in fits.items()) + "\n")
+        (OUT / "state_traffic.md").write_text(text)
         print(text)
     if "scale" in parts:
         (OUT / "scale.md").write_text(head + table(bench_scale(quick), *SCALE_COLS))
@@ -634,7 +699,7 @@ def table(rows, cols, fmt=None):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer points and steps (about a minute)")
-    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths, ownerless")
+    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths, ownerless, state_traffic")
     ap.add_argument("--baseline", default="", help="campus: directory with another commit's immersim/models and "
                     "immersim/fmus (git archive COMMIT models fmus | tar -x -C DIR/immersim; touch DIR/immersim/__init__.py), "
                     "alternated with this tree")

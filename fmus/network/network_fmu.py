@@ -14,7 +14,7 @@ from operator import itemgetter
 from immersim.fmus.common import OUTPUTS_UNCHANGED, BuildOption, TableSlave, Var, build_options
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.world import World
-from immersim.models.network.config import OWNERSHIP_FOCI, OWNERSHIP_RULES, TOPOLOGIES
+from immersim.models.network.config import OWNERSHIP_FOCI, OWNERSHIP_RULES, STATE_TRAFFIC, TOPOLOGIES
 
 #: capacities fixed at build time (``immersim build network --option players=8``)
 BUILD_OPTIONS = (
@@ -84,6 +84,7 @@ class network(TableSlave):
         Var("ownership_foci", "parameter", "String", "reach", "", "reading of eq. 3-12: reach (foci a apart, the region reaches ahead) | frame (literal: foci one frame apart, a circle)"),
         Var("ownerless", "parameter", "Boolean", False, "", "an entity outside every ownership region has no owner: nobody publishes it, every node shows its own prediction (§3.6.3); false: it keeps its last owner"),
         Var("grid", "parameter", "Boolean", True, "", "10x10 scene grid with 9-cell neighbourhoods (§3.3)"),
+        Var("state_traffic", "parameter", "String", "object_view", "", "who gets an object's STATE records: object_view (every node whose 9 cells hold the object), or neighbour_nodes (only those whose avatar is in the 9 cells of the owner's avatar, §3.3)"),
         Var("latency_ms", "parameter", "Real", 20.0, "ms", "base one-way latency of WAN links (between sites)"),
         Var("jitter_ms", "parameter", "Real", 5.0, "ms", "mean of the exponential jitter added to WAN latency"),
         Var("loss", "parameter", "Real", 0.0, "1", "WAN message loss probability"),
@@ -122,6 +123,8 @@ class network(TableSlave):
             raise self._param_error("ownership", f"must be one of {', '.join(OWNERSHIP_RULES)}")
         if v["ownership_foci"] not in OWNERSHIP_FOCI:
             raise self._param_error("ownership_foci", "must be reach or frame")
+        if v["state_traffic"] not in STATE_TRAFFIC:
+            raise self._param_error("state_traffic", f"must be one of {', '.join(STATE_TRAFFIC)}")
         if v["ownerless"] and v["ownership"] == "none":
             raise self._param_error("ownerless", "needs an ownership rule (ownership is none)")
         if v["prediction_order"] not in (0, 1, 2):
@@ -138,6 +141,7 @@ class network(TableSlave):
             groups=v["players"], render_nodes=v["render_nodes"], entities=v["entities"], driven_groups=v["players"],
             seed=v["seed"], topology=v["topology"], prediction_order=v["prediction_order"], ownership=v["ownership"],
             ownership_foci=v["ownership_foci"], ownerless=bool(v["ownerless"]),
+            state_traffic=v["state_traffic"],
             grid=bool(v["grid"]), dis_threshold=v["dis_threshold"], scene_size=v["scene_size"],
             entity_speed=v["entity_speed"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
         self.model = NetworkModel(cfg)

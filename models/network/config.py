@@ -9,6 +9,7 @@ TOPOLOGIES = ("hybrid_p2p", "client_server", "full_mesh")
 OWNERSHIP_RULES = ("mahalanobis", "euclidean", "none")
 OWNERSHIP_FOCI = ("frame", "reach")   # readings of eq. 3-12 (consistency.ellipsoid_axes)
 JITTER_DISTRIBUTIONS = ("exponential", "uniform", "normal")
+STATE_TRAFFIC = ("object_view", "neighbour_nodes")   # who gets an object's STATE records (messages.py)
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,10 @@ class NetworkConfig:
         publishes them, every node shows its own prediction from its last record, and a region
         (or an avatar touching one) claims them again; False: such an entity keeps its last owner.
     grid : 10x10 scene grid with 9-cell neighbourhoods (§3.3) on/off.
+    state_traffic : who gets a published object's STATE record (hybrid_p2p and client_server;
+        a full mesh broadcasts): 'object_view' every node whose 9-cell neighbourhood holds the
+        object, wherever its owner is; 'neighbour_nodes' (§3.3, hybrid P2P between neighbours)
+        only those of them whose avatar is in the 9-cell neighbourhood of the owner's avatar.
     dis_threshold : DIS-style update: an owner publishes an object only when the receivers'
         dead-reckoned position would be off by more than this (m) or ``dis_heartbeat_s`` has
         passed; ``<= 0`` publishes every frame.
@@ -136,6 +141,8 @@ class NetworkConfig:
     pastry_M: int = 16
     # entities outside every ownership region: no owner (§3.6.3), see the class docstring
     ownerless: bool = False
+    # STATE records to every viewer of the object, or only to the owner's neighbour nodes (§3.3)
+    state_traffic: str = "object_view"
 
     def __post_init__(self) -> None:
         checks = [
@@ -146,6 +153,7 @@ class NetworkConfig:
             (self.topology in TOPOLOGIES, f"topology {self.topology!r} not in {TOPOLOGIES}"),
             (self.ownership in OWNERSHIP_RULES, f"ownership {self.ownership!r} not in {OWNERSHIP_RULES}"),
             (not (self.ownerless and self.ownership == "none"), "ownerless needs an ownership rule (not 'none')"),
+            (self.state_traffic in STATE_TRAFFIC, f"state_traffic {self.state_traffic!r} not in {STATE_TRAFFIC}"),
             (self.prediction_order in (0, 1, 2), f"prediction_order = {self.prediction_order} must be 0, 1 or 2"),
             (self.scene_size > 0, f"scene_size = {self.scene_size} must be > 0"),
             (self.ownership_foci in OWNERSHIP_FOCI, f"ownership_foci {self.ownership_foci!r} not in {OWNERSHIP_FOCI}"),

@@ -4,7 +4,8 @@
 A pair (viewer group, object) is in view when the object's cell is in the 9-cell neighbourhood
 of the viewer avatar's cell; a pair entering the view is subscribed at the frame time (the
 record cache's ``enter_col``) and gets the object's state this frame even without DIS
-publication. Messages are sampled per (sender, receiver, PDU type) with their own arrival
+publication; with ``state_traffic = 'neighbour_nodes'`` only a viewer whose avatar is in the
+9-cell neighbourhood of the owner's avatar gets it (:meth:`Messaging.neighbours`). Messages are sampled per (sender, receiver, PDU type) with their own arrival
 times (latency + jitter + serialisation on the sender's uplink).
 """
 from __future__ import annotations
@@ -130,14 +131,14 @@ class Messaging:
                 fast = (grp.version, net.own.epoch)
                 if memo is not None and memo["fast"] == fast and memo["view"] is view:
                     return self._resend(memo, t), memo
-            send_pair = pub[vo] if newly is None else pub[vo] | newly
+            send_pair = self.neighbours(net, fr, pub[vo] if newly is None else pub[vo] | newly)
             key = (grp.master.tobytes(), tuple(s.tobytes() for s in grp.slaves), fr.pub_obj.tobytes(),
                    owner.tobytes(), vg.tobytes(), vo.tobytes(), send_pair.tobytes(), og.tobytes())
             if memo is not None and memo["key"] == key:
                 memo["fast"], memo["view"] = fast, view
                 return self._resend(memo, t), memo
         else:
-            send_pair = pub[vo] if newly is None else pub[vo] | newly
+            send_pair = self.neighbours(net, fr, pub[vo] if newly is None else pub[vo] | newly)
         tr = build_messages(cfg, net.reg, t, grp.master, grp.slaves, fr.pub_obj, owner, vg, vo, frame_size,
                             send_pair, og, net.paths.scalar_messages)
         tr.plan = TrafficPlan(tr, cfg.links, net.paths)
@@ -147,6 +148,18 @@ class Messaging:
         delay = np.where(tr.send_t != t, cfg.compose_ms * 1e-3, 0.0)
         self._msgs = memo = {"key": key, "fast": fast, "view": view, "tr": tr, "delay": delay}
         return tr, memo
+
+    @staticmethod
+    def neighbours(net, fr, send_pair: np.ndarray) -> np.ndarray:
+        """``send_pair`` (one bool per view pair) as the ``state_traffic`` rule has it: with
+        'neighbour_nodes' (§3.3) a pair is kept only when the viewer's avatar is in the 9-cell
+        neighbourhood of the object's owner's avatar (the avatars are objects ``0..G-1``, so
+        the owner group is its avatar's object); an ownerless object is sent by nobody anyway."""
+        if net.cfg.state_traffic == "object_view" or not net.grid.enabled or net.cfg.topology == "full_mesh":
+            return send_pair
+        vg, og, cells = fr.view[1], fr.og, fr.cells
+        near = net.grid.adjacent(cells.take(np.maximum(og, 0)), cells.take(vg))
+        return send_pair & near
 
     @staticmethod
     def _resend(memo: dict, t: float) -> Traffic:

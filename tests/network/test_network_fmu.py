@@ -291,3 +291,13 @@ def test_fmu_ownerless_parameter_reaches_the_model_and_needs_an_ownership_rule()
     assert published[True] < published[False] == 2 + 24
     with pytest.raises(ValueError, match=r"parameter ownerless = True needs an ownership rule \(ownership is none\)"):
         _instance(cls, {**params, "ownerless": True, "ownership": "none"}, "bad")
+
+
+def test_fmu_state_traffic_parameter_reaches_the_model_and_names_a_bad_rule():
+    cls = _load_wrapper()
+    assert next(v for v in cls.VARIABLES if v.name == "state_traffic").start == "object_view"
+    params = dict(players=2, render_nodes=1, entities=4, seed=0)
+    s = _instance(cls, {**params, "state_traffic": "neighbour_nodes"}, "nb")
+    assert s.model.cfg.state_traffic == "neighbour_nodes"
+    with pytest.raises(ValueError, match="parameter state_traffic = 'all' must be one of object_view, neighbour_nodes"):
+        _instance(cls, {**params, "state_traffic": "all"}, "bad")
