@@ -28,13 +28,17 @@
    the owner's neighbour nodes only (``NetworkConfig.state_traffic``, §3.3): display error over
    WAN latencies and traffic vs render nodes of both; writes ``state_traffic.md``.
 
+   frame_phase (``--only frame_phase``): display error vs sub-frame WAN latency with the frame
+   clocks in phase and at the groups' seeded phases (``NetworkConfig.frame_phase``); writes
+   ``latency_phase.md``.
+
 8. campus_drive loop (``--loop-ab DIR``): ``immersim run scenarios/campus_drive.toml`` of this
    checkout and of another commit's whole package in ``DIR`` (``mkdir -p DIR/immersim && git
    archive COMMIT api models orchestrator fmus scenarios | tar -x -C DIR/immersim && cp -r
    DIR/immersim/api/. DIR/immersim/``), alternated in fresh processes: the loop time and the
    network unit's share that the command prints, medians; writes ``loop_ab.md``.
 
-Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus,paths,ownerless,state_traffic] [--baseline DIR]
+Usage: python benchmarks/bench_network.py [--quick] [--only scale,campus,paths,ownerless,state_traffic,frame_phase] [--baseline DIR]
        [--campus-log LOG] [--loop-ab DIR] [--rounds N]
 """
 from __future__ import annotations
@@ -297,6 +301,39 @@ def bench_state_traffic(quick: bool):
         fits[rule] = (np.polyfit(n, np.log([x["messages"] for x in r]), 1)[0],
                       np.polyfit(n, np.log([x["bytes"] for x in r]), 1)[0])
     return err, traffic, fits
+
+
+#: the target's latencies (ms) and the sub-frame sweep of bench_frame_phase
+PHASE_TARGET = (0.0, 5.0, 10.0, 20.0, 30.0, 40.0)
+PHASE_SWEEP = (0.0, 1.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 33.0, 40.0, 50.0, 66.0)
+
+
+def phase_rms(L: float, phase: bool, groups: int, seed: int, steps: int = 100) -> float:
+    """Mean RMS display error of parked avatars (``groups``) and 40 entities, order 0, WAN
+    latency ``L`` ms without jitter or bandwidth limit, per 33 ms step after 5 warm-up steps."""
+    cfg = NetworkConfig(groups=groups, entities=40, driven_groups=groups, seed=seed, prediction_order=0,
+                        frame_phase=phase, links={"lan": LinkClass(0.3, 0.0, 0.0, 0.0), "wan": LinkClass(L, 0.0, 0.0, 0.0)})
+    return float(np.mean([s.inconsistency_rms for s in run(cfg, steps)[1]]))
+
+
+def bench_frame_phase(quick: bool):
+    """Display error vs sub-frame WAN latency with every frame clock in phase and with the
+    groups' seeded phases (``frame_phase``): the sweep for 4 groups (seed 2) and 8 groups (seed
+    0), and over seeds 0-7 how often the mean RMS is strictly increasing over PHASE_TARGET."""
+    sweep = []
+    for groups, seed in ((4, 2), (8, 0)):
+        for phase in (False, True):
+            e = [phase_rms(L, phase, groups, seed) for L in (PHASE_TARGET if quick else PHASE_SWEEP)]
+            sweep.append(dict(groups=groups, seed=seed, frame_phase=phase,
+                              **{f"{L:g}": f"{x:.4f}" for L, x in zip(PHASE_TARGET if quick else PHASE_SWEEP, e)}))
+    seeds = []
+    for groups in (4, 8):
+        for phase in (False, True):
+            ok = [all(b > a for a, b in zip(e, e[1:]))
+                  for e in ([phase_rms(L, phase, groups, s) for L in PHASE_TARGET] for s in range(2 if quick else 8))]
+            seeds.append(dict(groups=groups, frame_phase=phase, strictly_increasing=f"{sum(ok)} of {len(ok)}",
+                              seeds=" ".join(str(s) for s, x in enumerate(ok) if x) or "-"))
+    return sweep, seeds
 
 
 #: the campus scenes' network parameters, and the driven case's constant driver inputs
@@ -615,6 +652,18 @@ def only(parts, quick: bool, baseline: str = "", log: str = "") -> None:
                 + ", ".join(f"{k} {a:.2f}, {b:.2f}" for k, (a, b) in fits.items()) + "\n")
         (OUT / "state_traffic.md").write_text(text)
         print(text)
+    if "frame_phase" in parts:
+        sweep, seeds = bench_frame_phase(quick)
+        lat = PHASE_TARGET if quick else PHASE_SWEEP
+        text = (head + "Mean RMS display error (m) vs WAN latency (ms, column heads): parked avatars, 40 entities, "
+                "order 0, no jitter, no bandwidth limit, 95 steps after 5 warm-up steps; `frame_phase` False: every "
+                "frame clock in phase, True: each group's clock at its seeded phase.\n\n"
+                + table(sweep, ["groups", "seed", "frame_phase"] + [f"{L:g}" for L in lat])
+                + "\nSeeds 0-7 whose mean RMS is strictly increasing over L = "
+                + ", ".join(f"{L:g}" for L in PHASE_TARGET) + " ms:\n\n"
+                + table(seeds, ["groups", "frame_phase", "strictly_increasing", "seeds"]))
+        (OUT / "latency_phase.md").write_text(text)
+        print(text)
     if "scale" in parts:
         (OUT / "scale.md").write_text(head + table(bench_scale(quick), *SCALE_COLS))
         print((OUT / "scale.md").read_text())
@@ -699,7 +748,7 @@ def table(rows, cols, fmt=None):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer points and steps (about a minute)")
-    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths, ownerless, state_traffic")
+    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths, ownerless, state_traffic, frame_phase")
     ap.add_argument("--baseline", default="", help="campus: directory with another commit's immersim/models and "
                     "immersim/fmus (git archive COMMIT models fmus | tar -x -C DIR/immersim; touch DIR/immersim/__init__.py), "
                     "alternated with this tree")

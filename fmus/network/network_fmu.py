@@ -85,6 +85,7 @@ class network(TableSlave):
         Var("ownerless", "parameter", "Boolean", False, "", "an entity outside every ownership region has no owner: nobody publishes it, every node shows its own prediction (§3.6.3); false: it keeps its last owner"),
         Var("grid", "parameter", "Boolean", True, "", "10x10 scene grid with 9-cell neighbourhoods (§3.3)"),
         Var("state_traffic", "parameter", "String", "object_view", "", "who gets an object's STATE records: object_view (every node whose 9 cells hold the object), or neighbour_nodes (only those whose avatar is in the 9 cells of the owner's avatar, §3.3)"),
+        Var("frame_phase", "parameter", "Boolean", False, "", "each render group's frame clock at its own seeded phase in [0, 33 ms): a record is shown at the receiver's first frame after its arrival (false: every clock in phase, records shown at the first tick after arrival)"),
         Var("latency_ms", "parameter", "Real", 20.0, "ms", "base one-way latency of WAN links (between sites)"),
         Var("jitter_ms", "parameter", "Real", 5.0, "ms", "mean of the exponential jitter added to WAN latency"),
         Var("loss", "parameter", "Real", 0.0, "1", "WAN message loss probability"),
@@ -141,7 +142,7 @@ class network(TableSlave):
             groups=v["players"], render_nodes=v["render_nodes"], entities=v["entities"], driven_groups=v["players"],
             seed=v["seed"], topology=v["topology"], prediction_order=v["prediction_order"], ownership=v["ownership"],
             ownership_foci=v["ownership_foci"], ownerless=bool(v["ownerless"]),
-            state_traffic=v["state_traffic"],
+            state_traffic=v["state_traffic"], frame_phase=bool(v["frame_phase"]),
             grid=bool(v["grid"]), dis_threshold=v["dis_threshold"], scene_size=v["scene_size"],
             entity_speed=v["entity_speed"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
         self.model = NetworkModel(cfg)

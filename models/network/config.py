@@ -74,6 +74,12 @@ class NetworkConfig:
         a full mesh broadcasts): 'object_view' every node whose 9-cell neighbourhood holds the
         object, wherever its owner is; 'neighbour_nodes' (§3.3, hybrid P2P between neighbours)
         only those of them whose avatar is in the 9-cell neighbourhood of the owner's avatar.
+    frame_phase : frame clocks with their own phase: each render group (its master and the slaves
+        locked to it, §3.5.2) shows its frame ``k`` at ``k T + phi_g``, ``phi_g`` uniform in
+        ``[0, T)`` (seeded, a stream of its own); a STATE record sent at the owner's frame arrives
+        after its latency and is shown at the receiver's first frame at or after the arrival, so
+        the display error follows the latency continuously; False: every clock in phase (a
+        record is shown at the first frame tick at or after its arrival).
     dis_threshold : DIS-style update: an owner publishes an object only when the receivers'
         dead-reckoned position would be off by more than this (m) or ``dis_heartbeat_s`` has
         passed; ``<= 0`` publishes every frame.
@@ -143,6 +149,8 @@ class NetworkConfig:
     ownerless: bool = False
     # STATE records to every viewer of the object, or only to the owner's neighbour nodes (§3.3)
     state_traffic: str = "object_view"
+    # render groups' frame clocks with seeded phases, records shown at the receiver's first frame after arrival
+    frame_phase: bool = False
 
     def __post_init__(self) -> None:
         checks = [

@@ -5,7 +5,9 @@ A record is filed under the first frame ``k`` with ``k T >= arrival``: it has ar
 tick and not by the one before. At a tick every record due is applied in send order; records
 from a group that no longer owns the object are rejected (§3.6.1), a record older than the
 cached one (reordering) is ignored. A slave shows frame ``k`` only if its FRAME packet arrived
-by ``k T``; a late packet is dropped.
+by ``k T``; a late packet is dropped. With frame clock phases (``cfg.frame_phase``) a record is
+due at the viewer's first frame at or after its arrival on the viewer's clock
+(:meth:`Inflight.phased`).
 """
 from __future__ import annotations
 
@@ -170,6 +172,8 @@ class Inflight:
         relayed record waits for, was lost); the senders are the owners now."""
         cfg, tr, arr_l = net.cfg, fr.tr, fr.arr_l
         due = None
+        if net.phase is not None and arr_l is not None:   # the frame clocks' phases: the array form below
+            fr.arrival, fr.lost, arr_l = np.array(arr_l), np.zeros(len(arr_l), bool), None
         if len(tr.rec_msg):
             if arr_l is not None:
                 rec_msg, _, carriers = tr.plan.lists()
@@ -187,6 +191,8 @@ class Inflight:
                     hop = tr.rec_hop1
                     due[(hop >= 0) & np.take(fr.lost, np.maximum(hop, 0))] = -1
             snap = net.own.snapshot()
+            if net.phase is not None:
+                due = self.phased(net, fr, due, snap[1])
             if arr_l is not None and len(tr.rec_msg) <= net.paths.few_records and fr.memo is not None:
                 self.file_rows(net, fr, due, snap)
                 due = None
@@ -213,6 +219,15 @@ class Inflight:
                 arr, lost = fr.arrival.tolist(), fr.lost.tolist()
                 self.frames += [(math.inf if lost[i] else arr[i], node, nxt)
                                 for i, node in zip(tr.frame_msg.tolist(), tr.frame_slave.tolist())]
+
+    def phased(self, net, fr, due: np.ndarray, owners: np.ndarray) -> np.ndarray:
+        """Frames (k,) at which this frame's records are shown with the groups' frame clocks
+        (``cfg.frame_phase``): the owner sends at its frame, ``t_k + phi_owner``; a record
+        arriving ``a - t_k`` later is shown at the viewer's first frame ``m`` with
+        ``t_m + phi_viewer >= a + phi_owner`` (at least this one), -1 where ``due`` is (lost)."""
+        tr, ph = fr.tr, net.phase
+        arr = np.take(fr.arrival, tr.rec_msg) + ph.take(owners.take(tr.rec_obj)) - ph.take(tr.rec_viewer)
+        return np.where(due >= 0, self.due(net, arr), -1)
 
     def deliver_rows(self, net, fi: list, senders: list, rows: list, epoch: int, t_send: float) -> None:
         """:meth:`deliver` of a chunk filed by :meth:`file_rows`: the same sender check

@@ -101,6 +101,8 @@ class NetworkModel:
         self.pub = Publisher(n_obj)
         self.msgs = Messaging(self.reg.n)
         self.flight = Inflight()
+        # frame clock phase of each group (s), cfg.frame_phase; its own stream leaves the model's draws as they are
+        self.phase = (np.random.default_rng([cfg.seed, 5]).uniform(0.0, cfg.frame_s, G) if cfg.frame_phase else None)
         self.errors = DisplayError(n_obj)
         self.history = AvatarHistory(G)
         self.metrics = StepMetrics()

@@ -301,3 +301,11 @@ def test_fmu_state_traffic_parameter_reaches_the_model_and_names_a_bad_rule():
     assert s.model.cfg.state_traffic == "neighbour_nodes"
     with pytest.raises(ValueError, match="parameter state_traffic = 'all' must be one of object_view, neighbour_nodes"):
         _instance(cls, {**params, "state_traffic": "all"}, "bad")
+
+
+def test_fmu_frame_phase_parameter_reaches_the_model():
+    cls = _load_wrapper()
+    assert next(v for v in cls.VARIABLES if v.name == "frame_phase").start is False
+    s = _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0, frame_phase=True), "ph")
+    assert s.model.cfg.frame_phase is True and s.model.phase.shape == (3,)
+    assert _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0), "noph").model.phase is None
