@@ -9,7 +9,8 @@ installed files). A later run, the 3D view and the collision unit alike, reads t
 back as a :class:`CachedMesh` without importing trimesh (with scipy, ~0.35 s).
 
 An entry is written to a temporary file and renamed into place, so concurrent runs see it
-complete or absent; an unreadable entry is made again. ``IMMERSIM_MESH_CACHE=0`` turns the
+complete or absent; an unreadable entry is made again (also one removed while being read);
+the cache keeps the :data:`MAX_ENTRIES` used last. ``IMMERSIM_MESH_CACHE=0`` turns the
 cache off (scenes hold trimesh meshes, as built), a folder moves it.
 """
 from __future__ import annotations
@@ -26,6 +27,8 @@ import numpy as np
 __all__ = ["CachedMesh", "cache_dir", "generated"]
 
 _VERSION: Optional[str] = None
+#: entries kept: a new entry removes the ones used least recently beyond this count
+MAX_ENTRIES = 256
 
 
 class _Points:
@@ -123,7 +126,12 @@ def generated(key: str, make: Callable[[], object]):
         with np.load(path, allow_pickle=False) as z:
             n = int(z["n_parts"])
             hull = z["hull"] if z["has_hull"] else None
-            return CachedMesh(z["vertices"], z["faces"], z["bounds"], hull, [z[f"part{k}"] for k in range(n)])
+            mesh = CachedMesh(z["vertices"], z["faces"], z["bounds"], hull, [z[f"part{k}"] for k in range(n)])
+        try:
+            os.utime(path)   # (used last: kept by the pruning)
+        except OSError:   # a read-only cache
+            pass
+        return mesh
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile):   # absent, cut or damaged
         pass
     mesh = make()
@@ -138,11 +146,27 @@ def generated(key: str, make: Callable[[], object]):
         except BaseException:
             os.unlink(tmp)
             raise
+        _prune(root)
     except OSError:   # a read-only or full cache: the run goes on with the mesh it made
         pass
     n = int(arrays["n_parts"])
     return CachedMesh(arrays["vertices"], arrays["faces"], arrays["bounds"],
                       arrays["hull"] if arrays["has_hull"] else None, [arrays[f"part{k}"] for k in range(n)])
+
+
+def _prune(root: Path) -> None:
+    """Remove the entries beyond :data:`MAX_ENTRIES`, least recently used first."""
+    entries = []
+    for f in root.glob("*.npz"):
+        try:
+            entries.append((f.stat().st_mtime_ns, f))
+        except OSError:   # removed meanwhile by another run
+            pass
+    for _, f in sorted(entries, reverse=True)[MAX_ENTRIES:]:
+        try:
+            f.unlink()
+        except OSError:
+            pass
 
 
 def _arrays(mesh) -> dict:

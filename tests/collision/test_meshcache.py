@@ -59,3 +59,18 @@ def test_a_flat_mesh_has_no_hull(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="convex hull of this mesh could not be made"):
         mesh.convex_hull
     _same(convex_parts(mesh)[0], flat.vertices)
+
+
+def test_the_cache_keeps_the_entries_used_last(tmp_path, monkeypatch):
+    import os
+
+    monkeypatch.setenv("IMMERSIM_MESH_CACHE", str(tmp_path))
+    monkeypatch.setattr(meshcache, "MAX_ENTRIES", 2)
+    parse_scene("box:sx=1,sy=1,sz=1")
+    (first,) = tmp_path.glob("*.npz")
+    os.utime(first, ns=(1, 1))   # used long ago ...
+    parse_scene("box:sx=1,sy=1,sz=1")   # ... and now again: the newest
+    parse_scene("box:sx=2,sy=1,sz=1")
+    os.utime(next(f for f in tmp_path.glob("*.npz") if f != first), ns=(2, 2))
+    parse_scene("box:sx=3,sy=1,sz=1")   # the third entry removes the one used least recently
+    assert len(list(tmp_path.glob("*.npz"))) == 2 and first.exists()
