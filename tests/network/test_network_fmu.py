@@ -13,6 +13,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 
 from immersim.fmus.common import OUTPUTS_UNCHANGED
+from immersim.models.network import LinkClass
 from immersim.orchestrator.build import build_unit, default_build_dir
 from tests.fmpy_runner import Runner, readme_has_generated_table, simulate
 
@@ -309,3 +310,28 @@ def test_fmu_frame_phase_parameter_reaches_the_model():
     s = _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0, frame_phase=True), "ph")
     assert s.model.cfg.frame_phase is True and s.model.phase.shape == (3,)
     assert _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0), "noph").model.phase is None
+
+
+def test_fmu_options_set_through_fmpy_give_the_models_outputs(fmu):
+    """``ownerless``, ``state_traffic`` and ``frame_phase`` set through FMPy (Boolean and String
+    parameters) give, step for step, the outputs of the model configured with them directly."""
+    from immersim.models.network import NetworkConfig, NetworkModel
+
+    opts = dict(ownerless=True, state_traffic="neighbour_nodes", frame_phase=True)
+    r = Runner(fmu, "opts", {**PARAMS, **opts})
+    cfg = NetworkConfig(groups=2, render_nodes=3, entities=24, driven_groups=2, seed=7,
+                        links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(30.0, 5.0, 0.0, 100.0)}, **opts)
+    m = NetworkModel(cfg)
+    names = ["entity[1].x", "entity[16].y", "inconsistency_max", "inconsistency_rms", "messages", "bytes"]
+    try:
+        for k in range(40):
+            r.step(drive(k))
+            for p, key in ((0, 1), (1, 2)):
+                d = drive(k)
+                m.set_input(p, d[f"avatar[{key}].throttle"], d[f"avatar[{key}].steer"], k * T)
+            s = m.step(T)
+            want = [*m.world.epos[0, :1], m.world.epos[15, 1], s.inconsistency_max, s.inconsistency_rms,
+                    s.frame_messages, s.frame_bytes]
+            assert np.array_equal(r.get(names), np.array(want, float)), k
+    finally:
+        r.close()
