@@ -6,6 +6,7 @@ Each mutant replaces one snippet (``original``, which must occur exactly once in
 ``.fmus`` resolve to that copy (a package ``immersim`` of symbolic links, first on
 ``PYTHONPATH``, ahead of the editable install), then, mutant by mutant, writes the mutated
 file, runs the mutant's tests (``pytest -x`` with a timeout) in the copy and restores the file.
+Each mutant's tests get a fresh FMU extraction cache (``IMMERSIM_FMU_CACHE``), never the user's.
 
 A mutant is *killed* when a test fails, errors or times out (a timeout is listed as such),
 *survived* when its tests pass. Before the mutants, every test file used runs once on the
@@ -173,6 +174,9 @@ def run(mutants: List[Mutant], timeout: float = 300.0, keep: Optional[Path] = No
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join([str(shim), str(tree)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
         env["IMMERSIM_BUILD_DIR"] = str(work / "build")
+        # a private FMU extraction cache (it also stores each FMU's read model description): the
+        # user's would hide a mutant of the model-description reader and could keep its output
+        env["IMMERSIM_FMU_CACHE"] = str(work / "fmu_cache" / "baseline")
         env.pop("PYTEST_ADDOPTS", None)
         probe = subprocess.run([sys.executable, "-c", "import immersim.models as m; print(m.__file__)"],
                                cwd=tree, env=env, capture_output=True, text=True)
@@ -216,11 +220,13 @@ def run(mutants: List[Mutant], timeout: float = 300.0, keep: Optional[Path] = No
             src = path.read_text()
             path.write_text(src.replace(m.original, m.replacement, 1))
             _drop_bytecode(path)
+            cache = work / "fmu_cache" / m.id   # fresh per mutant: nothing a mutant stored outlives it
             try:
-                res, dt, detail = run_tests(tree, env, m.tests, timeout)
+                res, dt, detail = run_tests(tree, dict(env, IMMERSIM_FMU_CACHE=str(cache)), m.tests, timeout)
             finally:
                 path.write_text(src)
                 _drop_bytecode(path)
+                shutil.rmtree(cache, ignore_errors=True)
             status = {"passed": "survived", "failed": "killed"}.get(res, res)
             outcomes.append(Outcome(m, status, dt, detail))
             log(f"[{k}/{len(mutants)}] {m.id} {m.file}: {status} in {dt:.0f} s {detail}")
