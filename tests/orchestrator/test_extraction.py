@@ -213,3 +213,16 @@ def test_the_program_runs_exit_handlers_and_keeps_its_output(test_fmus, tmp_path
     assert "osc.toml: 50 steps to t = 0.5 s" in res.stdout
     assert marker.read_text() == "ran"
     assert len([m for m in _messages(out) if not m[0].endswith("/parameters")]) == 2 * 51   # steps 0..50
+
+
+def test_the_time_to_the_first_step_sums_the_phases_up_to_and_with_it(monkeypatch):
+    """``phases.summary``: each phase's time, and the sum of those up to and including the first
+    step (all of them when no step was made)."""
+    from immersim.orchestrator import phases
+
+    marks = [("interpreter", 0.25), ("imports", 0.5), ("first step", 0.125), ("stepping", 4.0), ("log close", 1.0)]
+    monkeypatch.setattr(phases, "_marks", marks)
+    assert phases.summary() == ("phases (s): interpreter 0.250, imports 0.500, first step 0.125, stepping 4.000, "
+                                "log close 1.000; 0.875 s to the end of the first step")
+    monkeypatch.setattr(phases, "_marks", marks[:2])
+    assert phases.summary().endswith("; 0.750 s to the end of the first step")
