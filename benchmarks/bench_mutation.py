@@ -68,6 +68,13 @@ def merged(new_rows, mutants):
     return out
 
 
+def older_than_their_file(rows):
+    """Ids of the rows whose file changed between the commit they ran on and ``HEAD``."""
+    import subprocess
+    return [r["id"] for r in rows if subprocess.run(["git", "diff", "--quiet", r["commit"], "HEAD", "--", r["file"]],
+                                                   cwd=ROOT, capture_output=True).returncode]
+
+
 def write(rows, command: str, wall: float, equivalent=None) -> None:
     """``results/mutation/README.md`` and ``mutants.csv`` from ``rows``; ``equivalent`` maps the
     ids of mutants analysed as changing no output to the reason (scored both ways)."""
@@ -112,6 +119,10 @@ def write(rows, command: str, wall: float, equivalent=None) -> None:
         k = per[mod]
         lines.append(f"| `{mod}` | {sum(k.values())} | {k['killed'] + k['timeout'] + k['error']} | {k['survived']} | "
                      f"{k['invalid'] + k['stale']} |")
+    old = older_than_their_file(rows)
+    lines += ["", "## Outcomes measured on an older version of their file", "",
+              f"{len(old)} of {len(rows)} rows ran on a commit after which their file changed (the mutated line",
+              "is still there; the outcome may differ now): " + (", ".join(old) if old else "none") + "."]
     rest = [r for r in rows if r["status"] != "killed"]
     lines += ["", "## Surviving, timed-out, erroring, invalid and stale mutants", ""]
     if not rest:
