@@ -253,8 +253,7 @@ class LogProcess:
     """A :class:`LogWriter` in a process of its own (``[log] process = true``).
 
     Steps are sent ``BATCH`` at a time: a writer that sleeps between messages takes tens of
-    microseconds to wake, and on this kind of machine the waker pays for it (measured: 98 us
-    per ``send`` of one step, ~10 us per step in batches of 8). The pending steps are sent
+    microseconds to wake, and the waker pays for it. The pending steps are sent
     before the log is closed, whatever ends the run; only a master killed outright loses
     them (at most ``BATCH`` - 1 steps; the in-process log loses its unfinished chunk then).
     Under ``immersim run``'s supervising parent (:mod:`.supervisor`) each step is sent at
