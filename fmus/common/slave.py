@@ -15,22 +15,14 @@ A unit subclasses :class:`TableSlave`, sets ``VARIABLES`` (and ``modelName``), a
 
 The base class checks the master (current time must be the end of the previous step, step
 size > 0, following the FMI Reference-FMUs), rejects NaN/inf inputs and refuses to hand out
-non-finite outputs, each with a message naming instance, variable and time. A raised
-exception becomes ``fmi2Error`` in the pythonfmu binary and its text reaches the master's
-logger.
+non-finite outputs, each with a message naming instance, variable and time. An exception
+raised in ``fmi2DoStep`` makes the pythonfmu binary return ``fmi2Discard``; its text reaches
+the master's logger.
 
-Cost per FMI call
------------------
-pythonfmu calls ``get_real(vrs)`` / ``set_real(vrs, values)`` once per ``fmi2GetReal`` /
-``fmi2SetReal`` with a fresh list of value references; a master asks for the same list every
-step. Each distinct list is resolved once into an ``operator.itemgetter`` over
-``self.values`` (setters: the names, type-checked once), so a call over a few hundred
-variables costs a few microseconds instead of one Python attribute chain per variable. The
-input check runs only after a ``set_real`` that handed over a non-finite value (or a state
-restore), so unchanged inputs are not re-checked; the output check is one ``sum`` of the
-Real outputs (finite unless a term is not, or the sum overflows, which falls back to the
-element-wise search). A unit whose step changed no output (its at-rest shortcut) returns
-:data:`OUTPUTS_UNCHANGED` from ``step_model`` and skips the output check.
+``get_real`` / ``set_real`` resolve each distinct list of value references once (a master asks
+for the same list every step) into an ``operator.itemgetter`` over ``self.values``; inputs are
+checked only after a non-finite value arrives, outputs by one sum. A step that changed no
+output returns :data:`OUTPUTS_UNCHANGED` from ``step_model`` and skips the output check.
 """
 from __future__ import annotations
 
