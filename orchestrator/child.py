@@ -1,5 +1,5 @@
 """Helper processes of a run: a fresh interpreter running one of our modules, talking over a
-socket pair (the worker processes of :mod:`.remote`, the log writer of :mod:`.logwriter`)."""
+socket pair (the worker processes of :mod:`.transport`, the log writer of :mod:`.logwriter`)."""
 from __future__ import annotations
 
 import os

@@ -134,7 +134,7 @@ class FmuInstance:
         several instances per process.
     """
 
-    #: loaded in this process (a unit in a worker process is a ``remote.RemoteInstance``)
+    #: loaded in this process (a unit in a worker process is a ``transport.RemoteInstance``)
     remote = False
 
     def __init__(self, name: str, path: Path | str, unzip_dir: Optional[Path] = None) -> None:
