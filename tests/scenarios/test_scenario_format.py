@@ -245,3 +245,20 @@ def test_the_command_line_reports_a_group_error_in_one_line(tmp_path, capsys, te
     lines = capsys.readouterr().err.splitlines()
     assert rc == 2 and len(lines) == 1 and lines[0].startswith("immersim: error: "), (rc, lines)
     assert re.search(message, lines[0]), lines[0]
+
+
+def test_a_one_member_range_is_one_name():
+    assert names("coll.body[4..4].z") == ["coll.body[4].z"]
+
+
+def test_an_error_in_an_included_array_entry_names_that_file_and_its_index(tmp_path):
+    """The included file's connections follow the file's own; an error in either names the file
+    and the index it was written at."""
+    write(tmp_path, '[[connections]]\nfrom = "a.pose.x"\nto = "b.cue.f_x"\ngain = "two"\n', "common.toml")
+    with pytest.raises(ScenarioError, match=r"common\.toml: connections\[0\]\.gain: expected a number, got 'two'"):
+        load_scenario(write(tmp_path, 'include = ["common.toml"]\n' + OSC +
+                            '[[connections]]\nfrom = "a.pose.y"\nto = "b.cue.f_y"\n'))
+    write(tmp_path, '[[connections]]\nfrom = "a.pose.x"\nto = "b.cue.f_x"\n', "common.toml")
+    with pytest.raises(ScenarioError, match=r"s\.toml: connections\[0\]\.gain: expected a number, got 'three'"):
+        load_scenario(write(tmp_path, 'include = ["common.toml"]\n' + OSC +
+                            '[[connections]]\nfrom = "a.pose.y"\nto = "b.cue.f_y"\ngain = "three"\n'))
