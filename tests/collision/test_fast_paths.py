@@ -203,3 +203,18 @@ def test_a_pair_at_rest_reports_one_result_object(scene):
         moving.in_contact, moving.distance, moving.depth, moving.partner, -1.0, 0.0)
     assert r.point is moving.point and r.normal is moving.normal
 
+
+
+def test_a_body_turning_in_place_toward_a_far_partner_is_evaluated_again():
+    """The far-pair skip's bound counts rotation: the box, turning in place, brings its corner from
+    2.2 m to 1.96 m of the ball (max_distance 2 m); the skip gives the full computation's outputs."""
+    scene = parse_scene("box:name=av,sx=4,sy=2,sz=4.4,dynamic=1;sphere:name=e,r=1,dynamic=1")
+    traj = [((0.0, 0.0, 2.5, 0.0, 0.0, 0.02 * k), (5.2, 0.0, 2.5, 0.0, 0.0, 0.0)) for k in range(24)]
+    fast = make_backend("fcl", scene, "av vs e", BackendConfig(max_distance=2.0))
+    full = make_backend("fcl", scene, "av vs e", BackendConfig(max_distance=2.0), Shortcuts(far_pairs=False))
+    got = _run(fast, traj)
+    assert got == _run(full, traj)
+    first, last = (struct.unpack("d", got[k][0][0][1])[0] for k in (0, -1))
+    assert first == 2.0   # far: reported at max_distance
+    yaw = 0.02 * 23       # the corner's reach along x: 2 cos(yaw) + 1 sin(yaw)
+    assert last == pytest.approx(5.2 - 1.0 - (2.0 * math.cos(yaw) + math.sin(yaw)), abs=1e-4)  # (a meshed ball)
