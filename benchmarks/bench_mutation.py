@@ -75,7 +75,7 @@ def older_than_their_file(rows):
                                                    cwd=ROOT, capture_output=True).returncode]
 
 
-def write(rows, command: str, wall: float, equivalent=None) -> None:
+def write(rows, command: str, wall: float, equivalent=None, gaps=None) -> None:
     """``results/mutation/README.md`` and ``mutants.csv`` from ``rows``; ``equivalent`` maps the
     ids of mutants analysed as changing no output to the reason (scored both ways)."""
     equivalent = equivalent or {}
@@ -130,7 +130,8 @@ def write(rows, command: str, wall: float, equivalent=None) -> None:
     else:
         lines += ["| id | file | status | change | why | detail |", "|---|---|---|---|---|---|"]
         for r in rest:
-            detail = r["detail"] or (f"equivalent: {equivalent[r['id']]}" if r["id"] in equivalent else "")
+            detail = r["detail"] or (f"equivalent: {equivalent[r['id']]}" if r["id"] in equivalent else
+                                     f"not covered: {(gaps or {})[r['id']]}" if r["id"] in (gaps or {}) else "")
             lines.append(f"| {r['id']} | `{r['file']}` | {r['status']} | `{r['original']}` -> `{r['replacement']}` | "
                          f"{r['why']} | {detail.replace('|', '/')} |")
     lines += ["", "Per-mutant outcomes: `mutants.csv` (id, file, status, seconds, first failing test, commit, change, why).",
@@ -156,7 +157,8 @@ def main(argv=None) -> int:
     mutants, _ = runner.load(args.list)
     if args.rewrite:
         write(merged([], mutants), "python benchmarks/bench_mutation.py", 0.0,
-              {m.id: m.equivalent for m in mutants if m.equivalent})
+              {m.id: m.equivalent for m in mutants if m.equivalent},
+              {m.id: m.gap for m in mutants if m.gap})
         return 0
     if args.quick:
         mutants = [m for m in mutants if "missed" in m.tags]
@@ -199,7 +201,8 @@ def main(argv=None) -> int:
             (OUT / "named.md").write_text("\n".join(lines) + "\n")
     if not args.no_write and not args.tests and not args.named:
         cmd = "python benchmarks/bench_mutation.py" + (" --quick" if args.quick else "")
-        write(merged(rows, declared), cmd, wall, {m.id: m.equivalent for m in declared if m.equivalent})
+        write(merged(rows, declared), cmd, wall, {m.id: m.equivalent for m in declared if m.equivalent},
+              {m.id: m.gap for m in declared if m.gap})
         print(f"wrote {OUT / 'README.md'}")
     return 0
 

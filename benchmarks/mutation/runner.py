@@ -55,6 +55,7 @@ class Mutant:
     tags: List[str] = field(default_factory=list)
     named: str = ""        # the test written to catch this change (first block)
     equivalent: str = ""   # why no output can change (a performance-only bound), when analysed so
+    gap: str = ""          # a survivor analysed as a real gap no test covers yet (what would tell)
 
 
 @dataclass
@@ -76,7 +77,7 @@ def load(path: Path = HERE / "mutants.toml") -> Tuple[List[Mutant], Dict[str, Li
             raise ValueError(f"{path.name}: mutant id {mid!r} declared twice")
         seen.add(mid)
         mu = Mutant(mid, m["file"], m["original"], m["replacement"], m["why"], list(m.get("tests", [])),
-                    list(m.get("tags", [])), m.get("named", ""), m.get("equivalent", ""))
+                    list(m.get("tags", [])), m.get("named", ""), m.get("equivalent", ""), m.get("gap", ""))
         if not mu.tests:
             keys = [k for k in tests if mu.file.startswith(k)]
             if not keys:
