@@ -43,3 +43,21 @@ def test_the_first_online_render_node_is_the_master_and_a_graceful_leave_hands_o
     m.step(0.033)
     assert list(m.master) == [0, 4] and list(m.slaves[1]) == [5]
     assert m.supernode.leaves == 1 and m.supernode.timeouts == 0 and m.totals.by_type["LEAVE"] > 0
+
+
+def test_a_node_coming_back_on_line_sends_one_join():
+    """A render node that left gracefully and joins again sends one LEAVE, then one JOIN PDU
+    (H bytes each), counted where every message is counted."""
+    from immersim.models.network.nodes import H
+    from immersim.models.network.pdu import PduType
+
+    m = NetworkModel(NetworkConfig(groups=2, render_nodes=3, entities=0, driven_groups=2))
+    sent = []
+    real = m.count
+    m.count = lambda n, nbytes, ptype: sent.append((int(n), int(nbytes), int(ptype))) or real(n, nbytes, ptype)
+    m.schedule_leave(0.01, 4)
+    m.schedule_join(0.05, 4)
+    for _ in range(3):
+        m.step(T)
+    control = [s for s in sent if s[2] in (PduType.LEAVE, PduType.JOIN)]
+    assert control == [(1, H, PduType.LEAVE), (1, H, PduType.JOIN)]
