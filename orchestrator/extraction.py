@@ -22,6 +22,7 @@ run, also one that may not write bytecode itself (``PYTHONDONTWRITEBYTECODE``).
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import importlib
 import json
@@ -109,9 +110,13 @@ def extract(path: Path, md: Any, unzip_dir: Optional[Path], unit: str) -> str:
     return folder
 
 
-#: the checks :func:`.modeldesc.read_model` makes before a model description is stored (a
-#: change of them changes this number, so older stored descriptions are not used)
-MODEL_CHECKS = 1
+@functools.lru_cache(maxsize=None)
+def model_checks_version() -> str:
+    """A digest of the code that reads and checks a model description before it is stored
+    (:mod:`.modeldesc`): a change of that code leaves older stored descriptions unused."""
+    from . import modeldesc
+
+    return hashlib.sha256(Path(modeldesc.__file__).read_bytes()).hexdigest()[:16]
 
 
 def stored_model(path: Path) -> Optional[tuple]:
@@ -154,7 +159,7 @@ def _model_file(path: Path) -> Optional[str]:
     import fmpy
 
     try:
-        return os.path.join(root, digest(path), f".immersim-model-{MODEL_CHECKS}-fmpy{fmpy.__version__}.pickle")
+        return os.path.join(root, digest(path), f".immersim-model-{model_checks_version()}-fmpy{fmpy.__version__}.pickle")
     except OSError:
         return None
 
