@@ -218,3 +218,44 @@ def test_a_body_turning_in_place_toward_a_far_partner_is_evaluated_again():
     assert first == 2.0   # far: reported at max_distance
     yaw = 0.02 * 23       # the corner's reach along x: 2 cos(yaw) + 1 sin(yaw)
     assert last == pytest.approx(5.2 - 1.0 - (2.0 * math.cos(yaw) + math.sin(yaw)), abs=1e-4)  # (a meshed ball)
+
+
+@pytest.mark.parametrize("rel", [1e-12, -1e-12])
+def test_a_move_within_rounding_of_the_fast_mover_threshold_is_decided_by_its_travel(rel):
+    """A pure translation by ``ccd_fast * thin * (1 +- 1e-12)``: the scalar estimate lies within
+    its slack of the threshold, so the exact travel decides; the backend without the pretests
+    (travel alone) answers the same."""
+    scene = parse_scene("box:name=av,sx=4,sy=2,sz=4.4,dynamic=1;sphere:name=e,r=1,dynamic=1")
+    ball = (40.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    answers = []
+    for pretests in (True, False):
+        be = make_backend("fcl", scene, "av vs e", BackendConfig(max_distance=2.0), Shortcuts(toi_pretests=pretests))
+        threshold = be.toi.threshold[0]
+        assert threshold == 0.5 * 2.0  # ccd_fast x the box's thinnest extent (sy = 2 m)
+        be.query((0.0, 0.0, 2.5, 0.0, 0.0, 0.0) + ball)
+        be.query((threshold * (1.0 + rel), 0.0, 2.5, 0.0, 0.0, 0.0) + ball)
+        assert be.toi.travel(0) == threshold * (1.0 + rel)
+        answers.append(be.toi.needs(0))
+    assert answers == [rel > 0, rel > 0]
+
+
+def test_a_far_pair_within_the_rounding_margin_below_max_distance_is_evaluated():
+    """Two axis-aligned unit boxes (AABB gap = exact distance) recorded far at 2.1 m, then moved to
+    5e-10 m below max_distance = 2 m: the far record's limit is max_distance + 1e-9, so the pair is
+    evaluated and reports its exact distance and partner; 5e-10 m above it stays far. The skip
+    gives the outputs of the backend without it, bit for bit."""
+    scene = parse_scene("box:name=a,sx=1,sy=1,sz=1,dynamic=1;box:name=b,sx=1,sy=1,sz=1,dynamic=1")
+    b = (3.0, 0.0, 0.5, 0.0, 0.0, 0.0)
+    traj = [((x, 0.0, 0.5, 0.0, 0.0, 0.0), b) for x in (-0.1, 5e-10, -0.1, -5e-10)]
+    fast = make_backend("fcl", scene, "a vs b", BackendConfig(max_distance=2.0))
+    full = make_backend("fcl", scene, "a vs b", BackendConfig(max_distance=2.0), Shortcuts(far_pairs=False))
+    got = _run(fast, traj)
+    assert got == _run(full, traj)
+    fast.query(tuple(x for p in traj[0] for x in p))
+    assert fast.far.records[0] is not None  # recorded far
+    near = fast.query(tuple(x for p in traj[1] for x in p)).pairs[0]
+    exact = (3.0 - 0.5) - (5e-10 + 0.5)
+    assert near.distance < 2.0 and near.distance == pytest.approx(exact, abs=1e-13) and near.partner == 1
+    fast.query(tuple(x for p in traj[2] for x in p))
+    above = fast.query(tuple(x for p in traj[3] for x in p)).pairs[0]
+    assert (above.distance, above.partner) == (2.0, -1)  # beyond max_distance: the far result
