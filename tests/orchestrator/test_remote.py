@@ -303,8 +303,9 @@ def test_mailbox_keeps_the_order_and_wakes_a_blocked_worker(tmp_path, test_fmus)
             time.sleep(0.01)
         assert w._box.head[2] == 1
         a.do_step(2 * h, h)
-        xa = readers["a"].read()                            # woken by this post
-        assert w._box.head[2] == 0
+        xa = readers["a"].read()                            # woken by this post: the reply comes
+        # (whether the worker is still awake now is a race: after spin_s without a message it
+        # blocks on its socket again, which takes 1 ms here)
         for k in range(3):
             b.do_step(k * h, h)
         xb = readers["b"].read()                            # one message: the three steps and the read
