@@ -15,8 +15,9 @@ from immersim.models.network.config import LinkClass
 from immersim.models.network.links import TransmitPlan, latency_sum, sample_latency, transmit
 from immersim.models.network.paths import Paths
 
+from .helpers import LOSSY
+
 T = 0.033
-LOSSY = {"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}
 LINKS = {"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(20.0, 5.0, 0.0, 100.0)}
 
 

@@ -5,25 +5,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network import NetworkConfig, NetworkModel
 from immersim.models.network.arrays import pairwise_sum
 from immersim.models.network.metrics import inconsistency, inconsistency_sq
 from immersim.models.network.paths import Paths
 
-
-T = 0.033
-LOSSY = {"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}
-
-
-def _trace(cfg, steps, drive=False):
-    m = NetworkModel(cfg)
-    out = []
-    for k in range(steps):
-        if drive:
-            for g in range(cfg.driven_groups):
-                m.set_input(g, 0.8 if k < steps // 2 else -0.6, 0.2 * (g - 1))
-        out.append(m.step(T).as_dict())
-    return m, out
+from .helpers import LOSSY, T, trace
 
 
 def test_inconsistency_is_the_max_and_rms_of_the_copies_position_errors():
@@ -53,8 +40,8 @@ def test_measure_off_changes_no_network_output_at_scale_like_density():
     """Same network with and without the display metric, in a dense scene with DIS updates."""
     base = NetworkConfig(groups=20, render_nodes=2, entities=400, scene_size=300.0, avatar_start="uniform",
                          dis_threshold=0.1, seed=4)
-    a, oa = _trace(base, 25)
-    b, ob = _trace(replace(base, measure=False), 25)
+    a, oa = trace(base, 25)
+    b, ob = trace(replace(base, measure=False), 25)
     keys = ("messages", "bytes", "dropped_frames", "handovers", "published", "rejected_updates")
     assert [[s[k] for k in keys] for s in oa] == [[s[k] for k in keys] for s in ob]
     assert np.array_equal(a.cache, b.cache)

@@ -7,24 +7,11 @@
 import numpy as np
 import pytest
 
-from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
+from immersim.models.network import NetworkConfig, NetworkModel
 from immersim.models.network import nodes
 from immersim.models.network.paths import Paths
 
-
-T = 0.033
-LOSSY = {"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}
-
-
-def _trace(cfg, steps, drive=False, paths=None):
-    m = NetworkModel(cfg, paths)
-    out = []
-    for k in range(steps):
-        if drive:
-            for g in range(cfg.driven_groups):
-                m.set_input(g, 0.8 if k < steps // 2 else -0.6, 0.2 * (g - 1))
-        out.append(m.step(T).as_dict())
-    return m, out
+from .helpers import LOSSY, T, trace
 
 
 def _same(a, b):
@@ -40,8 +27,8 @@ def _same(a, b):
 def test_reused_messages_and_views_change_nothing(topology):
     cfg = NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=2, topology=topology,
                         links=LOSSY)
-    fast = _trace(cfg, 50, drive=True)
-    _same(fast, _trace(cfg, 50, drive=True, paths=Paths(memo_pairs=-1, reuse_views=False)))   # never reused
+    fast = trace(cfg, 50, drive=True)
+    _same(fast, trace(cfg, 50, drive=True, paths=Paths(memo_pairs=-1, reuse_views=False)))   # never reused
 
 
 def test_subscription_times_match_a_dense_view_table():

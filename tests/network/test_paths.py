@@ -18,9 +18,10 @@ import pytest
 from immersim.models.network import LinkClass, NetworkConfig, NetworkModel
 from immersim.models.network.paths import Paths
 
+from .helpers import LOSSY
+
 
 T = 0.033
-LOSSY = {"lan": LinkClass(0.3, 0.2, 0.05, 1000.0), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)}
 LINKS = {"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(20.0, 5.0, 0.0, 100.0)}
 #: the small-scene shortcuts off (the array code and per-frame messages)
 SMALL_PLAIN = Paths(scalar_owners=-1, scalar_contacts=-1, merge_draws=False, rest_skip=False, rest_display=False,
