@@ -60,36 +60,31 @@ def test_a_connection_group_is_one_connection_per_signal_with_its_options(tmp_pa
                    ("pose.alpha", "cue.w_z", 1.0, "zoh", True)]
 
 
-def test_a_count_mismatch_names_file_key_and_both_counts(tmp_path):
-    path = write(tmp_path, OSC + '[[connections]]\nfrom = "a.pose.x"\nto = "b.cue.f_x"\n'
-                                 '[[connections]]\nfrom = "a.stroke[1..3]"\nto = "b.cue.{f_x,f_y}"\n')
-    with pytest.raises(ScenarioError, match=r"^.*s\.toml: connections\[1\]: 'from' 'a\.stroke\[1\.\.3\]' names 3 "
-                                            r"signals, 'to' 'b\.cue\.\{f_x,f_y\}' names 2: they must name as many$"):
-        load_scenario(path)
-    path = write(tmp_path, 'connections = ["a.stroke[1..2] -> b.cue.f_x"]\n' + OSC)
-    with pytest.raises(ScenarioError, match=r"s\.toml: connections\[0\]: the left side 'a\.stroke\[1\.\.2\]' names 2 "
-                                            r"signals, the right side 'b\.cue\.f_x' names 1"):
-        load_scenario(path)
-
-
-def test_an_option_table_must_name_signals_of_the_group(tmp_path):
-    path = write(tmp_path, OSC + '[[connections]]\nfrom = "a.pose.{x,y}"\nto = "b.cue.{f_x,f_y}"\n'
-                                 'extrapolation = { f_z = "zoh" }\n')
-    with pytest.raises(ScenarioError, match=r"s\.toml: connections\[0\]\.extrapolation: 'f_z' names no signal of this "
-                                            r"connection \(its destinations end in f_x, f_y\)"):
-        load_scenario(path)
-
-
-def test_an_error_in_a_group_member_names_the_entry_as_written(tmp_path):
-    path = write(tmp_path, OSC + '[[connections]]\nfrom = "a.pose.{x,y}"\nto = "b.cue.{f_x,f_y}"\n'
-                                 'extrapolation = { f_y = "cubic" }\n')
-    with pytest.raises(ScenarioError, match=r"s\.toml: connections\[0\]\.extrapolation: 'cubic' is not one of zoh, "
-                                            r"linear, angle"):
-        load_scenario(path)
-    path = write(tmp_path, OSC + '[[connections]]\nfrom = "a.pose.{x,y}"\nto = "b.cue.{f_x,f_x}"\n')
-    with pytest.raises(ScenarioError, match=r"s\.toml: connections\[0\]: input b\.cue\.f_x is already connected "
-                                            r"\(connections\[0\]\)"):
-        load_scenario(path)
+@pytest.mark.parametrize("text, message", [
+    pytest.param(OSC + '[[connections]]\nfrom = "a.pose.x"\nto = "b.cue.f_x"\n'
+                       '[[connections]]\nfrom = "a.stroke[1..3]"\nto = "b.cue.{f_x,f_y}"\n',
+                 r"^.*s\.toml: connections\[1\]: 'from' 'a\.stroke\[1\.\.3\]' names 3 "
+                 r"signals, 'to' 'b\.cue\.\{f_x,f_y\}' names 2: they must name as many$", id="count_mismatch_table"),
+    pytest.param('connections = ["a.stroke[1..2] -> b.cue.f_x"]\n' + OSC,
+                 r"s\.toml: connections\[0\]: the left side 'a\.stroke\[1\.\.2\]' names 2 "
+                 r"signals, the right side 'b\.cue\.f_x' names 1", id="count_mismatch_string"),
+    pytest.param(OSC + '[[connections]]\nfrom = "a.pose.{x,y}"\nto = "b.cue.{f_x,f_y}"\n'
+                       'extrapolation = { f_z = "zoh" }\n',
+                 r"s\.toml: connections\[0\]\.extrapolation: 'f_z' names no signal of this "
+                 r"connection \(its destinations end in f_x, f_y\)", id="option_table_names_no_signal"),
+    pytest.param(OSC + '[[connections]]\nfrom = "a.pose.{x,y}"\nto = "b.cue.{f_x,f_y}"\n'
+                       'extrapolation = { f_y = "cubic" }\n',
+                 r"s\.toml: connections\[0\]\.extrapolation: 'cubic' is not one of zoh, "
+                 r"linear, angle", id="member_bad_option"),
+    pytest.param(OSC + '[[connections]]\nfrom = "a.pose.{x,y}"\nto = "b.cue.{f_x,f_x}"\n',
+                 r"s\.toml: connections\[0\]: input b\.cue\.f_x is already connected "
+                 r"\(connections\[0\]\)", id="member_already_connected"),
+])
+def test_a_group_error_names_the_file_and_the_entry_as_written(tmp_path, text, message):
+    """A count mismatch names both counts; an option table must name signals of the group; an
+    error in one member of a group names the entry as written."""
+    with pytest.raises(ScenarioError, match=message):
+        load_scenario(write(tmp_path, text))
 
 
 def test_an_input_target_group_drives_each_signal(tmp_path):
