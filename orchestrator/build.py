@@ -55,11 +55,10 @@ def _fmus_dir() -> Path:
 
 
 def user_cache_dir() -> Path:
-    """immersim's folder in the user's cache (``$XDG_CACHE_HOME/immersim``, by default
-    ``~/.cache/immersim`` on Linux; the platform's own place elsewhere, by platformdirs)."""
-    import platformdirs
+    """immersim's folder in the user's cache (:func:`immersim.models.cachefiles.user_cache_dir`)."""
+    from ..models.cachefiles import user_cache_dir
 
-    return Path(platformdirs.user_cache_dir("immersim", appauthor=False))
+    return user_cache_dir()
 
 
 def default_build_dir() -> Path:

@@ -21,7 +21,6 @@ run, also one that may not write bytecode itself (``PYTHONDONTWRITEBYTECODE``).
 """
 from __future__ import annotations
 
-import contextlib
 import functools
 import hashlib
 import importlib
@@ -36,6 +35,7 @@ import time
 from pathlib import Path
 from typing import Any, Dict, Optional
 
+from ..models.cachefiles import cache_folder, write_atomic
 from .errors import FmuLoadError
 
 try:
@@ -64,14 +64,9 @@ def cache_root() -> Optional[Path]:
     """The extraction cache's folder: ``$IMMERSIM_FMU_CACHE``, else ``extracted/`` in the
     user's cache folder; None when ``IMMERSIM_FMU_CACHE`` is ``0`` or without POSIX file locks
     (no cache)."""
-    env = os.environ.get("IMMERSIM_FMU_CACHE", "")
-    if env.lower() in ("0", "off", "no", "false") or fcntl is None:
+    if fcntl is None:
         return None
-    if env:
-        return Path(env)
-    from .build import user_cache_dir
-
-    return user_cache_dir() / "extracted"
+    return cache_folder("IMMERSIM_FMU_CACHE", "extracted")
 
 
 def clear() -> None:
@@ -141,15 +136,10 @@ def store_model(path: Path, model: tuple) -> None:
     name = _model_file(path)
     if name is None or not os.path.isdir(os.path.dirname(name)):
         return
-    part = f"{name}.{os.getpid()}.part"
     try:
-        with open(part, "wb") as fh:
-            pickle.dump(model, fh, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(part, name)
+        write_atomic(name, lambda fh: pickle.dump(model, fh, protocol=pickle.HIGHEST_PROTOCOL), suffix=".part")
     except OSError as exc:
         log.debug("model description of %s not stored: %s", path, exc)
-        with contextlib.suppress(OSError):
-            os.unlink(part)
 
 
 def _model_file(path: Path) -> Optional[str]:

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import Callable, List, Optional
 
 import numpy as np
+
+from ..cachefiles import cache_folder, write_atomic
 
 __all__ = ["CachedMesh", "cache_dir", "generated"]
 
@@ -85,14 +86,7 @@ class CachedMesh(_Points):
 def cache_dir() -> Optional[Path]:
     """``$IMMERSIM_MESH_CACHE``, else ``meshes/`` in immersim's user cache folder; None
     when ``IMMERSIM_MESH_CACHE`` is ``0``."""
-    env = os.environ.get("IMMERSIM_MESH_CACHE", "")
-    if env.lower() in ("0", "off", "no", "false"):
-        return None
-    if env:
-        return Path(env)
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("immersim", appauthor=False)) / "meshes"
+    return cache_folder("IMMERSIM_MESH_CACHE", "meshes")
 
 
 def _version() -> str:
@@ -138,14 +132,7 @@ def generated(key: str, make: Callable[[], object]):
     arrays = _arrays(mesh)
     try:
         root.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=root, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
+        write_atomic(path, lambda f: np.savez(f, **arrays))
         _prune(root)
     except OSError:   # a read-only or full cache: the run goes on with the mesh it made
         pass
