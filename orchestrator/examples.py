@@ -44,13 +44,14 @@ def list_examples() -> List[Example]:
 
 
 def _included(path: Path) -> List[Path]:
-    """The files a shipped scenario includes (``include = [...]``), and theirs."""
-    names = tomllib.loads(path.read_text()).get("include", [])
-    out: List[Path] = []
-    for name in [names] if isinstance(names, str) else names:
-        p = (path.parent / name).resolve()
-        out += [p] + _included(p)
-    return out
+    """The files a shipped scenario includes (``include = [...]``), and theirs, as
+    :func:`~immersim.orchestrator.include.compose` follows them."""
+    from .include import compose
+    from .schema import read_toml
+
+    data, _ = read_toml(path, "scenario file")
+    texts = compose(data, path, lambda f: read_toml(f, "scenario file") if f.is_file() else None)[2]
+    return [Path(f).resolve() for f in texts]
 
 
 def copy_examples(dest: Path | str, names: Optional[Sequence[str]] = None) -> List[Path]:
