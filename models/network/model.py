@@ -164,11 +164,10 @@ class NetworkModel:
     def count_batch(self, plan) -> None:
         """Count a frame's messages (a :class:`nodes.TrafficPlan`): step, interval and per-type totals."""
         n, nb = plan.n, plan.nbytes
-        m, iv = self.metrics, self.traffic.interval
+        m = self.metrics
         m.messages += n
         m.bytes += nb
-        iv[0] += n
-        iv[1] += nb
+        self.traffic.add(n, nb)
         bt = self.totals.by_type
         for name, b in plan.by_type:
             bt[name] = bt.get(name, 0) + b
