@@ -191,12 +191,11 @@ class Master(Stepper):
 
     def step(self, t_ns: int, h_ns: int) -> None:
         """Advance every slot from ``t_ns`` by ``h_ns``."""
-        slots = self.slots
         if self.remote:
             return self._parallel_step(t_ns, h_ns)
         if self.algorithm == "jacobi":
             gathered = [(slot, self._gather(slot, t_ns) if slot.inputs.active else None)
-                        for slot in map(slots.__getitem__, self.order)]
+                        for slot in self._order_slots]
             t0 = perf_counter_ns()
             for slot, inputs in gathered:
                 if self._advance(slot, t_ns, h_ns, inputs):
