@@ -22,11 +22,10 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from .errors import ScenarioError
+from .expand import ARRAYS, Sources as Origin
 
-Origin = Dict[tuple, Tuple[Path, tuple]]
 #: ``read(path)``: the file's data and text, or None if there is no such file
 Reader = Callable[[Path], Optional[Tuple[Dict[str, Any], str]]]
-ARRAYS = ("connections", "inputs", "faults", "live_inputs")
 
 
 def _own(data: Dict[str, Any], path: Path) -> Origin:
