@@ -152,6 +152,21 @@ def test_norm3_is_numpys_norm_bit_for_bit():
         assert norm3(v) == np.linalg.norm(v)
 
 
+def test_the_scalar_aabb_gap_is_the_array_gaps_bit_for_bit(scene):
+    """``Bounds.gap`` (scalar, per pair: the fcl backend's narrow phase) and ``Bounds.gaps``
+    (arrays, one body to many: the other backends) give the same numbers along the trajectory."""
+    be = make_backend("fcl", scene, PAIRS, BackendConfig(max_distance=2.0))
+    everyone = np.arange(len(scene.bodies))
+    checked = 0
+    for poses in _trajectory(30):
+        be.query(tuple(x for p in poses for x in p), 0.033)
+        for a in everyone:
+            gaps = be.bounds.gaps(a, everyone)
+            assert [struct.pack("d", be.bounds.gap(a, b)) for b in everyone] == [struct.pack("d", g) for g in gaps]
+            checked += int((gaps > 0).sum())
+    assert checked > 100  # separated boxes, not only overlapping ones (gap 0)
+
+
 @pytest.mark.parametrize("off", sorted(Shortcuts.__dataclass_fields__))
 def test_each_shortcut_changes_no_output(scene, off):
     """The backend without one shortcut gives the outputs of the backend with all, bit for bit,
