@@ -165,11 +165,8 @@ class Scenario:
 
     def where(self, *loc: Any) -> str:
         """``<file>: <key path>`` of a key path of the expanded scenario, as written."""
-        if self.place is not None:
-            return self.place(tuple(loc))
-        from .schema import key_path
-
-        return f"{self.file}: {key_path(tuple(loc))}" if loc else str(self.file)
+        place = self.place or _placer(self.file, {})[0]   # (a scenario built directly: its own file)
+        return place(tuple(loc))
 
     @property
     def n_steps(self) -> int:
