@@ -118,9 +118,7 @@ def generated(key: str, make: Callable[[], object]):
     path = root / (hashlib.sha256(f"{key}\n{_version()}".encode()).hexdigest()[:32] + ".npz")
     try:
         with np.load(path, allow_pickle=False) as z:
-            n = int(z["n_parts"])
-            hull = z["hull"] if z["has_hull"] else None
-            mesh = CachedMesh(z["vertices"], z["faces"], z["bounds"], hull, [z[f"part{k}"] for k in range(n)])
+            mesh = _mesh(z)
         try:
             os.utime(path)   # (used last: kept by the pruning)
         except OSError:   # a read-only cache
@@ -136,9 +134,13 @@ def generated(key: str, make: Callable[[], object]):
         _prune(root)
     except OSError:   # a read-only or full cache: the run goes on with the mesh it made
         pass
-    n = int(arrays["n_parts"])
-    return CachedMesh(arrays["vertices"], arrays["faces"], arrays["bounds"],
-                      arrays["hull"] if arrays["has_hull"] else None, [arrays[f"part{k}"] for k in range(n)])
+    return _mesh(arrays)
+
+
+def _mesh(z) -> CachedMesh:
+    """The :class:`CachedMesh` of the arrays of :func:`_arrays` (a dict or a loaded ``.npz``)."""
+    hull = z["hull"] if z["has_hull"] else None
+    return CachedMesh(z["vertices"], z["faces"], z["bounds"], hull, [z[f"part{k}"] for k in range(int(z["n_parts"]))])
 
 
 def _prune(root: Path) -> None:
