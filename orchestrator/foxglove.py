@@ -249,8 +249,6 @@ class FoxgloveObserver:
                 self._spins.append((o + 3 + spin[0], o + 6, spin[1]))
             elif spin is not None:
                 self._turns.append((o, spin, order))
-        #: each rotation's angles at its last update: unchanged angles keep their quaternion
-        self._angles: List[Any] = [None] * len(self._turns)
         #: the JSON message's dicts of the moving bodies, with their offset in the poses
         self._moved = [(translation, rotation, 7 * index[id(translation)])
                        for translation, _, rotation, _, _ in self._moving]
@@ -290,11 +288,8 @@ class FoxgloveObserver:
             half = 0.5 * get()
             poses[i] = sin(half)
             poses[j] = cos(half)
-        for n, (o, angles, order) in enumerate(self._turns):
-            now = [a() if callable(a) else a for a in angles]
-            if now != self._angles[n]:   # (a collision body's roll and pitch are mostly constant)
-                self._angles[n] = now
-                poses[o + 3:o + 7] = euler_quaternion(*now, order)
+        for o, angles, order in self._turns:
+            poses[o + 3:o + 7] = euler_quaternion(*[a() if callable(a) else a for a in angles], order)
 
     def transforms(self, k: int, t_ns: int) -> Tuple[int, bytes]:
         """``(channel id, data)`` of step ``k``'s ``/tf`` message (the log writer puts it with the

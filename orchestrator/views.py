@@ -140,8 +140,6 @@ class PlatformRods:
         self.unit, self.params, self._ik = unit, params, ik_full
         self.topic = f"/scene/{unit}"
         self.refs = [f"{unit}.pose.{ax}" for ax in ("x", "y", "z", "gamma", "beta", "alpha")]
-        self._pose: List[float] = []
-        self._lines: List[dict] = []
 
     def points(self, pose: Sequence[float]) -> np.ndarray:
         """(12, 3): B_1, C_1, B_2, C_2, ... in the base frame, m."""
@@ -151,10 +149,8 @@ class PlatformRods:
         return np.stack([B, C], axis=1).reshape(12, 3)
 
     def entities(self, values: Sequence[float], stamp: dict) -> List[dict]:
-        if list(values) != self._pose:   # a platform at rest: the rods of its last pose
-            self._pose, self._lines = list(values), [line_list(self.points(values), ROD_COLOR)]
         return [{"timestamp": stamp, "frame_id": "world", "id": f"{self.unit}/rods", "frame_locked": False,
-                 "lifetime": {"sec": 0, "nsec": 0}, "lines": self._lines}]
+                 "lifetime": {"sec": 0, "nsec": 0}, "lines": [line_list(self.points(values), ROD_COLOR)]}]
 
 
 def platform_view(unit: str, parameters: dict) -> Tuple[List[Any], List[MeshEntity], List[PlatformRods]]:
