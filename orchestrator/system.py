@@ -7,7 +7,6 @@ whose variables nothing logs and nothing downstream consumes are not loaded at a
 from __future__ import annotations
 
 import difflib
-import hashlib
 import logging
 import re
 from dataclasses import dataclass, field
@@ -15,6 +14,7 @@ from pathlib import Path
 from typing import Any, Dict, List, Optional, Set
 
 from .errors import FmuLoadError, ScenarioError
+from .extraction import digest as sha256   # a file's sha256, memoised: the extraction cache keys by it too
 from .fmu import FmuInstance, VarInfo, read_model
 from .patterns import matches
 from .scenario import Connection, Scenario, seconds_to_ns
@@ -100,14 +100,6 @@ def apply_default_experiment(scenario: Scenario, paths: Dict[str, Path]) -> None
         raise ScenarioError(f"{f}: stop {scenario.stop_ns / 1e9:g} s (from the DefaultExperiment) must be "
                             f"after start {scenario.start_ns / 1e9:g} s")
     log.info("from the FMUs' DefaultExperiment: %s", ", ".join(f"{k} = {v:g}" for k, v in found.items()))
-
-
-def sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 @dataclass
