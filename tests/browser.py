@@ -13,6 +13,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -100,10 +101,13 @@ async def _run(url: str, ready: str, evaluate: dict, screenshot: Optional[Path],
                timeout: float) -> PageRun:
     import websockets
 
-    with tempfile.TemporaryDirectory(prefix="immersim_chromium_") as profile:
+    # (a helper process of chromium may still write into the profile for a moment after the
+    # browser is gone: the whole process group is ended, and a last write does not fail the run)
+    with tempfile.TemporaryDirectory(prefix="immersim_chromium_", ignore_cleanup_errors=True) as profile:
         proc = subprocess.Popen([chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
                                  "--remote-debugging-port=0", f"--user-data-dir={profile}", "about:blank"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
         try:
             ws_url = None
             deadline = time.monotonic() + timeout
@@ -155,11 +159,20 @@ async def _run(url: str, ready: str, evaluate: dict, screenshot: Optional[Path],
                 pump.cancel()
                 return run
         finally:
-            proc.terminate()
+            _end_group(proc, signal.SIGTERM)
             try:
                 proc.wait(10)
             except subprocess.TimeoutExpired:
-                proc.kill()
+                pass
+            _end_group(proc, signal.SIGKILL)   # what is left of the group (zygote, crash handler)
+            proc.wait()
+
+
+def _end_group(proc: subprocess.Popen, sig: int) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except ProcessLookupError:
+        pass
 
 
 def open_page(path: Path, ready: str = "document.readyState === 'complete'", evaluate: Optional[dict] = None,
