@@ -68,8 +68,8 @@ def _starts(seed: int):
     """The network's start poses (x, y, yaw per avatar) for ``seed`` (the FMU's configuration)."""
     from immersim.models.network import NetworkConfig, NetworkModel
 
-    m = NetworkModel(NetworkConfig(groups=PLAYERS, render_nodes=2, entities=8, driven_groups=PLAYERS, seed=seed,
-                                   scene_size=SIZE))
+    m = NetworkModel(NetworkConfig.from_flat(groups=PLAYERS, render_nodes=2, entities=8, driven_groups=PLAYERS, seed=seed,
+                                             scene_size=SIZE))
     return m.world.apos.copy(), m.world.yaw.copy()
 
 

@@ -21,15 +21,15 @@
    default, fresh processes alternated, CPU medians; writes ``paths.md``.
 
 7. ownerless (``--only ownerless``): entities outside every ownership region without an owner
-   (``NetworkConfig.ownerless``, §3.6.3) against keeping the last owner, over WAN latencies: the
+   (``NetworkConfig.consistency.ownerless``, §3.6.3) against keeping the last owner, over WAN latencies: the
    display error, published objects, traffic, releases and claims; writes ``ownerless.md``.
 
    state_traffic (``--only state_traffic``): STATE records to every viewer of the object against
-   the owner's neighbour nodes only (``NetworkConfig.state_traffic``, §3.3): display error over
+   the owner's neighbour nodes only (``NetworkConfig.net.state_traffic``, §3.3): display error over
    WAN latencies and traffic vs render nodes of both; writes ``state_traffic.md``.
 
    frame_phase (``--only frame_phase``): display error vs sub-frame WAN latency with the frame
-   clocks in phase and at the groups' seeded phases (``NetworkConfig.frame_phase``); writes
+   clocks in phase and at the groups' seeded phases (``NetworkConfig.scene.frame_phase``); writes
    ``latency_phase.md``.
 
 8. campus_drive loop (``--loop-ab DIR``): ``immersim run scenarios/campus_drive.toml`` of this
@@ -50,7 +50,7 @@ import platform
 import subprocess
 import sys
 import time
-from dataclasses import fields, replace
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -95,13 +95,13 @@ def bench_latency(quick: bool):
     lat = [0.0, 25.0, 100.0] if quick else [0.0, 10.0, 25.0, 50.0, 100.0, 200.0]
     steps = 60 if quick else 180
     rows = []
-    base = NetworkConfig(groups=8, render_nodes=2, entities=300, scene_size=200.0, ownership_min_axis=2.0, seed=1)
+    base = NetworkConfig.from_flat(groups=8, render_nodes=2, entities=300, scene_size=200.0, ownership_min_axis=2.0, seed=1)
     for order in (0, 1, 2):
         for label, (rule, foci) in RULES.items():
             for L in lat:
-                cfg = replace(base, prediction_order=order, ownership=rule, ownership_foci=foci,
-                              links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0),
-                                     "wan": LinkClass(L, 0.2 * L, 0.0, 100.0)})
+                cfg = base.replace(prediction_order=order, ownership=rule, ownership_foci=foci,
+                             links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0),
+                                    "wan": LinkClass(L, 0.2 * L, 0.0, 100.0)})
                 m, out = run(cfg, steps)
                 rows.append(dict(order=order, ownership=label, latency_ms=L,
                                  rms=np.mean([s.inconsistency_rms for s in out]),
@@ -117,8 +117,8 @@ def bench_traffic(quick: bool):
     rows = []
     for topo in ("hybrid_p2p", "client_server", "full_mesh"):
         for g in groups:
-            cfg = NetworkConfig(groups=g, render_nodes=4, entities=10 * g, scene_size=1000.0, topology=topo,
-                                avatar_start="uniform", seed=2)
+            cfg = NetworkConfig.from_flat(groups=g, render_nodes=4, entities=10 * g, scene_size=1000.0, topology=topo,
+                                          avatar_start="uniform", seed=2)
             m, out = run(cfg, 12, warm=2)
             rows.append(dict(topology=topo, nodes=g * 4, groups=g,
                              messages=np.mean([s.messages for s in out]), bytes=np.mean([s.bytes for s in out]),
@@ -137,8 +137,8 @@ def bench_scale(quick: bool):
     steps = 30 if quick else 100
     res = []
     for dis, measure in ((0.0, True), (0.1, True), (0.0, False), (0.1, False)):
-        cfg = NetworkConfig(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform",
-                            dis_threshold=dis, seed=4, measure=measure)
+        cfg = NetworkConfig.from_flat(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform",
+                                      dis_threshold=dis, seed=4, measure=measure)
         t0 = time.perf_counter()
         m = NetworkModel(cfg)
         t_init = time.perf_counter() - t0
@@ -167,8 +167,8 @@ def scale_cpu(steps: int, dis: float, paths: dict = None, fmu_dir: str = NETWORK
     """Median CPU time (ms) of the scale step (1000 render nodes, 10,000 entities, every frame
     or DIS ``dis``) over ``steps`` steps after 5 warm-up steps, with ``paths`` (fields of :class:`Paths`)."""
     from immersim.models.network import Paths
-    cfg = NetworkConfig(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform",
-                        dis_threshold=dis, seed=4)
+    cfg = NetworkConfig.from_flat(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform",
+                                  dis_threshold=dis, seed=4)
     m = NetworkModel(cfg, Paths(**(paths or {})))
     for _ in range(5):
         m.step(T)
@@ -242,12 +242,12 @@ def bench_ownerless(quick: bool):
     mahalanobis) with and without ``ownerless``, per WAN latency: mean RMS and max display error,
     objects published, bytes per step, hand-overs, releases and claims per simulated minute."""
     steps = 90 if quick else 300
-    base = NetworkConfig(groups=8, render_nodes=2, entities=300, scene_size=200.0, ownership_min_axis=2.0, seed=1)
+    base = NetworkConfig.from_flat(groups=8, render_nodes=2, entities=300, scene_size=200.0, ownership_min_axis=2.0, seed=1)
     rows = []
     for L in ((0.0, 100.0) if quick else (0.0, 25.0, 100.0)):
         for ownerless in (False, True):
-            cfg = replace(base, ownerless=ownerless, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0),
-                                                            "wan": LinkClass(L, 0.2 * L, 0.0, 100.0)})
+            cfg = base.replace(ownerless=ownerless, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0),
+                                                           "wan": LinkClass(L, 0.2 * L, 0.0, 100.0)})
             m, out = run(cfg, steps)
             minutes = len(out) * T / 60.0
             rows.append(dict(latency_ms=L, ownerless=ownerless, rms=np.mean([s.inconsistency_rms for s in out]),
@@ -268,12 +268,12 @@ def bench_state_traffic(quick: bool):
     scenes (4 render nodes per group, 10 entities per group, 1000 m, avatars uniform) per node
     count: messages and bytes per step and the log-log exponents of both."""
     steps = 90 if quick else 300
-    base = NetworkConfig(groups=8, render_nodes=2, entities=300, scene_size=200.0, ownership_min_axis=2.0, seed=1)
+    base = NetworkConfig.from_flat(groups=8, render_nodes=2, entities=300, scene_size=200.0, ownership_min_axis=2.0, seed=1)
     err = []
     for L in ((0.0, 100.0) if quick else (0.0, 25.0, 100.0)):
         for rule in ("object_view", "neighbour_nodes"):
-            cfg = replace(base, state_traffic=rule, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0),
-                                                          "wan": LinkClass(L, 0.2 * L, 0.0, 100.0)})
+            cfg = base.replace(state_traffic=rule, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0),
+                                                         "wan": LinkClass(L, 0.2 * L, 0.0, 100.0)})
             m, out = run(cfg, steps)
             err.append(dict(latency_ms=L, state_traffic=rule, rms=np.mean([s.inconsistency_rms for s in out]),
                             max=np.max([s.inconsistency_max for s in out]),
@@ -281,7 +281,7 @@ def bench_state_traffic(quick: bool):
                             state_bytes_per_step=m.totals.by_type.get("STATE", 0) / steps))
     for rule in ("object_view", "neighbour_nodes"):   # the default configuration (4 x 3 nodes, 100 m), 600 steps
         n = 150 if quick else 600
-        m, out = run(NetworkConfig(seed=0, state_traffic=rule), n)
+        m, out = run(NetworkConfig.from_flat(seed=0, state_traffic=rule), n)
         err.append(dict(latency_ms="default (20)", state_traffic=rule, rms=np.mean([s.inconsistency_rms for s in out]),
                         max=np.max([s.inconsistency_max for s in out]),
                         messages=np.mean([s.messages for s in out]), bytes_per_step=np.mean([s.bytes for s in out]),
@@ -289,8 +289,8 @@ def bench_state_traffic(quick: bool):
     traffic = []
     for rule in ("object_view", "neighbour_nodes"):
         for g in ([2, 4, 8, 16, 32] if quick else [2, 4, 8, 16, 32, 64]):
-            cfg = NetworkConfig(groups=g, render_nodes=4, entities=10 * g, scene_size=1000.0, avatar_start="uniform",
-                                seed=2, state_traffic=rule)
+            cfg = NetworkConfig.from_flat(groups=g, render_nodes=4, entities=10 * g, scene_size=1000.0, avatar_start="uniform",
+                                          seed=2, state_traffic=rule)
             m, out = run(cfg, 12, warm=2)
             traffic.append(dict(state_traffic=rule, nodes=g * 4, messages=np.mean([s.messages for s in out]),
                                 bytes=np.mean([s.bytes for s in out]), rms=np.mean([s.inconsistency_rms for s in out])))
@@ -311,8 +311,8 @@ PHASE_SWEEP = (0.0, 1.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 33.0, 40.0, 50.0, 66
 def phase_rms(L: float, phase: bool, groups: int, seed: int, steps: int = 100) -> float:
     """Mean RMS display error of parked avatars (``groups``) and 40 entities, order 0, WAN
     latency ``L`` ms without jitter or bandwidth limit, per 33 ms step after 5 warm-up steps."""
-    cfg = NetworkConfig(groups=groups, entities=40, driven_groups=groups, seed=seed, prediction_order=0,
-                        frame_phase=phase, links={"lan": LinkClass(0.3, 0.0, 0.0, 0.0), "wan": LinkClass(L, 0.0, 0.0, 0.0)})
+    cfg = NetworkConfig.from_flat(groups=groups, entities=40, driven_groups=groups, seed=seed, prediction_order=0,
+                                  frame_phase=phase, links={"lan": LinkClass(0.3, 0.0, 0.0, 0.0), "wan": LinkClass(L, 0.0, 0.0, 0.0)})
     return float(np.mean([s.inconsistency_rms for s in run(cfg, steps)[1]]))
 
 
@@ -644,7 +644,7 @@ def only(parts, quick: bool, baseline: str = "", log: str = "") -> None:
                 "neighbourhood holds the object) against `neighbour_nodes` (only those whose avatar is in the "
                 "9-cell neighbourhood of the owner's avatar, §3.3). Display error over WAN latencies: 8 groups x 2 "
                 "render nodes, 300 entities, 200 m scene, order 1, mahalanobis, WAN jitter 20 % of the latency; "
-                "per 33 ms step after 5 warm-up steps; last rows: `NetworkConfig(seed=0)` (4 groups x 3 render nodes, "
+                "per 33 ms step after 5 warm-up steps; last rows: `NetworkConfig.from_flat(seed=0)` (4 groups x 3 render nodes, "
                 "32 entities, 100 m, WAN 20 ms + 5 ms exponential jitter), 600 steps.\n\n" + table(err, *STATE_ERR_COLS)
                 + "\nTraffic vs render nodes (hybrid_p2p, 4 render nodes and 10 entities per group, 1000 m scene, "
                 "avatars uniform, 10 steps after 2 warm-up):\n\n" + table(traffic, *STATE_TRAFFIC_COLS)

@@ -34,7 +34,7 @@ if sys.argv[1]:
 import numpy as np
 import immersim.models.network as net
 from immersim.models.network import NetworkConfig, NetworkModel
-cfg = NetworkConfig(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform", seed=4)
+cfg = NetworkConfig.from_flat(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform", seed=4)
 m = NetworkModel(cfg)
 for _ in range(5):
     m.step(0.033)

@@ -138,7 +138,7 @@ class network(TableSlave):
         if not 0 <= v["loss"] < 1:
             raise self._param_error("loss", "must be in [0, 1)")
         wan = LinkClass(v["latency_ms"], v["jitter_ms"], v["loss"], v["bandwidth_mbps"])
-        cfg = NetworkConfig(
+        cfg = NetworkConfig.from_flat(
             groups=v["players"], render_nodes=v["render_nodes"], entities=v["entities"], driven_groups=v["players"],
             seed=v["seed"], topology=v["topology"], prediction_order=v["prediction_order"], ownership=v["ownership"],
             ownership_foci=v["ownership_foci"], ownerless=bool(v["ownerless"]),

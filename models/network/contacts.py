@@ -3,7 +3,7 @@
 An entity that touches its owner's avatar takes the impulse at once; a contact with another
 group's avatar is reported to the owner (slave/master report, §3.5.1 rule 3) and acts when the
 report arrives (an ``impulse`` event), handing the entity over to the avatar that touched it.
-An entity without an owner (``cfg.ownerless``) is answered by the node of the avatar touching
+An entity without an owner (``cfg.consistency.ownerless``) is answered by the node of the avatar touching
 it, which claims it.
 """
 from __future__ import annotations
@@ -29,7 +29,7 @@ class Contacts:
         self._tree = bool(cfg.entities) and cfg.groups * cfg.entities > 4096
         # a small scene without DIS below order 2 takes its positions first as a list too (again
         # when a contact's separation moved them), and its velocities only where read (lazy)
-        self._lazy = cfg.dis_threshold <= 0 and cfg.prediction_order < 2 and n_obj <= paths.scalar_view
+        self._lazy = cfg.consistency.dis_threshold <= 0 and cfg.consistency.prediction_order < 2 and n_obj <= paths.scalar_view
 
     def respond(self, net, fr) -> None:
         """Find this frame's contacts and respond (phase 1); fills ``fr.etree``, ``fr.lazy``
@@ -62,7 +62,7 @@ class Contacts:
             net.own.claim(net, ei[free], ai[free])
         remote = ~local & ~self.pending[ei]
         if remote.any():
-            lat = net.latency_scale * lk.sample_latency(net.rng, cfg.links["wan"], int(remote.sum()))
+            lat = net.latency_scale * lk.sample_latency(net.rng, cfg.net.links["wan"], int(remote.sum()))
             for e, d, g, L in zip(ei[remote], dv[remote], ai[remote], lat):
                 self.pending[e] = True
                 net.events.push(fr.t + float(L), "impulse", int(e), d.copy(), int(g))

@@ -5,7 +5,7 @@ A record is filed under the first frame ``k`` with ``k T >= arrival``: it has ar
 tick and not by the one before. At a tick every record due is applied in send order; records
 from a group that no longer owns the object are rejected (§3.6.1), a record older than the
 cached one (reordering) is ignored. A slave shows frame ``k`` only if its FRAME packet arrived
-by ``k T``; a late packet is dropped. With frame clock phases (``cfg.frame_phase``) a record is
+by ``k T``; a late packet is dropped. With frame clock phases (``cfg.scene.frame_phase``) a record is
 due at the viewer's first frame at or after its arrival on the viewer's clock
 (:meth:`Inflight.phased`).
 """
@@ -53,7 +53,7 @@ class Inflight:
         An arrival that is not finite (a lost message) or beyond any int64 frame (a link of
         almost no bandwidth) gives -1, "lost", as :meth:`file` reads it, without casting NaN,
         inf or an overflowing value to an integer."""
-        k = np.maximum(np.ceil(arr / net.cfg.frame_s - 1e-9), net.k)
+        k = np.maximum(np.ceil(arr / net.cfg.scene.frame_s - 1e-9), net.k)
         ok = k < 2.0 ** 62   # False for NaN too
         if not ok.all():
             k = np.where(ok, k, -1.0)
@@ -177,7 +177,7 @@ class Inflight:
         if len(tr.rec_msg):
             if arr_l is not None:
                 rec_msg, _, carriers = tr.plan.lists()
-                due_c = due_frames([arr_l[i] for i in carriers], cfg.frame_s, net.k)
+                due_c = due_frames([arr_l[i] for i in carriers], cfg.scene.frame_s, net.k)
                 if due_c.count(due_c[0]) == len(due_c):   # every record due at one frame
                     due = due_c[0]
                 else:
@@ -222,7 +222,7 @@ class Inflight:
 
     def phased(self, net, fr, due: np.ndarray, owners: np.ndarray) -> np.ndarray:
         """Frames (k,) at which this frame's records are shown with the groups' frame clocks
-        (``cfg.frame_phase``): the owner sends at its frame, ``t_k + phi_owner``; a record
+        (``cfg.scene.frame_phase``): the owner sends at its frame, ``t_k + phi_owner``; a record
         arriving ``a - t_k`` later is shown at the viewer's first frame ``m`` with
         ``t_m + phi_viewer >= a + phi_owner`` (at least this one), -1 where ``due`` is (lost)."""
         tr, ph = fr.tr, net.phase

@@ -46,8 +46,8 @@ class EventQueue:
 def control_delay(net) -> float:
     """Delay (s) of a ControllerPacket controller -> supernode -> master (hybrid and
     client-server; direct over the LAN in full mesh), counted as traffic."""
-    links = net.cfg.links
-    if net.cfg.topology == "full_mesh":
+    links = net.cfg.net.links
+    if net.cfg.net.topology == "full_mesh":
         net.count(1, control_bytes(), PduType.CONTROL)
         return float(net.latency_scale * lk.sample_latency(net.rng, links["lan"], 1)[0])
     net.count(2, 2 * control_bytes(), PduType.CONTROL)
@@ -59,7 +59,7 @@ def autopilot(net, t: float, g: int) -> None:
     thr = float(net.rng.uniform(0.1, 0.6))
     steer = float(net.rng.uniform(-0.3, 0.3))
     net.events.push(t + control_delay(net), "input", g, thr, steer)
-    net.events.push(t + float(net.rng.exponential(net.cfg.autopilot_change_s)), "autopilot", g)
+    net.events.push(t + float(net.rng.exponential(net.cfg.world.autopilot_change_s)), "autopilot", g)
 
 
 def handle(net, kind: str, data: tuple) -> None:
@@ -83,10 +83,10 @@ def handle(net, kind: str, data: tuple) -> None:
         if grp.alive[node]:
             grp.supernode.heartbeat(t, node)
             net.count(1, H, PduType.HEARTBEAT)
-            ev.push(t + net.cfg.heartbeat_s, "heartbeat", node)
+            ev.push(t + net.cfg.membership.heartbeat_s, "heartbeat", node)
     elif kind == "expire":
         grp.expire(net, t)
-        ev.push(t + net.cfg.heartbeat_s, "expire")
+        ev.push(t + net.cfg.membership.heartbeat_s, "expire")
     elif kind == "leave":
         node, graceful = data
         grp.alive[node] = False
@@ -98,6 +98,6 @@ def handle(net, kind: str, data: tuple) -> None:
         if not grp.online[node]:
             net.count(1, H, PduType.JOIN)
             grp.join(net, t, node)
-            ev.push(t + net.cfg.heartbeat_s, "heartbeat", node)
+            ev.push(t + net.cfg.membership.heartbeat_s, "heartbeat", node)
     else:  # pragma: no cover
         raise ValueError(f"network model: unknown event {kind!r} at t = {t}")

@@ -48,7 +48,7 @@ class AvatarHistory:
         else:
             slot = self.hist[k % HIST]
             blk = net.records.cache[:G * G]           # avatars are objects 0..G-1: object-major block
-            av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.prediction_order)
+            av = dead_reckon(blk[:, 1:3], blk[:, 3:5], blk[:, 5:7], t - blk[:, T_COL], cfg.consistency.prediction_order)
             slot[...] = av.reshape(G, G, 2).transpose(1, 0, 2)
             slot[diag, diag] = P[:G]                  # a master shows its own avatar as it is
         if sl_list:
@@ -65,7 +65,7 @@ class AvatarHistory:
         xy) list of a history slot (m): each master's cached avatar records dead-reckoned
         (:func:`consistency.dead_reckon`, the same operations in Python floats), its own avatar
         the truth ``P[g]``."""
-        G, order = net.cfg.groups, net.cfg.prediction_order
+        G, order = net.cfg.groups, net.cfg.consistency.prediction_order
         if self._dest is None:   # where cache row i (object i // G, viewer i % G) goes in the slot
             self._dest = ([(i, 2 * ((i % G) * G + i // G)) for i in range(G * G) if i % G != i // G],
                           [2 * (g * G + g) for g in range(G)])

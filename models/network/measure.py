@@ -99,7 +99,7 @@ class DisplayError:
         evaluated here.
         """
         cfg, paths, rc = net.cfg, net.paths, net.records
-        order = cfg.prediction_order
+        order = cfg.consistency.prediction_order
         if fi is None:
             fi = rc.index(vg, vo)
         if og is None:
@@ -146,7 +146,7 @@ class DisplayError:
         c = np.take(rc.cache, fi, axis=0)       # one row (cache line) per copy
         ct = c[:, T_COL]
         remote = (og != vg) & (ct >= c[:, rc.enter_col] - 1e-12)
-        return squared_dr_error(c, ct, np.take(px, vo), np.take(py, vo), t, net.cfg.prediction_order), remote
+        return squared_dr_error(c, ct, np.take(px, vo), np.take(py, vo), t, net.cfg.consistency.prediction_order), remote
 
     def measure_scalar(self, net, t, P, vo, vg, fi, og) -> None:
         """:meth:`measure` of a view of a few copies in Python floats (the operations of
@@ -158,7 +158,7 @@ class DisplayError:
             remote = (og != vg).nonzero()[0]
             memo = self._scalar = (og, vo, fi, remote.tolist(), vo[remote].tolist(), fi[remote])
         rc = net.records
-        order, enter = net.cfg.prediction_order, rc.enter_col
+        order, enter = net.cfg.consistency.prediction_order, rc.enter_col
         rows = rc.cache.take(memo[5], axis=0).tolist() if memo[3] else []
         pos = net.positions_list(P) if memo[3] else None
         n_obj = self.n_obj

@@ -31,7 +31,7 @@ class Membership:
 
     def __init__(self, cfg, reg) -> None:
         G = cfg.groups
-        self.supernode = Supernode(cfg.heartbeat_timeout_s)
+        self.supernode = Supernode(cfg.membership.heartbeat_timeout_s)
         self.alive = np.zeros(reg.n, bool)
         self.online = np.zeros(reg.n, bool)
         self.n_online = 0
@@ -49,7 +49,7 @@ class Membership:
         reg = net.reg
         g = int(reg.group[node])
         kind = CONTROLLER if node >= reg.controller0 else RENDER
-        self.supernode.join(t, node, reg.identify[g], kind, reg.ip[node], reg.port[node], net.cfg.scene_id)
+        self.supernode.join(t, node, reg.identify[g], kind, reg.ip[node], reg.port[node], net.cfg.scene.scene_id)
         self.alive[node] = True
         self.set_online(node, True)
         if kind == RENDER:
@@ -94,7 +94,7 @@ class Membership:
             self.overlay = None
             return
         cfg = net.cfg
-        self.overlay = PastryOverlay(ids, cfg.pastry_b, cfg.pastry_L, cfg.pastry_M)
+        self.overlay = PastryOverlay(ids, cfg.membership.pastry_b, cfg.membership.pastry_L, cfg.membership.pastry_M)
         if new_master is not None and len(ids) > 1:
             me = net.reg.nid[new_master]
             boot = min((i for i in ids if i != me))

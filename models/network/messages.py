@@ -84,7 +84,7 @@ class Messaging:
         """Pairs that entered a view this frame get the frame time as their subscription time;
         ``fr.newly`` their mask (None: nobody entered, or a full mesh broadcast to everyone)."""
         fr.newly = None
-        if net.cfg.topology == "full_mesh":  # a broadcast subscribes everyone to everything
+        if net.cfg.net.topology == "full_mesh":  # a broadcast subscribes everyone to everything
             return
         if not self._view_hit:
             vo, vg, fi, _ = fr.view
@@ -122,12 +122,12 @@ class Messaging:
         cfg, t, view, newly, og, pub = net.cfg, fr.t, fr.view, fr.newly, fr.og, fr.pub
         grp, owner = net.groups, net.own.owner
         vo, vg, fi, frame_size = view
-        if newly is not None and cfg.ownerless:   # an ownerless object entering a view: nobody sends it
+        if newly is not None and cfg.consistency.ownerless:   # an ownerless object entering a view: nobody sends it
             newly = newly & (og >= 0)
         memo = self._msgs
         fast = None
         if len(vg) <= net.paths.memo_pairs:
-            if cfg.dis_threshold <= 0 and newly is None:
+            if cfg.consistency.dis_threshold <= 0 and newly is None:
                 fast = (grp.version, net.own.epoch)
                 if memo is not None and memo["fast"] == fast and memo["view"] is view:
                     return self._resend(memo, t), memo
@@ -141,11 +141,11 @@ class Messaging:
             send_pair = self.neighbours(net, fr, pub[vo] if newly is None else pub[vo] | newly)
         tr = build_messages(cfg, net.reg, t, grp.master, grp.slaves, fr.pub_obj, owner, vg, vo, frame_size,
                             send_pair, og, net.paths.scalar_messages)
-        tr.plan = TrafficPlan(tr, cfg.links, net.paths)
+        tr.plan = TrafficPlan(tr, cfg.net.links, net.paths)
         if fast is None and len(vg) > net.paths.memo_pairs:
             return tr, None
         # send times of a reuse: t + (composition time or 0), the same sums as build_messages's
-        delay = np.where(tr.send_t != t, cfg.compose_ms * 1e-3, 0.0)
+        delay = np.where(tr.send_t != t, cfg.scene.compose_ms * 1e-3, 0.0)
         self._msgs = memo = {"key": key, "fast": fast, "view": view, "tr": tr, "delay": delay}
         return tr, memo
 
@@ -155,7 +155,7 @@ class Messaging:
         'neighbour_nodes' (§3.3) a pair is kept only when the viewer's avatar is in the 9-cell
         neighbourhood of the object's owner's avatar (the avatars are objects ``0..G-1``, so
         the owner group is its avatar's object); an ownerless object is sent by nobody anyway."""
-        if net.cfg.state_traffic == "object_view" or not net.grid.enabled or net.cfg.topology == "full_mesh":
+        if net.cfg.net.state_traffic == "object_view" or not net.grid.enabled or net.cfg.net.topology == "full_mesh":
             return send_pair
         vg, og, cells = fr.view[1], fr.og, fr.cells
         near = net.grid.adjacent(cells.take(np.maximum(og, 0)), cells.take(vg))

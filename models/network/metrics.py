@@ -88,7 +88,7 @@ class StepMetrics:
     contacts: int = 0
     published: int = 0
     #: entities released by their owner (no region holds them) and claimed from no owner
-    #: (``NetworkConfig.ownerless``; hand-overs between two owners are ``handovers``)
+    #: (``NetworkConfig.consistency.ownerless``; hand-overs between two owners are ``handovers``)
     released: int = 0
     claimed: int = 0
     online_nodes: int = 0

@@ -85,7 +85,7 @@ class NetworkModel:
         self.rng = np.random.default_rng(cfg.seed)
         self.world = World(cfg, self.rng, self.paths)
         self.reg = NodeRegistry(cfg)
-        self.grid = SceneGrid(cfg.scene_size, cfg.grid_cells, cfg.grid, self.paths.scalar_grid)
+        self.grid = SceneGrid(cfg.scene.scene_size, cfg.scene.grid_cells, cfg.scene.grid, self.paths.scalar_grid)
         G, n_obj = cfg.groups, cfg.groups + cfg.entities
         if n_obj >= 2 ** 21:
             raise ValueError(f"network model: {n_obj} objects, at most 2^21 - 1 (record ids object * 2^32 + table)")
@@ -97,12 +97,12 @@ class NetworkModel:
         self.inputs = DriverInputs(G)
         self.own = Ownership(cfg, self.world)
         self.contacts = Contacts(cfg, self.paths)
-        self.records = RecordCache(G, n_obj, cfg.prediction_order)
+        self.records = RecordCache(G, n_obj, cfg.consistency.prediction_order)
         self.pub = Publisher(n_obj)
         self.msgs = Messaging(self.reg.n)
         self.flight = Inflight()
-        # frame clock phase of each group (s), cfg.frame_phase; its own stream leaves the model's draws as they are
-        self.phase = (np.random.default_rng([cfg.seed, 5]).uniform(0.0, cfg.frame_s, G) if cfg.frame_phase else None)
+        # frame clock phase of each group (s), cfg.scene.frame_phase; its own stream leaves the model's draws as they are
+        self.phase = (np.random.default_rng([cfg.seed, 5]).uniform(0.0, cfg.scene.frame_s, G) if cfg.scene.frame_phase else None)
         self.errors = DisplayError(n_obj)
         self.history = AvatarHistory(G)
         self.metrics = StepMetrics()
@@ -126,10 +126,10 @@ class NetworkModel:
             for i in reg.render_nodes(g):
                 grp.join(self, 0.0, int(i))
         grp.rebuild_overlay(self)
-        phase = self.rng.uniform(0.0, cfg.heartbeat_s, reg.n - 1)
+        phase = self.rng.uniform(0.0, cfg.membership.heartbeat_s, reg.n - 1)
         for i in range(reg.n - 1):
             self.events.push(float(phase[i]), "heartbeat", i)
-        self.events.push(cfg.heartbeat_s, "expire")
+        self.events.push(cfg.membership.heartbeat_s, "expire")
         for g in range(cfg.driven_groups, cfg.groups):
             ev.autopilot(self, 0.0, g)
         self.pub.initial(self)
@@ -199,7 +199,7 @@ class NetworkModel:
         """Collision response input for avatar ``g`` against a static obstacle: contact normal
         (from the obstacle to the avatar), penetration ``depth`` (m) removed along it, velocity
         reflected when approaching (stop if restitution 0); returns |dv| (m/s)."""
-        e = self.cfg.restitution if restitution is None else restitution
+        e = self.cfg.world.restitution if restitution is None else restitution
         return self.world.bounce_avatar(g, normal, e, depth)
 
     def inject_update(self, sender_group: int, viewer_group: int, obj: int, pos, vel=(0.0, 0.0),
@@ -214,7 +214,7 @@ class NetworkModel:
     # -- stepping ------------------------------------------------------------------------------
     def step(self, h: float) -> StepMetrics:
         """Advance the model by ``h`` seconds; returns the step's metrics."""
-        T = self.cfg.frame_s
+        T = self.cfg.scene.frame_s
         eps = 1e-9
         t_end = self.t + h
         k_end = round(t_end / T)
@@ -253,12 +253,12 @@ class NetworkModel:
     def _tick(self) -> None:
         """One frame: the phases in order (module docstring)."""
         cfg = self.cfg
-        fr = Frame(self.k * cfg.frame_s)
+        fr = Frame(self.k * cfg.scene.frame_s)
         self.metrics.frames += 1
         fr.online_g, fr.cand = self.groups.online_groups()
         self.contacts.respond(self, fr)                      # 1. collision responses
         if not fr.lazy:   # accelerations only where read: order-2 records, the DIS test
-            fr.P, fr.V, fr.A = self.world.state(acc=cfg.prediction_order >= 2 or cfg.dis_threshold > 0)
+            fr.P, fr.V, fr.A = self.world.state(acc=cfg.consistency.prediction_order >= 2 or cfg.consistency.dis_threshold > 0)
         self.own.assign(self, fr)                            # 2. ownership (§3.6.2)
         self.pub.publish(self, fr)                           # 3. publishing
         self.msgs.send(self, fr)                             # 4. messages, link sampling
@@ -272,7 +272,7 @@ class NetworkModel:
         """What the nodes show at the current frame and its error (eq. 3-1/3-2); without a
         frame (set-up) the view is computed here."""
         cfg = self.cfg
-        t = self.k * cfg.frame_s
+        t = self.k * cfg.scene.frame_s
         if fr is None:
             P = self.world.positions()
             online_g = self.groups.master >= 0
@@ -334,7 +334,7 @@ class NetworkModel:
         """
         return (not self.inputs.step_changed and self.traffic.steady and not self.events.pending
                 and self.metrics.inconsistency_max == 0.0 and self.cfg.driven_groups == self.cfg.groups
-                and self.cfg.dis_threshold <= 0 and not self.world.moving())
+                and self.cfg.consistency.dis_threshold <= 0 and not self.world.moving())
 
     def shown_position(self, viewer: int, obj: int) -> np.ndarray:
         """Position (2,) m of object ``obj`` as the master of group ``viewer`` shows it at the
@@ -342,8 +342,8 @@ class NetworkModel:
         if self.owner[obj] == viewer:
             return self.world.positions()[obj].copy()
         c = self.cache[int(self.index(viewer, obj))]
-        dt = np.array([self.k * self.cfg.frame_s - c[0]])
-        return dead_reckon(c[None, 1:3], c[None, 3:5], c[None, 5:7], dt, self.cfg.prediction_order)[0]
+        dt = np.array([self.k * self.cfg.scene.frame_s - c[0]])
+        return dead_reckon(c[None, 1:3], c[None, 3:5], c[None, 5:7], dt, self.cfg.consistency.prediction_order)[0]
 
     def heartbeat_table(self) -> List[dict]:
         return self.groups.supernode.table()

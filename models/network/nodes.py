@@ -210,15 +210,15 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
     scalar_pairs : int, up to this many view pairs the hybrid_p2p messages are built in Python
     """
     G = reg.G
-    rec = record_bytes(cfg.prediction_order)
+    rec = record_bytes(cfg.consistency.prediction_order)
     rep = report_bytes()
     b = _Builder()
-    compose = t + cfg.compose_ms * 1e-3
+    compose = t + cfg.scene.compose_ms * 1e-3
     published = np.zeros(len(owner), bool)
     published[pub_obj] = True
     rec_msg, rec_view, rec_obj, fr_msg, fr_slave, rec_hop1 = [], [], [], [], [], []
     online_g = np.flatnonzero(master >= 0)
-    if cfg.topology == "full_mesh":
+    if cfg.net.topology == "full_mesh":
         everyone = np.concatenate([master[online_g]] + [s for s in slaves if len(s)]).astype(np.int64)
         n_pub = np.bincount(owner[pub_obj], minlength=G)
         # masters: all their published objects to every other render node
@@ -246,7 +246,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
     else:
         # STATE: owner's master -> viewer's master for published objects in the viewer's neighbourhood
         vown = owner[view_o] if view_owner is None else view_owner
-        if cfg.topology == "hybrid_p2p" and len(view_g) <= scalar_pairs:
+        if cfg.net.topology == "hybrid_p2p" and len(view_g) <= scalar_pairs:
             return _hybrid_messages_scalar(cfg, reg, t, master, slaves, view_g, view_o, vown, frame_size, send_pair)
         if send_pair.all():                        # every frame published: no filtering copy
             vg, vo, og = view_g, view_o, vown
@@ -256,7 +256,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
         keep = (og != vg) & (np.take(master, og) >= 0)
         if not keep.all():
             vg, vo, og = vg[keep], vo[keep], og[keep]
-        if cfg.topology == "hybrid_p2p":
+        if cfg.net.topology == "hybrid_p2p":
             sg, rg, cnt, inv = _group_pairs(og, vg, G)
             idx = b.add(t, master[sg], master[rg], WAN, H + cnt * rec, PduType.STATE)
             rec_msg.append(idx[inv]), rec_view.append(vg), rec_obj.append(vo)
@@ -278,7 +278,7 @@ def build_messages(cfg: NetworkConfig, reg: NodeRegistry, t: float, master: np.n
         if len(sl):
             sg = reg.group[sl]
             fb = H + frame_size[sg] * rec
-            if cfg.topology == "hybrid_p2p":
+            if cfg.net.topology == "hybrid_p2p":
                 idx = b.add(compose, master[sg], sl, LAN, fb, PduType.FRAME)
                 b.add(t, sl, master[sg], LAN, H + rep, PduType.REPORT)
             else:
@@ -306,7 +306,7 @@ def _hybrid_messages_scalar(cfg: NetworkConfig, reg: NodeRegistry, t: float, mas
     order ``owner * G + viewer``, then FRAME and REPORT per slave of the online groups) and
     the same record and frame deliveries."""
     G = reg.G
-    rec = record_bytes(cfg.prediction_order)
+    rec = record_bytes(cfg.consistency.prediction_order)
     ml = master.tolist()
     rv, ro, rk = [], [], []      # records: viewer, object, (owner, viewer) key
     for g, o, w, sent in zip(view_g.tolist(), view_o.tolist(), vown.tolist(), send_pair.tolist()):
@@ -331,7 +331,7 @@ def _hybrid_messages_scalar(cfg: NetworkConfig, reg: NodeRegistry, t: float, mas
     if sl:
         grp, fs = reg.group_list, frame_size.tolist()
         m = [ml[grp[node]] for node in sl]
-        send_t += [t + cfg.compose_ms * 1e-3] * len(sl) + [t] * len(sl)
+        send_t += [t + cfg.scene.compose_ms * 1e-3] * len(sl) + [t] * len(sl)
         sender += m + sl
         receiver += sl + m
         link += [LAN] * (2 * len(sl))

@@ -6,7 +6,7 @@ is held for ``handover_hold_s``; the old owner knew the exact state when it let 
 cache starts from it. Every change bumps ``epoch``: records in flight sent before it have
 their senders checked on delivery (§3.6.1).
 
-With ``cfg.ownerless`` an entity that no region claims has no owner (-1, §3.6.3): nobody
+With ``cfg.consistency.ownerless`` an entity that no region claims has no owner (-1, §3.6.3): nobody
 publishes it and every node shows its own prediction; a region (or an avatar touching it,
 :mod:`.contacts`) claims it again. Releases and claims are decided by every node from the same
 rule and state, so they send no message; only a hand-over between two owners does.
@@ -24,14 +24,14 @@ from .pdu import PduType, record_bytes
 
 def initial_owners(cfg, world) -> np.ndarray:
     """Owning group (G + E,) of every object at the start: avatars their group, entities the
-    nearest avatar (round robin without an ownership rule); with ``cfg.ownerless`` the region
+    nearest avatar (round robin without an ownership rule); with ``cfg.consistency.ownerless`` the region
     of a resting avatar holding the entity, else none (-1)."""
     G, E = cfg.groups, cfg.entities
-    if cfg.ownership == "none" or E == 0:
+    if cfg.consistency.ownership == "none" or E == 0:
         ent = np.arange(E) % G
-    elif cfg.ownerless:
-        ent = assign_owners(cfg.ownership, world.apos, np.zeros((G, 2)), world.epos, np.full(E, -1, np.int64),
-                            cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci)
+    elif cfg.consistency.ownerless:
+        ent = assign_owners(cfg.consistency.ownership, world.apos, np.zeros((G, 2)), world.epos, np.full(E, -1, np.int64),
+                            cfg.scene.frame_s, cfg.consistency.ownership_scale, cfg.consistency.ownership_min_axis, cfg.consistency.ownership_foci)
     else:
         from scipy.spatial import cKDTree
 
@@ -72,14 +72,14 @@ class Ownership:
     def handover(self, net, objs: np.ndarray, new: np.ndarray) -> None:
         """Give objects ``objs`` to groups ``new`` where the owner differs and no hold is on."""
         cfg = net.cfg
-        if cfg.ownership == "none":
+        if cfg.consistency.ownership == "none":
             return
         t = net.t
         changed = (self.owner[objs] != new) & (self.hold[objs] <= t + 1e-9)   # (hysteresis)
         if not changed.any():
             return
         o, old = objs[changed], self.owner[objs[changed]]
-        if cfg.ownerless:
+        if cfg.consistency.ownerless:
             return self._change_ownerless(net, o, old, new[changed])
         n = len(o)
         # the old owner knew the exact state when it let go: its cache starts from it
@@ -90,10 +90,10 @@ class Ownership:
         net.records.newest = max(net.records.newest, t)
         self.epoch += 1
         self.owner[o] = new[changed]
-        self.hold[o] = t + cfg.handover_hold_s
+        self.hold[o] = t + cfg.consistency.handover_hold_s
         net.errors.touch(net.records.index(self.owner[o], o))   # the new owner's copy is no longer remote
         net.metrics.handovers += n
-        net.count(n, n * (H + record_bytes(cfg.prediction_order)), PduType.HANDOVER)
+        net.count(n, n * (H + record_bytes(cfg.consistency.prediction_order)), PduType.HANDOVER)
 
     def _change_ownerless(self, net, o: np.ndarray, old: np.ndarray, new: np.ndarray) -> None:
         """Owner changes of objects ``o`` from ``old`` to ``new`` (-1: none) under ``ownerless``:
@@ -109,7 +109,7 @@ class Ownership:
         net.errors.clean = None
         self.epoch += 1
         self.owner[o] = new
-        self.hold[o] = t + cfg.handover_hold_s
+        self.hold[o] = t + cfg.consistency.handover_hold_s
         taken = new >= 0
         net.errors.touch(rc.index(new[taken], o[taken]))   # a new owner's copy is no longer remote
         n = int(np.count_nonzero(let_go & taken))
@@ -117,32 +117,32 @@ class Ownership:
         net.metrics.released += int(np.count_nonzero(~taken))
         net.metrics.claimed += int(np.count_nonzero(~let_go))
         if n:
-            net.count(n, n * (H + record_bytes(cfg.prediction_order)), PduType.HANDOVER)
+            net.count(n, n * (H + record_bytes(cfg.consistency.prediction_order)), PduType.HANDOVER)
 
     def assign(self, net, fr) -> None:
         """Phase 2: the regions' claims on the entities this frame (``fr``: positions, velocities,
         the online groups ``fr.cand``, the entity index), handed over."""
         cfg, w, paths = net.cfg, net.world, net.paths
-        if cfg.ownership == "none" or not cfg.entities:
+        if cfg.consistency.ownership == "none" or not cfg.entities:
             return
         G = cfg.groups
         cur = self.owner[G:]
         # ownerless: every entity must be claimed by a region anew, else it has no owner
-        held = np.full(len(cur), -1, np.int64) if cfg.ownerless else cur
+        held = np.full(len(cur), -1, np.int64) if cfg.consistency.ownerless else cur
         cand = fr.cand
         if len(cand) == G:   # every group online: local indices are the groups (V[:G] is avel)
             lazy = fr.lazy
             fr.vl = w.avatar_velocities() if lazy else None
-            new = assign_owners(cfg.ownership, w.apos, None if lazy else fr.V[:G], w.epos, held, cfg.frame_s,
-                                cfg.ownership_scale, cfg.ownership_min_axis, cfg.ownership_foci, fr.etree,
+            new = assign_owners(cfg.consistency.ownership, w.apos, None if lazy else fr.V[:G], w.epos, held, cfg.scene.frame_s,
+                                cfg.consistency.ownership_scale, cfg.consistency.ownership_min_axis, cfg.consistency.ownership_foci, fr.etree,
                                 (fr.pl[:G], fr.vl, fr.pl[G:]) if lazy else None, paths.scalar_owners,
                                 paths.brute_owners)
         else:
-            cur_local = (np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0)) if not cfg.ownerless
+            cur_local = (np.minimum(np.searchsorted(cand, cur), max(len(cand) - 1, 0)) if not cfg.consistency.ownerless
                          else held)
-            new_local = assign_owners(cfg.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
-                                      cfg.frame_s, cfg.ownership_scale, cfg.ownership_min_axis,
-                                      cfg.ownership_foci, fr.etree, None, paths.scalar_owners, paths.brute_owners)
+            new_local = assign_owners(cfg.consistency.ownership, w.apos[cand], w.avel[cand], w.epos, cur_local,
+                                      cfg.scene.frame_s, cfg.consistency.ownership_scale, cfg.consistency.ownership_min_axis,
+                                      cfg.consistency.ownership_foci, fr.etree, None, paths.scalar_owners, paths.brute_owners)
             claimed = new_local != cur_local
             new = held.copy()
             new[claimed] = cand[new_local[claimed]]

@@ -1,6 +1,6 @@
 """Frame phase 3: which objects their owners publish this frame.
 
-Every object with an online owner (none without one, ``cfg.ownerless``) every frame, or with a
+Every object with an online owner (none without one, ``cfg.consistency.ownerless``) every frame, or with a
 DIS threshold (``dis_threshold > 0``) only when the owner's dead reckoning of what it last published has drifted beyond the
 threshold or ``dis_heartbeat_s`` has passed since (IEEE 1278 DIS, §3.6.3).
 """
@@ -47,10 +47,10 @@ class Publisher:
         frame time ``fr.t`` from state ``fr.P``, ``fr.V``, ``fr.A``."""
         cfg, t, P = net.cfg, fr.t, fr.P
         online_g, owner = fr.online_g, net.own.owner
-        if cfg.dis_threshold > 0:
-            pred = dead_reckon(self.p, self.v, self.a, t - self.t, cfg.prediction_order)
+        if cfg.consistency.dis_threshold > 0:
+            pred = dead_reckon(self.p, self.v, self.a, t - self.t, cfg.consistency.prediction_order)
             err = np.hypot(*(pred - P).T)
-            pub = self._owned(cfg, online_g, owner) & ((err > cfg.dis_threshold) | (t - self.t >= cfg.dis_heartbeat_s))
+            pub = self._owned(cfg, online_g, owner) & ((err > cfg.consistency.dis_threshold) | (t - self.t >= cfg.consistency.dis_heartbeat_s))
             pub_obj = np.flatnonzero(pub)
             self.t[pub_obj] = t
             self.p[pub_obj], self.v[pub_obj], self.a[pub_obj] = P[pub_obj], fr.V[pub_obj], fr.A[pub_obj]
@@ -69,6 +69,6 @@ class Publisher:
     @staticmethod
     def _owned(cfg, online_g: np.ndarray, owner: np.ndarray) -> np.ndarray:
         """Objects (G + E,) bool whose owner is online (an ownerless one, -1, has none)."""
-        if not cfg.ownerless:
+        if not cfg.consistency.ownerless:
             return online_g[owner]
         return online_g[np.maximum(owner, 0)] & (owner >= 0)

@@ -89,11 +89,11 @@ class World:
     chooses the Python-float forms of tiny scenes and the resting shortcut (:class:`paths.Paths`)."""
 
     def __init__(self, cfg: NetworkConfig, rng: np.random.Generator, paths: Paths = Paths()) -> None:
-        G, E, S = cfg.groups, cfg.entities, cfg.scene_size
+        G, E, S = cfg.groups, cfg.entities, cfg.scene.scene_size
         self.cfg = cfg
         self.paths = paths
         self.t = self.ta = self.te = 0.0
-        if cfg.avatar_start == "uniform":
+        if cfg.world.avatar_start == "uniform":
             self.apos = rng.uniform(0.05 * S, 0.95 * S, (G, 2))
         else:  # a common start area: a disc around the scene centre
             ring = min(5.0 * np.sqrt(G), 0.4 * S) * np.sqrt(rng.uniform(0.05, 1.0, G))
@@ -108,12 +108,12 @@ class World:
         self.jolt = np.zeros(G)         # |dv| from collision responses since last reset (m/s)
         self.epos = rng.uniform(0.0, S, (E, 2))
         ang = rng.uniform(-np.pi, np.pi, E)
-        self.evel = cfg.entity_speed * np.c_[np.cos(ang), np.sin(ang)]
+        self.evel = cfg.world.entity_speed * np.c_[np.cos(ang), np.sin(ang)]
         self.eturn = rng.uniform(-0.2, 0.2, E)   # rad/s
-        self.ez = np.full(E, cfg.entity_radius)
+        self.ez = np.full(E, cfg.world.entity_radius)
         self.separated = 0         # avatar-entity overlaps removed so far (see _separate)
         # inverse masses (1/kg) of the avatar-entity contacts (response.py), fixed by the config
-        self._w_entity, self._w_avatar = float(inverse_mass(cfg.entity_mass)), float(inverse_mass(cfg.avatar_mass))
+        self._w_entity, self._w_avatar = float(inverse_mass(cfg.world.entity_mass)), float(inverse_mass(cfg.world.avatar_mass))
         self._fixed_key = None     # see at_fixed_point
         self._ksteer_memo = None   # (steering bytes, steering gains tan(steer max) / wheelbase)
         self._turn_memo = {}       # (sub-step h, turn rates) -> decay, cos and sin of the entities' turn per sub-step
@@ -167,7 +167,7 @@ class World:
         if E:
             v = self.evel
             vx, vy = v[:, 0], v[:, 1]
-            drag = self.cfg.entity_drag
+            drag = self.cfg.world.entity_drag
             # eturn * (-vy) - drag vx, eturn * vx - drag vy
             np.subtract(self.eturn * -vy, drag * vx, out=A[G:, 0])
             np.subtract(self.eturn * vx, drag * vy, out=A[G:, 1])
@@ -238,7 +238,7 @@ class World:
         self.t = max(self.ta, self.te)
 
     def _substeps(self, dt: float):
-        n = max(1, math.ceil(dt / (self.cfg.frame_s / self.cfg.substeps) - 1e-9))
+        n = max(1, math.ceil(dt / (self.cfg.scene.frame_s / self.cfg.world.substeps) - 1e-9))
         return n, dt / n
 
     def _avatar_key(self) -> tuple:
@@ -261,18 +261,18 @@ class World:
             key = self.steer.tobytes()
             memo = self._ksteer_memo
             if memo is None or memo[0] != key:   # the steering gains, kept while the steering stays
-                k = np.tan(self.steer * cfg.max_steer_rad) / cfg.wheelbase
+                k = np.tan(self.steer * cfg.world.max_steer_rad) / cfg.world.wheelbase
                 memo = self._ksteer_memo = (key, k.tolist())
             return self._advance_avatars_scalar(n, h, memo[1])
-        k_steer = np.tan(self.steer * cfg.max_steer_rad) / cfg.wheelbase
+        k_steer = np.tan(self.steer * cfg.world.max_steer_rad) / cfg.world.wheelbase
         # no throttle and no speed: a sub-step leaves speed and position as they are; once it
         # also leaves the (normalised) heading unchanged, every further one repeats it exactly
         still = not self.throttle.any() and not self.speed.any()
         for _ in range(n):
             yaw0 = self.yaw
             v0 = self.speed
-            a = cfg.max_accel * self.throttle - cfg.drag * v0
-            v1 = np.minimum(np.maximum(v0 + a * h, -cfg.max_speed), cfg.max_speed)
+            a = cfg.world.max_accel * self.throttle - cfg.world.drag * v0
+            v1 = np.minimum(np.maximum(v0 + a * h, -cfg.world.max_speed), cfg.world.max_speed)
             self.accel = (v1 - v0) / h
             vm = 0.5 * (v0 + v1)
             self.yaw_rate = vm * k_steer
@@ -301,7 +301,7 @@ class World:
         after its first sub-step. A wall hit goes through the array code
         (:func:`_reflect_avatars`) for that avatar."""
         cfg = self.cfg
-        S, ms, acc, drag = cfg.scene_size, cfg.max_speed, cfg.max_accel, cfg.drag
+        S, ms, acc, drag = cfg.scene.scene_size, cfg.world.max_speed, cfg.world.max_accel, cfg.world.drag
         pi, two_pi = np.pi, 2 * np.pi
         thr = self.throttle.tolist()
         sp, yaw = self.speed.tolist(), self.yaw.tolist()
@@ -367,10 +367,10 @@ class World:
             if memo is None:   # per sub-step length (a few values: k T - (k - 1) T differ in the last bits)
                 if len(self._turn_memo) >= TURN_MEMO:
                     self._turn_memo.clear()
-                memo = self._turn_memo[key] = (float(np.exp(-cfg.entity_drag * h)), np.cos(self.eturn * h).tolist(),
+                memo = self._turn_memo[key] = (float(np.exp(-cfg.world.entity_drag * h)), np.cos(self.eturn * h).tolist(),
                                                np.sin(self.eturn * h).tolist())
             return self._advance_entities_scalar(n, h, *memo)
-        decay = np.exp(-cfg.entity_drag * h)
+        decay = np.exp(-cfg.world.entity_drag * h)
         ct, st = np.cos(self.eturn * h), np.sin(self.eturn * h)
         for _ in range(n):
             vx, vy = self.evel[:, 0], self.evel[:, 1]
@@ -384,7 +384,7 @@ class World:
     def _advance_entities_scalar(self, n: int, h: float, decay: float, ct: list, st: list) -> None:
         """:meth:`_advance_entities` for a few entities in Python floats (same operations in the
         same order, walls included; entities do not interact, so each runs its sub-steps in turn)."""
-        S = self.cfg.scene_size
+        S = self.cfg.scene.scene_size
         S2, hh = 2 * S, 0.5 * h
         pos, vel = [], []    # x, y (vx, vy) per entity
         for (x, y), (ax, ay), c, s in zip(self.epos.tolist(), self.evel.tolist(), ct, st):
@@ -408,7 +408,7 @@ class World:
         self.evel = np.array(vel).reshape(-1, 2)
 
     def _entity_walls(self) -> None:
-        S = self.cfg.scene_size
+        S = self.cfg.scene.scene_size
         p, v = self.epos, self.evel
         if len(p) == 0 or (p.min() >= 0.0 and p.max() <= S):
             return
@@ -419,9 +419,9 @@ class World:
             v[lo | hi] *= -1.0
 
     def _avatar_walls(self) -> None:
-        if len(self.apos) == 0 or (self.apos.min() >= 0.0 and self.apos.max() <= self.cfg.scene_size):
+        if len(self.apos) == 0 or (self.apos.min() >= 0.0 and self.apos.max() <= self.cfg.scene.scene_size):
             return
-        self.apos, self.yaw, self.speed = _reflect_avatars(self.apos, self.yaw, self.speed, self.cfg.scene_size)
+        self.apos, self.yaw, self.speed = _reflect_avatars(self.apos, self.yaw, self.speed, self.cfg.scene.scene_size)
 
     # -- inputs -----------------------------------------------------------------------------
     def set_input(self, g: int, throttle: float, steer: float) -> None:
@@ -475,7 +475,7 @@ class World:
         G, E = len(self.speed), len(self.evel)
         if G == 0 or E == 0:
             return _NO_CONTACTS
-        r = self.cfg.avatar_radius + self.cfg.entity_radius
+        r = self.cfg.world.avatar_radius + self.cfg.world.entity_radius
         if isinstance(etree, PointIndex):
             # candidates in a box around each avatar; none within r and approaching (up to a
             # relative 1e-9, a superset of the exact test below): no contact, no tree needed
@@ -525,7 +525,7 @@ class World:
         rel = np.einsum("ij,ij->i", avel[ai] - self.evel[ei], n)
         keep = rel > 0
         ai, ei, n = ai[keep], ei[keep], n[keep]
-        dv, dva = impulse(w_e, w_a, self.evel[ei], avel[ai], n, self.cfg.restitution)
+        dv, dva = impulse(w_e, w_a, self.evel[ei], avel[ai], n, self.cfg.world.restitution)
         if w_a:     # a finite avatar mass: the avatar's share, at once (its master responds)
             c, s = np.cos(self.yaw[ai]), np.sin(self.yaw[ai])
             along = dva[:, 0] * c + dva[:, 1] * s
@@ -545,7 +545,7 @@ class World:
         if not over.any():
             return
         dx_e, _ = separation(self._w_entity, 0.0, n[over], depth[over])
-        S = self.cfg.scene_size      # (a wall does not give way: nobody is pushed through it)
+        S = self.cfg.scene.scene_size      # (a wall does not give way: nobody is pushed through it)
         self.epos = self.epos.copy()
         np.add.at(self.epos, ei[over], dx_e)
         np.clip(self.epos, 0.0, S, out=self.epos)

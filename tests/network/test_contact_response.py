@@ -58,7 +58,7 @@ def test_separation_removes_the_depth_keeps_the_mass_centre_and_spares_static_bo
 
 
 def _model(**kw):
-    cfg = NetworkConfig(groups=1, render_nodes=1, entities=0, driven_groups=1, seed=0, scene_size=200.0, **kw)
+    cfg = NetworkConfig.from_flat(groups=1, render_nodes=1, entities=0, driven_groups=1, seed=0, scene_size=200.0, **kw)
     return NetworkModel(cfg)
 
 
@@ -80,7 +80,7 @@ def test_an_entity_inside_an_avatar_is_pushed_out_whole():
     contacts with the static scene are the collision unit's)."""
     cfg = dict(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0, scene_size=200.0)
     for m_a, share in ((math.inf, 1.0), (300.0, 1.0), (1000.0, 1.0)):
-        m = NetworkModel(NetworkConfig(avatar_mass=m_a, entity_mass=100.0, **cfg))
+        m = NetworkModel(NetworkConfig.from_flat(avatar_mass=m_a, entity_mass=100.0, **cfg))
         w = m.world
         w.apos[0], w.epos[0] = (100.0, 100.0), (101.0, 100.0)     # 2 m overlap (radii 2 + 1)
         w.speed[0], w.evel[0] = 0.0, (0.0, 0.0)
@@ -92,8 +92,8 @@ def test_an_entity_inside_an_avatar_is_pushed_out_whole():
 def test_an_offline_avatar_neither_pushes_an_entity_nor_takes_an_impulse():
     """An avatar without a master (offline) takes no part in avatar-entity contacts: the entity
     it overlaps stays where it is, and neither body's velocity changes."""
-    m = NetworkModel(NetworkConfig(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0,
-                                   scene_size=200.0, avatar_mass=300.0, entity_mass=100.0))
+    m = NetworkModel(NetworkConfig.from_flat(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0,
+                                             scene_size=200.0, avatar_mass=300.0, entity_mass=100.0))
     w = m.world
     w.apos[0], w.epos[0] = (100.0, 100.0), (101.0, 100.0)     # 2 m overlap, approaching
     w.yaw[0], w.speed[0], w.evel[0] = 0.0, 8.0, (-2.0, 0.0)
@@ -105,8 +105,8 @@ def test_an_offline_avatar_neither_pushes_an_entity_nor_takes_an_impulse():
 
 
 def test_entity_collision_with_finite_masses_gains_no_energy():
-    m = NetworkModel(NetworkConfig(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0,
-                                   scene_size=200.0, avatar_mass=300.0, entity_mass=100.0))
+    m = NetworkModel(NetworkConfig.from_flat(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0,
+                                             scene_size=200.0, avatar_mass=300.0, entity_mass=100.0))
     w = m.world
     w.apos[0], w.epos[0] = (100.0, 100.0), (102.9, 100.0)
     w.yaw[0], w.speed[0], w.evel[0] = 0.0, 8.0, (-2.0, 0.0)

@@ -14,9 +14,9 @@ WAN_S = 0.020
 def _touching(avatar: int) -> NetworkModel:
     """Two parked avatars 60 m apart; the one entity (owned by group 0) 2.9 m right of
     ``avatar`` (contact distance 3 m), moving at 1 m/s toward it, no drag or turning."""
-    cfg = NetworkConfig(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, ownership="none",
-                        entity_drag=0.0, links={"lan": LinkClass(0.3, 0.0, 0.0, 0.0),
-                                                "wan": LinkClass(1e3 * WAN_S, 0.0, 0.0, 0.0)})
+    cfg = NetworkConfig.from_flat(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, ownership="none",
+                                  entity_drag=0.0, links={"lan": LinkClass(0.3, 0.0, 0.0, 0.0),
+                                                          "wan": LinkClass(1e3 * WAN_S, 0.0, 0.0, 0.0)})
     m = NetworkModel(cfg)
     w = m.world
     w.apos[:] = [[20.0, 50.0], [80.0, 50.0]]

@@ -2,7 +2,6 @@
 check (§3.6.1), reordering, FRAME packets and their deadline (§3.5.2); a frame's few records
 filed as lists vs a record table per frame, bit for bit."""
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -23,7 +22,7 @@ def run(cfg, steps):
 
 
 def test_forged_update_from_non_owner_is_rejected_and_counted():
-    cfg = NetworkConfig(groups=3, render_nodes=1, entities=10).with_links(latency_ms=0.0, jitter_ms=0.0,
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=1, entities=10).with_links(latency_ms=0.0, jitter_ms=0.0,
                                                                           bandwidth_mbps=0.0)
     m = NetworkModel(cfg)
     m.step(T)
@@ -47,8 +46,8 @@ def test_forged_update_from_non_owner_is_rejected_and_counted():
 def test_late_slave_packets_are_dropped_at_the_tick():
     # FRAME leaves compose_ms after the tick and must arrive by the next one
     def frac(lan):
-        cfg = NetworkConfig(groups=2, render_nodes=3, entities=5, compose_ms=2.0,
-                            links={"lan": lan, "wan": LinkClass(10.0)})
+        cfg = NetworkConfig.from_flat(groups=2, render_nodes=3, entities=5, compose_ms=2.0,
+                                      links={"lan": lan, "wan": LinkClass(10.0)})
         m, out = run(cfg, 300)
         frames = sum(s.frames for s in out[1:]) * cfg.groups * (cfg.render_nodes - 1)
         return sum(s.dropped_frames for s in out[1:]) / frames, max(s.desync_frames for s in out)
@@ -62,7 +61,7 @@ def test_late_slave_packets_are_dropped_at_the_tick():
 
 
 def test_due_frames_equal_the_array_code():
-    m = NetworkModel(NetworkConfig(groups=2, render_nodes=1, entities=0))
+    m = NetworkModel(NetworkConfig.from_flat(groups=2, render_nodes=1, entities=0))
     gen = np.random.default_rng(1)
     for k in (0, 3, 1000):
         m.k = k
@@ -85,8 +84,8 @@ def test_few_records_as_lists_change_nothing(monkeypatch, case):
     of every frame: the same caches, owners, rejected and late records, RNG and outputs. The
     third case (a slow, jittery WAN) reorders records (the "newer than the cached one" test);
     latency bursts and bounces hand entities over with records in flight (the sender check)."""
-    cfg = replace(NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=5, scene_size=60.0,
-                                entity_speed=3.0, links=LINKS), **FEW_CASES[case])
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=5, scene_size=60.0,
+                                  entity_speed=3.0, links=LINKS).replace(**FEW_CASES[case])
 
     def trace(paths=None):
         m = NetworkModel(cfg, paths)

@@ -1,4 +1,4 @@
-"""Frame clocks with their own phase (``NetworkConfig.frame_phase``): group ``g`` shows its frame
+"""Frame clocks with their own phase (``NetworkConfig.scene.frame_phase``): group ``g`` shows its frame
 ``k`` at ``k T + phi_g``; a record sent at the owner's frame ``k`` arrives after its latency ``L``
 and is shown at the viewer's first frame ``m`` with ``m T + phi_v >= k T + phi_o + L``, so
 ``m - k = ceil((L + phi_o - phi_v) / T)`` (at least 0). Closed form: order 0, one entity in
@@ -21,19 +21,19 @@ def _links(L_ms: float) -> dict:
 
 
 def test_the_default_keeps_every_clock_in_phase():
-    assert NetworkConfig().frame_phase is False
-    assert NetworkModel(NetworkConfig(groups=2, entities=0)).phase is None
-    ph = NetworkModel(NetworkConfig(groups=5, entities=0, frame_phase=True, seed=4)).phase
+    assert NetworkConfig().scene.frame_phase is False
+    assert NetworkModel(NetworkConfig.from_flat(groups=2, entities=0)).phase is None
+    ph = NetworkModel(NetworkConfig.from_flat(groups=5, entities=0, frame_phase=True, seed=4)).phase
     assert ph.shape == (5,) and np.all((ph >= 0) & (ph < T))
-    again = NetworkModel(NetworkConfig(groups=5, entities=0, frame_phase=True, seed=4)).phase
+    again = NetworkModel(NetworkConfig.from_flat(groups=5, entities=0, frame_phase=True, seed=4)).phase
     assert np.array_equal(ph, again)                 # seeded
 
 
 def test_model_draws_do_not_depend_on_the_phases():
     """The phases come from a stream of their own: the ground truth (autopilots, entities'
     turns) and the links' draws are those of the run without phases."""
-    a = NetworkModel(NetworkConfig(groups=3, entities=10, seed=1, frame_phase=False))
-    b = NetworkModel(NetworkConfig(groups=3, entities=10, seed=1, frame_phase=True))
+    a = NetworkModel(NetworkConfig.from_flat(groups=3, entities=10, seed=1, frame_phase=False))
+    b = NetworkModel(NetworkConfig.from_flat(groups=3, entities=10, seed=1, frame_phase=True))
     for _ in range(40):
         a.step(T)
         b.step(T)
@@ -46,8 +46,8 @@ def test_a_record_is_shown_at_the_viewers_first_frame_after_its_arrival(phi_o, p
     """Avatar 0 owns an entity moving at 1 m/s that only group 1 views (the state_traffic
     scene); the viewer's order-0 copy is ``n = max(0, ceil((L + phi_o - phi_v) / T))`` frames
     old, its error ``n T`` m at every frame once the first record has arrived."""
-    cfg = NetworkConfig(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, entity_drag=0.0,
-                        links=_links(L_ms), prediction_order=0, frame_phase=True)
+    cfg = NetworkConfig.from_flat(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, entity_drag=0.0,
+                                  links=_links(L_ms), prediction_order=0, frame_phase=True)
     m = NetworkModel(cfg)
     m.phase[:] = [phi_o, phi_v]
     w = m.world
@@ -64,8 +64,8 @@ def test_a_record_is_shown_at_the_viewers_first_frame_after_its_arrival(phi_o, p
 
 
 def _mean_rms(L_ms: float, phase: bool, groups: int, seed: int, steps: int = 100) -> float:
-    cfg = NetworkConfig(groups=groups, entities=40, driven_groups=groups, seed=seed, prediction_order=0,
-                        frame_phase=phase, links=_links(L_ms))
+    cfg = NetworkConfig.from_flat(groups=groups, entities=40, driven_groups=groups, seed=seed, prediction_order=0,
+                                  frame_phase=phase, links=_links(L_ms))
     m = NetworkModel(cfg)
     return float(np.mean([m.step(T).inconsistency_rms for _ in range(steps)][5:]))
 

@@ -10,8 +10,8 @@ T = 0.033
 
 def _owners_and_speeds(seed, steps=280, **kw):
     """The issue's scene: 3 groups x 2 render nodes, 15 entities in a 30 m scene (contacts on)."""
-    m = NetworkModel(NetworkConfig(groups=3, render_nodes=2, entities=15, seed=seed, scene_size=30.0,
-                                   avatar_start="uniform", **kw))
+    m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=2, entities=15, seed=seed, scene_size=30.0,
+                                             avatar_start="uniform", **kw))
     hist, ev, av = [m.owner[3:].copy()], [], []
     for _ in range(steps):
         m.step(T)
@@ -55,8 +55,8 @@ def test_entities_never_outrun_their_speed_plus_the_avatars():
     rng = np.random.default_rng(4)
     for e in (0.0, 0.5, 1.0):
         for _ in range(200):
-            m = NetworkModel(NetworkConfig(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0,
-                                           scene_size=200.0, restitution=e))
+            m = NetworkModel(NetworkConfig.from_flat(groups=1, render_nodes=1, entities=1, driven_groups=1, seed=0,
+                                                     scene_size=200.0, restitution=e))
             w = m.world
             w.apos[0] = (100.0, 100.0)
             phi = rng.uniform(-np.pi, np.pi)

@@ -13,13 +13,13 @@ T = 0.033
 def test_a_master_shows_its_own_avatar_as_it_is_and_the_others_dead_reckoned():
     """Order 1: a master's row of the history holds its own avatar's true position and every
     other avatar's cached record p + v (t - t_record) at the frame time."""
-    cfg = NetworkConfig(groups=3, render_nodes=2, entities=0, driven_groups=3, seed=1, prediction_order=1)
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=2, entities=0, driven_groups=3, seed=1, prediction_order=1)
     m = NetworkModel(cfg)
     for k in range(20):
         for g in range(3):
             m.set_input(g, 0.7, 0.1 * g)
         m.step(T)
-    t, P = m.k * cfg.frame_s, m.world.positions()
+    t, P = m.k * cfg.scene.frame_s, m.world.positions()
     for g in range(3):
         shown = m.perceived_avatars(int(m.master[g]))
         for a in range(3):
@@ -33,8 +33,8 @@ def test_history_slots_kept_as_lists_read_as_the_array():
     """A small scene's history slots stay lists until the array is read: what every render node
     perceives from the lists equals the array's rows (slaves lagging behind included), and the
     array equals the one the array code writes."""
-    cfg = NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=2,       # a slow LAN: late FRAMEs
-                        links={"lan": LinkClass(22.0, 10.0, 0.0, 1000.0), "wan": LinkClass(25.0, 12.0, 0.0, 100.0)})
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=2,       # a slow LAN: late FRAMEs
+                                  links={"lan": LinkClass(22.0, 10.0, 0.0, 1000.0), "wan": LinkClass(25.0, 12.0, 0.0, 100.0)})
 
     def trace(read_lists, paths=None):
         m = NetworkModel(cfg, paths)

@@ -1,6 +1,5 @@
 """The display error (frame phase 6b, eq. 3-1/3-2): the metric's closed form, record groups vs
 the per-copy error, the metric switched off, and the array helpers it uses."""
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -38,10 +37,10 @@ def test_sorted_segment_maxima_equal_scattered_maxima(seed):
 
 def test_measure_off_changes_no_network_output_at_scale_like_density():
     """Same network with and without the display metric, in a dense scene with DIS updates."""
-    base = NetworkConfig(groups=20, render_nodes=2, entities=400, scene_size=300.0, avatar_start="uniform",
-                         dis_threshold=0.1, seed=4)
+    base = NetworkConfig.from_flat(groups=20, render_nodes=2, entities=400, scene_size=300.0, avatar_start="uniform",
+                                   dis_threshold=0.1, seed=4)
     a, oa = trace(base, 25)
-    b, ob = trace(replace(base, measure=False), 25)
+    b, ob = trace(base.replace(measure=False), 25)
     keys = ("messages", "bytes", "dropped_frames", "handovers", "published", "rejected_updates")
     assert [[s[k] for k in keys] for s in oa] == [[s[k] for k in keys] for s in ob]
     assert np.array_equal(a.cache, b.cache)
@@ -76,8 +75,8 @@ def test_record_groups_equal_the_per_copy_display_error(monkeypatch, kw):
     path really ran (contacts, hand-overs, masters leaving and joining, cells changing)."""
     from immersim.models.network import display
 
-    cfg = NetworkConfig(**{**dict(groups=16, render_nodes=2, entities=700, scene_size=90.0, avatar_start="uniform",
-                                  entity_speed=6.0, seed=12), **kw})
+    cfg = NetworkConfig.from_flat(**{**dict(groups=16, render_nodes=2, entities=700, scene_size=90.0, avatar_start="uniform",
+                                            entity_speed=6.0, seed=12), **kw})
     calls = {"groups": 0}
     orig = display.DisplayGroups.errors
 
@@ -98,7 +97,7 @@ def test_record_groups_equal_the_per_copy_display_error(monkeypatch, kw):
         np.testing.assert_allclose(arms, brms, rtol=1e-12, atol=1e-15)
     assert sum(s["handovers"] for s in og) > 0 and sum(s["contacts"] for s in og) > 0
     assert max(s["inconsistency_max"] for s in og) > 0
-    assert calls["groups"] >= (5 if cfg.dis_threshold > 0 else 0)
+    assert calls["groups"] >= (5 if cfg.consistency.dis_threshold > 0 else 0)
 
 
 @pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 16, 33, 64, 127, 128, 129, 300])

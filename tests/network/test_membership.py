@@ -7,7 +7,7 @@ T = 0.033
 
 
 def test_master_crash_times_out_and_first_slave_takes_over():
-    cfg = NetworkConfig(groups=2, render_nodes=3, entities=5)
+    cfg = NetworkConfig.from_flat(groups=2, render_nodes=3, entities=5)
     m = NetworkModel(cfg)
     assert list(m.master) == [0, 3]
     m.schedule_leave(0.2, 0, graceful=False)                  # crash: no LEAVE, heartbeats stop
@@ -24,7 +24,7 @@ def test_master_crash_times_out_and_first_slave_takes_over():
 
 
 def test_pending_event_counter_matches_the_heap():
-    m = NetworkModel(NetworkConfig(groups=3, render_nodes=2, entities=5, driven_groups=2, seed=1))
+    m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=2, entities=5, driven_groups=2, seed=1))
     m.schedule_leave(0.2, 1)
     m.schedule_join(0.5, 1)
     for k in range(30):
@@ -36,7 +36,7 @@ def test_pending_event_counter_matches_the_heap():
 def test_the_first_online_render_node_is_the_master_and_a_graceful_leave_hands_over_at_once():
     """Rule 1 of §3.5.1: the master is the group's first online render node; after a graceful
     LEAVE the next one is master in the same step (no time-out), and the LEAVE is counted."""
-    cfg = NetworkConfig(groups=2, render_nodes=3, entities=0, driven_groups=2)
+    cfg = NetworkConfig.from_flat(groups=2, render_nodes=3, entities=0, driven_groups=2)
     m = NetworkModel(cfg)
     assert list(m.master) == [0, 3] and [list(s) for s in m.slaves] == [[1, 2], [4, 5]]
     m.schedule_leave(0.01, 3)
@@ -51,7 +51,7 @@ def test_a_node_coming_back_on_line_sends_one_join():
     from immersim.models.network.nodes import H
     from immersim.models.network.pdu import PduType
 
-    m = NetworkModel(NetworkConfig(groups=2, render_nodes=3, entities=0, driven_groups=2))
+    m = NetworkModel(NetworkConfig.from_flat(groups=2, render_nodes=3, entities=0, driven_groups=2))
     sent = []
     real = m.count
     m.count = lambda n, nbytes, ptype: sent.append((int(n), int(nbytes), int(ptype))) or real(n, nbytes, ptype)

@@ -25,16 +25,16 @@ def _same(a, b):
 
 @pytest.mark.parametrize("topology", ["hybrid_p2p", "client_server", "full_mesh"])
 def test_reused_messages_and_views_change_nothing(topology):
-    cfg = NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=2, topology=topology,
-                        links=LOSSY)
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=2, topology=topology,
+                                  links=LOSSY)
     fast = trace(cfg, 50, drive=True)
     _same(fast, trace(cfg, 50, drive=True, paths=Paths(memo_pairs=-1, reuse_views=False)))   # never reused
 
 
 def test_subscription_times_match_a_dense_view_table():
     """A pair's subscription time is the start of its current stay in the viewer's neighbourhood."""
-    cfg = NetworkConfig(groups=6, render_nodes=2, entities=150, scene_size=80.0, avatar_start="uniform",
-                        entity_speed=12.0, seed=7)
+    cfg = NetworkConfig.from_flat(groups=6, render_nodes=2, entities=150, scene_size=80.0, avatar_start="uniform",
+                                  entity_speed=12.0, seed=7)
     m = NetworkModel(cfg)
     G, n = cfg.groups, m.n_obj
     last_in_view = np.zeros((n, G), np.int64)       # the former per-pair table: frame 0 = scene file
@@ -47,7 +47,7 @@ def test_subscription_times_match_a_dense_view_table():
         vo, vl = m.grid.view_pairs(cells, cells[online])
         vg = online[vl]
         new = last_in_view[vo, vg] != m.k - 1
-        enter[vo[new], vg[new]] = m.k * cfg.frame_s
+        enter[vo[new], vg[new]] = m.k * cfg.scene.frame_s
         last_in_view[vo, vg] = m.k
         entered += int(new.sum())
         assert np.array_equal(m.cache[m.index(vg, vo), m.enter_col], enter[vo, vg])
@@ -62,7 +62,7 @@ def test_small_hybrid_messages_equal_the_array_code():
     cases = []
     for trial in range(300):
         G, R, E = int(gen.integers(1, 6)), int(gen.integers(1, 4)), int(gen.integers(0, 12))
-        cfg = NetworkConfig(groups=G, render_nodes=R, entities=E, prediction_order=int(gen.integers(0, 3)))
+        cfg = NetworkConfig.from_flat(groups=G, render_nodes=R, entities=E, prediction_order=int(gen.integers(0, 3)))
         master = np.array([g * R if gen.random() < 0.8 else -1 for g in range(G)], np.int64)   # some offline
         slaves = [np.arange(g * R + 1, (g + 1) * R)[gen.random(R - 1) < 0.7] if master[g] >= 0 else np.zeros(0, np.int64)
                   for g in range(G)]

@@ -273,7 +273,7 @@ if __name__ == "__main__" and "--write-reference" in sys.argv:
 
 
 def test_fmu_ownerless_parameter_reaches_the_model_and_needs_an_ownership_rule():
-    """``ownerless`` (off by default) is the model's ``NetworkConfig.ownerless``: with it the
+    """``ownerless`` (off by default) is the model's ``NetworkConfig.consistency.ownerless``: with it the
     entities outside every region have no owner (-1) and are not published, so fewer objects
     are published than without it; with ``ownership = none`` it is an error naming the
     parameter."""
@@ -283,7 +283,7 @@ def test_fmu_ownerless_parameter_reaches_the_model_and_needs_an_ownership_rule()
     published = {}
     for flag in (False, True):
         s = _instance(cls, {**params, "ownerless": flag}, f"own{int(flag)}")
-        assert s.model.cfg.ownerless is flag
+        assert s.model.cfg.consistency.ownerless is flag
         for k in range(60):
             assert s.do_step(k * T, T), s.failed
         owners = s.model.owner[2:]
@@ -299,7 +299,7 @@ def test_fmu_state_traffic_parameter_reaches_the_model_and_names_a_bad_rule():
     assert next(v for v in cls.VARIABLES if v.name == "state_traffic").start == "object_view"
     params = dict(players=2, render_nodes=1, entities=4, seed=0)
     s = _instance(cls, {**params, "state_traffic": "neighbour_nodes"}, "nb")
-    assert s.model.cfg.state_traffic == "neighbour_nodes"
+    assert s.model.cfg.net.state_traffic == "neighbour_nodes"
     with pytest.raises(ValueError, match="parameter state_traffic = 'all' must be one of object_view, neighbour_nodes"):
         _instance(cls, {**params, "state_traffic": "all"}, "bad")
 
@@ -308,7 +308,7 @@ def test_fmu_frame_phase_parameter_reaches_the_model():
     cls = _load_wrapper()
     assert next(v for v in cls.VARIABLES if v.name == "frame_phase").start is False
     s = _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0, frame_phase=True), "ph")
-    assert s.model.cfg.frame_phase is True and s.model.phase.shape == (3,)
+    assert s.model.cfg.scene.frame_phase is True and s.model.phase.shape == (3,)
     assert _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0), "noph").model.phase is None
 
 
@@ -319,8 +319,8 @@ def test_fmu_options_set_through_fmpy_give_the_models_outputs(fmu):
 
     opts = dict(ownerless=True, state_traffic="neighbour_nodes", frame_phase=True)
     r = Runner(fmu, "opts", {**PARAMS, **opts})
-    cfg = NetworkConfig(groups=2, render_nodes=3, entities=24, driven_groups=2, seed=7,
-                        links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(30.0, 5.0, 0.0, 100.0)}, **opts)
+    cfg = NetworkConfig.from_flat(groups=2, render_nodes=3, entities=24, driven_groups=2, seed=7,
+                                  links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(30.0, 5.0, 0.0, 100.0)}, **opts)
     m = NetworkModel(cfg)
     names = ["entity[1].x", "entity[16].y", "inconsistency_max", "inconsistency_rms", "messages", "bytes"]
     try:

@@ -21,20 +21,20 @@ def run(cfg, steps):
 @pytest.mark.parametrize("topology", ["hybrid_p2p", "client_server", "full_mesh"])
 @pytest.mark.parametrize("grid", [True, False])
 def test_inconsistency_zero_without_latency_and_loss(topology, grid):
-    cfg = NetworkConfig(groups=4, render_nodes=2, entities=60, topology=topology, grid=grid,
-                        prediction_order=1).with_links(latency_ms=0.0, jitter_ms=0.0, loss=0.0, bandwidth_mbps=0.0)
+    cfg = NetworkConfig.from_flat(groups=4, render_nodes=2, entities=60, topology=topology, grid=grid,
+                                  prediction_order=1).with_links(latency_ms=0.0, jitter_ms=0.0, loss=0.0, bandwidth_mbps=0.0)
     m, out = run(cfg, 120)
     assert sum(s.messages for s in out) > 0
     assert max(s.inconsistency_max for s in out) == 0.0
     assert max(s.dropped_frames for s in out) == 0
     # ... and it is not zero once the links have latency
-    m2, out2 = run(NetworkConfig(groups=4, render_nodes=2, entities=60, topology=topology, grid=grid), 120)
+    m2, out2 = run(NetworkConfig.from_flat(groups=4, render_nodes=2, entities=60, topology=topology, grid=grid), 120)
     assert max(s.inconsistency_max for s in out2) > 0.0
 
 
 def _messages(topology, groups):
-    cfg = NetworkConfig(groups=groups, render_nodes=2, entities=4 * groups, topology=topology, scene_size=1000.0,
-                        seed=3, avatar_start="uniform")
+    cfg = NetworkConfig.from_flat(groups=groups, render_nodes=2, entities=4 * groups, topology=topology, scene_size=1000.0,
+                                  seed=3, avatar_start="uniform")
     m, out = run(cfg, 6)
     return np.mean([s.messages for s in out[1:]]), np.mean([s.bytes for s in out[1:]])
 
@@ -60,8 +60,8 @@ def test_full_mesh_is_quadratic_and_hybrid_grows_slower():
 def test_dead_reckoning_beats_no_prediction_on_smooth_motion():
     rms = {}
     for order in (0, 1, 2):
-        cfg = NetworkConfig(groups=3, render_nodes=1, entities=80, grid=False, prediction_order=order, seed=5,
-                            links={"lan": LinkClass(0.3), "wan": LinkClass(60.0, 0.0, 0.0, 0.0)})
+        cfg = NetworkConfig.from_flat(groups=3, render_nodes=1, entities=80, grid=False, prediction_order=order, seed=5,
+                                      links={"lan": LinkClass(0.3), "wan": LinkClass(60.0, 0.0, 0.0, 0.0)})
         m, out = run(cfg, 90)
         rms[order] = np.mean([s.inconsistency_rms for s in out[10:]])
     assert rms[1] < 0.5 * rms[0], rms
@@ -69,8 +69,8 @@ def test_dead_reckoning_beats_no_prediction_on_smooth_motion():
 
 
 def _trace(seed):
-    cfg = NetworkConfig(groups=3, render_nodes=2, entities=30, seed=seed,
-                        links={"lan": LinkClass(0.3, 0.2, 0.05), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)})
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=2, entities=30, seed=seed,
+                                  links={"lan": LinkClass(0.3, 0.2, 0.05), "wan": LinkClass(20.0, 8.0, 0.1, 50.0)})
     m, out = run(cfg, 60)
     return np.array([[s.inconsistency_max, s.inconsistency_rms, s.messages, s.bytes, s.dropped_frames,
                       s.lost_messages] for s in out]), m.world.positions()
@@ -131,8 +131,8 @@ def test_link_latency_statistics(dist):
 
 
 def test_input_acts_at_its_own_arrival_time_inside_a_frame():
-    cfg = NetworkConfig(groups=1, render_nodes=1, entities=0, driven_groups=1, drag=0.0, max_accel=4.0,
-                        links={"lan": LinkClass(0.0), "wan": LinkClass(5.0)})
+    cfg = NetworkConfig.from_flat(groups=1, render_nodes=1, entities=0, driven_groups=1, drag=0.0, max_accel=4.0,
+                                  links={"lan": LinkClass(0.0), "wan": LinkClass(5.0)})
     m = NetworkModel(cfg)
     p0 = m.world.apos[0].copy()
     m.set_input(0, 1.0, 0.0)                          # via supernode: 2 WAN hops, arrives at 10 ms
@@ -143,7 +143,7 @@ def test_input_acts_at_its_own_arrival_time_inside_a_frame():
 
 
 def test_at_rest_when_nothing_moves_and_shown_positions_match_truth():
-    cfg = NetworkConfig(groups=2, render_nodes=2, entities=6, driven_groups=2, entity_speed=0.0)
+    cfg = NetworkConfig.from_flat(groups=2, render_nodes=2, entities=6, driven_groups=2, entity_speed=0.0)
     m = NetworkModel(cfg)
     for _ in range(5):
         m.step(T)
@@ -159,10 +159,9 @@ def test_at_rest_when_nothing_moves_and_shown_positions_match_truth():
 
 
 def test_switching_the_metric_off_leaves_the_network_unchanged():
-    base = NetworkConfig(groups=3, render_nodes=2, entities=40, seed=9)
-    from dataclasses import replace
+    base = NetworkConfig.from_flat(groups=3, render_nodes=2, entities=40, seed=9)
     a, out_a = run(base, 40)
-    b, out_b = run(replace(base, measure=False), 40)
+    b, out_b = run(base.replace(measure=False), 40)
     assert [(s.messages, s.bytes, s.dropped_frames) for s in out_a] == [(s.messages, s.bytes, s.dropped_frames)
                                                                          for s in out_b]
     assert np.array_equal(a.world.positions(), b.world.positions()) and np.array_equal(a.cache, b.cache)

@@ -72,7 +72,7 @@ def test_catch_up_step_equals_idle_steps_one_by_one(fmu, outputs, n_idle):
 
 
 def test_moving_scene_is_not_at_rest_and_a_stopped_one_is():
-    m = NetworkModel(NetworkConfig(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3))
+    m = NetworkModel(NetworkConfig.from_flat(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3))
     m.step(H)
     assert not m.at_rest()                               # no earlier step to compare its traffic with
     m.step(H)
@@ -87,7 +87,7 @@ def test_moving_scene_is_not_at_rest_and_a_stopped_one_is():
 
 def test_dis_updates_are_never_at_rest():
     """With DIS (dis_threshold > 0) the 1 s re-publication changes a frame's traffic: not at rest."""
-    cfg = NetworkConfig(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3, dis_threshold=0.1)
+    cfg = NetworkConfig.from_flat(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3, dis_threshold=0.1)
     m = NetworkModel(cfg)
     traffic = set()
     for _ in range(40):
@@ -99,7 +99,7 @@ def test_dis_updates_are_never_at_rest():
 
 def test_frame_traffic_excludes_heartbeats_and_matches_a_33ms_step():
     """``frame_messages`` of a 33 ms step = the step's messages minus its heartbeats."""
-    m = NetworkModel(NetworkConfig(groups=3, render_nodes=3, entities=5, driven_groups=3, seed=1))
+    m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=3, entities=5, driven_groups=3, seed=1))
     for k in range(70):
         before = dict(m.totals.by_type)
         m.step(H)
@@ -114,8 +114,8 @@ def test_a_control_packet_at_standstill_is_not_rest_until_the_traffic_is_steady(
     """Steering at zero speed moves nothing, but its ControllerPacket changes a frame's traffic:
     whenever the model claims at_rest, the next step (same inputs) has the same traffic, so a
     lazy master that repeats the last outputs logs what an eager one does."""
-    m = NetworkModel(NetworkConfig(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3,
-                                   topology=topology))
+    m = NetworkModel(NetworkConfig.from_flat(groups=2, render_nodes=2, entities=0, driven_groups=2, seed=3,
+                                             topology=topology))
     for _ in range(3):
         m.step(H)
     assert m.at_rest()

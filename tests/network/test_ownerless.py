@@ -1,4 +1,4 @@
-"""Entities that belong to no avatar (``NetworkConfig.ownerless``, §3.6.3): outside every
+"""Entities that belong to no avatar (``NetworkConfig.consistency.ownerless``, §3.6.3): outside every
 ownership region an entity has no owner, nobody publishes it and every node shows its own
 prediction; a region claims it again when it enters it, an avatar when it touches it. Closed
 forms: a parked avatar's region is the disc of radius ``ownership_min_axis``; an entity in
@@ -19,9 +19,9 @@ def _model(x0: float, vx: float, order: int = 1, **kw) -> NetworkModel:
     """Avatar 0 parked at (50, 50), avatar 1 parked at (40, 50) (in the neighbouring grid cell:
     it views the entity, its region never reaches it), one entity at (x0, 50) moving at ``vx``
     m/s along x without drag or turning; links without delay."""
-    cfg = NetworkConfig(**{**dict(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, ownerless=True,
-                                  entity_drag=0.0, links=NO_DELAY, prediction_order=order, ownership_min_axis=5.0),
-                           **kw})
+    cfg = NetworkConfig.from_flat(**{**dict(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, ownerless=True,
+                                            entity_drag=0.0, links=NO_DELAY, prediction_order=order, ownership_min_axis=5.0),
+                                     **kw})
     m = NetworkModel(cfg)
     w = m.world
     w.apos[:] = [[50.0, 50.0], [40.0, 50.0]]
@@ -33,9 +33,9 @@ def _model(x0: float, vx: float, order: int = 1, **kw) -> NetworkModel:
 
 
 def test_the_default_keeps_the_last_owner_and_ownerless_needs_a_rule():
-    assert NetworkConfig().ownerless is False
+    assert NetworkConfig().consistency.ownerless is False
     with pytest.raises(ValueError, match="ownerless needs an ownership rule"):
-        NetworkConfig(ownerless=True, ownership="none")
+        NetworkConfig.from_flat(ownerless=True, ownership="none")
 
 
 def test_an_entity_leaving_every_region_is_released_and_no_longer_published():
@@ -97,11 +97,11 @@ def test_a_contact_with_an_ownerless_entity_is_answered_at_once_and_claims_it():
 
 
 def test_owned_entities_lie_in_their_owners_region_unless_a_hand_over_holds():
-    """The issue's case (NetworkConfig(seed=0), 600 steps): with the old rule most entity-frames
+    """The issue's case (NetworkConfig.from_flat(seed=0), 600 steps): with the old rule most entity-frames
     lie outside their owner's region; with ``ownerless`` none does, but for the 0.2 s hold after
     an owner change."""
     def outside_share(ownerless):
-        cfg = NetworkConfig(seed=0, ownerless=ownerless)
+        cfg = NetworkConfig.from_flat(seed=0, ownerless=ownerless)
         m = NetworkModel(cfg)
         G, out, total, released = cfg.groups, 0, 0, 0
         for _ in range(600):
@@ -110,8 +110,8 @@ def test_owned_entities_lie_in_their_owners_region_unless_a_hand_over_holds():
             owner = m.owner[G:]
             owned = np.flatnonzero(owner >= 0)
             w = m.world
-            a, b, u, shift = ellipsoid_axes(w.state()[1][:G], cfg.frame_s, cfg.ownership_scale,
-                                            cfg.ownership_min_axis, cfg.ownership_foci)
+            a, b, u, shift = ellipsoid_axes(w.state()[1][:G], cfg.scene.frame_s, cfg.consistency.ownership_scale,
+                                            cfg.consistency.ownership_min_axis, cfg.consistency.ownership_foci)
             g = owner[owned]
             d = mahalanobis_ellipsoid(w.epos[owned], (w.apos + shift)[g], u[g], a[g], b[g])
             free_to_move = m.own.hold[G + owned] <= m.t + 1e-9

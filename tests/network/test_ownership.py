@@ -18,7 +18,7 @@ def _owner(apos, avel, epos, cur, foci="reach"):
 
 
 def test_the_default_reading_reaches_ahead_and_the_literal_one_is_a_circle():
-    assert NetworkConfig().ownership_foci == "reach"
+    assert NetworkConfig().consistency.ownership_foci == "reach"
     v = np.array([[10.0, 0.0]])
     a, b, u, shift = ellipsoid_axes(v, T, SCALE, AMIN, "reach")
     # a = 30 * 0.33 m; foci at the avatar and a ahead: ahead 1.5 a, behind 0.5 a, b = sqrt(3)/2 a

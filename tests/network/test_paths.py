@@ -10,7 +10,7 @@ whole runs with the shortcuts on and off give the same outputs, bit for bit.
 * every shortcut off at once (:meth:`Paths.plain`).
 """
 import math
-from dataclasses import fields, replace
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -67,8 +67,8 @@ CASES = [
 
 @pytest.mark.parametrize("case", range(len(CASES)))
 def test_small_scene_shortcuts_change_nothing(case):
-    cfg = replace(NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=4, scene_size=60.0,
-                                entity_speed=3.0), **CASES[case])
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=4, scene_size=60.0,
+                                  entity_speed=3.0).replace(**CASES[case])
     fast = _trace(cfg, 90, bounce_every=13)
     _same(fast, _trace(cfg, 90, bounce_every=13, paths=SMALL_PLAIN))
 
@@ -103,8 +103,8 @@ FRAME_CASES = [
 
 @pytest.mark.parametrize("case", range(len(FRAME_CASES)))
 def test_frame_shortcuts_change_nothing(case):
-    cfg = replace(NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=5, scene_size=60.0,
-                                entity_speed=3.0, links=LINKS), **FRAME_CASES[case])
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=5, scene_size=60.0,
+                                  entity_speed=3.0, links=LINKS).replace(**FRAME_CASES[case])
     fast, fo = _run(cfg)
     plain, po = _run(cfg, paths=FRAME_PLAIN)
     assert fo == po
@@ -120,8 +120,8 @@ def test_frame_shortcuts_change_nothing(case):
 @pytest.mark.parametrize("case", [0, 2, 3])
 def test_every_shortcut_off_changes_nothing(case):
     """Paths.plain(): every step in its plain form at once, the same run as the default."""
-    cfg = replace(NetworkConfig(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=4, scene_size=60.0,
-                                entity_speed=3.0), **CASES[case])
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=3, entities=8, driven_groups=3, seed=4, scene_size=60.0,
+                                  entity_speed=3.0).replace(**CASES[case])
     _same(_trace(cfg, 90, bounce_every=13), _trace(cfg, 90, bounce_every=13, paths=Paths.plain()))
 
 

@@ -1,4 +1,4 @@
-"""Who gets an object's STATE records (``NetworkConfig.state_traffic``): 'object_view' (every
+"""Who gets an object's STATE records (``NetworkConfig.net.state_traffic``): 'object_view' (every
 node whose 9-cell neighbourhood holds the object) and 'neighbour_nodes' (§3.3: only those whose
 avatar is in the 9-cell neighbourhood of the owner's avatar). Closed forms on a 100 m scene of
 10 m cells: avatar 0 parked in cell (0, 0) owns an entity in cell (2, 0) that moves along y at
@@ -16,8 +16,8 @@ NO_DELAY = {"lan": LinkClass(0.0, 0.0, 0.0, 0.0), "wan": LinkClass(0.0, 0.0, 0.0
 
 
 def _run(rule: str, x1: float, frames: int = 60):
-    cfg = NetworkConfig(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, entity_drag=0.0,
-                        links=NO_DELAY, prediction_order=0, state_traffic=rule)
+    cfg = NetworkConfig.from_flat(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, entity_drag=0.0,
+                                  links=NO_DELAY, prediction_order=0, state_traffic=rule)
     m = NetworkModel(cfg)
     w = m.world
     w.apos[:] = [[5.0, 5.0], [x1, 5.0]]
@@ -36,9 +36,9 @@ def _run(rule: str, x1: float, frames: int = 60):
 
 
 def test_the_default_is_the_object_view_rule_and_a_bad_rule_is_refused():
-    assert NetworkConfig().state_traffic == "object_view"
+    assert NetworkConfig().net.state_traffic == "object_view"
     with pytest.raises(ValueError, match=r"state_traffic 'nearest' not in \('object_view', 'neighbour_nodes'\)"):
-        NetworkConfig(state_traffic="nearest")
+        NetworkConfig.from_flat(state_traffic="nearest")
 
 
 @pytest.mark.parametrize("rule", ["object_view", "neighbour_nodes"])

@@ -17,16 +17,16 @@ T = 0.033
 def test_resting_avatars_skip_repeated_substeps_exactly():
     """A resting fleet stops sub-stepping once a sub-step changes nothing: the same state as
     sub-stepping one by one (headings near +-pi and below -pi/2 included)."""
-    cfg = NetworkConfig(groups=6, render_nodes=1, entities=0)
+    cfg = NetworkConfig.from_flat(groups=6, render_nodes=1, entities=0)
     a, b = World(cfg, np.random.default_rng(1)), World(cfg, np.random.default_rng(1))
     for w in (a, b):
         w.yaw[:] = [-3.14159, -2.0, -1.6, 0.3, 3.1415926, 1e-17]
         w.steer[:] = [0.2, -0.4, 0.0, 0.1, -0.1, 0.3]
-    h = cfg.frame_s / cfg.substeps
+    h = cfg.scene.frame_s / cfg.world.substeps
     for k in range(1, 4):
-        a.advance_to(k * cfg.frame_s)                  # one call, 4 sub-steps (shortcut)
-        for j in range(cfg.substeps):                  # one sub-step per call
-            b.advance_to((k - 1) * cfg.frame_s + (j + 1) * h if j < cfg.substeps - 1 else k * cfg.frame_s)
+        a.advance_to(k * cfg.scene.frame_s)                  # one call, 4 sub-steps (shortcut)
+        for j in range(cfg.world.substeps):                  # one sub-step per call
+            b.advance_to((k - 1) * cfg.scene.frame_s + (j + 1) * h if j < cfg.world.substeps - 1 else k * cfg.scene.frame_s)
         for name in ("apos", "yaw", "speed", "accel", "yaw_rate"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
 
@@ -34,8 +34,8 @@ def test_resting_avatars_skip_repeated_substeps_exactly():
 def test_scalar_kinematics_equal_the_array_code(monkeypatch):
     """Few avatars and entities run in Python floats: the same trajectories (walls, reversing,
     steering, entity reflections) as the numpy code."""
-    cfg = NetworkConfig(groups=4, render_nodes=2, entities=20, driven_groups=4, scene_size=12.0, seed=3,
-                        avatar_start="uniform", entity_speed=6.0, avatar_mass=float("inf"))  # (the walls it hits)
+    cfg = NetworkConfig.from_flat(groups=4, render_nodes=2, entities=20, driven_groups=4, scene_size=12.0, seed=3,
+                                  avatar_start="uniform", entity_speed=6.0, avatar_mass=float("inf"))  # (the walls it hits)
 
     def trace(paths=None):
         m = NetworkModel(cfg, paths)
@@ -51,7 +51,7 @@ def test_scalar_kinematics_equal_the_array_code(monkeypatch):
     fast, mf = trace()
     ref, mr = trace(Paths(scalar_avatars=0, scalar_entities=0))
     assert np.array_equal(fast, ref)
-    S = cfg.scene_size
+    S = cfg.scene.scene_size
     hits = {"n": 0}
     orig = world_mod.World._avatar_walls
 
@@ -69,7 +69,7 @@ def test_scalar_kinematics_equal_the_array_code(monkeypatch):
 def test_avatars_one_by_one_equal_the_array_code():
     """Resting (with -0.0 speeds), driving into the walls and reversing: the same arrays and
     the same fixed-point decision as the array code's sub-step loop."""
-    cfg = NetworkConfig(groups=5, render_nodes=1, entities=0, scene_size=15.0, avatar_start="uniform", seed=2)
+    cfg = NetworkConfig.from_flat(groups=5, render_nodes=1, entities=0, scene_size=15.0, avatar_start="uniform", seed=2)
 
     def trace(paths=Paths()):
         w = World(cfg, np.random.default_rng(2), paths)
@@ -91,7 +91,7 @@ def test_avatars_one_by_one_equal_the_array_code():
     fast, fast_fixed = trace()
     plain, _ = trace(Paths(scalar_avatars=0))
     assert np.array_equal(fast, plain)
-    S = cfg.scene_size
+    S = cfg.scene.scene_size
     xy = plain[:, :10]
     assert ((xy == 0.0) | (xy == S)).any()                 # the walls were hit
     assert fast_fixed[1:19] == [True] * 18                 # resting at first: a fixed point (after the
@@ -99,7 +99,7 @@ def test_avatars_one_by_one_equal_the_array_code():
 
 
 def test_point_index_contacts_equal_kd_tree_contacts():
-    cfg = NetworkConfig(groups=40, render_nodes=1, entities=600, scene_size=60.0, seed=8)
+    cfg = NetworkConfig.from_flat(groups=40, render_nodes=1, entities=600, scene_size=60.0, seed=8)
     m = NetworkModel(cfg)
     w = m.world
     w.speed[:] = 5.0
