@@ -465,13 +465,22 @@ class CollisionBackend(ABC):
 
     def _horizontal_exit(self, pair: PairSpec):
         """Depth (m) and unit normal (2,) of the shortest ground-plane exit of ``pair.a`` from
-        the members whose AABB overlaps its own (:mod:`.exit`), or None without overlap."""
+        the members whose AABB overlaps its own (:mod:`.exit`), or None without overlap; the
+        members within the exit's length (AABB gap below the depth) count too: the exit
+        may not end inside one of them."""
         a, rows = pair.a, self.frames.rows
-        near = pair.members[self.aabb_gap(a, pair.members) <= 0.0].tolist()
-        # a static body's footprint is kept after its first use
-        members = [(b, np.array(rows[b]), False) if self.is_dynamic[b] else (b, self.arrays.T_of(b), True)
-                   for b in near]
-        return self._footprints.exit(a, np.array(rows[a]), members) if members else None
+        gap = self.aabb_gap(a, pair.members)
+        Ta = np.array(rows[a])
+        reach, out = 0.0, None
+        while True:
+            near = pair.members[gap <= reach].tolist()
+            # a static body's footprint is kept after its first use
+            members = [(b, np.array(rows[b]), False) if self.is_dynamic[b] else (b, self.arrays.T_of(b), True)
+                       for b in near]
+            out = self._footprints.exit(a, Ta, members) if members else None
+            if out is None or not np.any((gap > reach) & (gap < out[0])):
+                return out
+            reach = out[0]
 
     def _closing_speed(self, a: int, res: PairResult, dt: float) -> float:
         """m/s; minus the relative translation of ``a`` over the step along the normal, / dt."""

@@ -97,3 +97,72 @@ def test_the_exit_goes_the_short_way_near_the_end_face():
     r = be.query([-3.25 - 2.0 + 0.4, 0.0, 2.5, 0.0, 0.0, 0.0], 0.033).pairs[0]
     assert r.in_contact and r.depth == pytest.approx(0.4, abs=1e-9)
     assert np.allclose(r.normal, [-1.0, 0.0, 0.0], atol=1e-12)
+
+
+def _first_free(A, nA, parts, u, t_max=20.0):
+    """Independent of exit_2d: the smallest t >= 0 at which ``A + t u`` overlaps no part, from
+    the separating-axis test on the axes of ``A`` and each part (for each part the open
+    interval of t where every axis's projections overlap)."""
+    spans = []
+    for B, nB in parts:
+        lo, hi = -np.inf, np.inf
+        for n in np.concatenate([nA, nB]):
+            a, b, un = A @ n, B @ n, float(u @ n)
+            # overlap along n: min(A.n) + t un < max(B.n) and max(A.n) + t un > min(B.n)
+            if abs(un) < 1e-15:
+                if not (a.min() < b.max() and a.max() > b.min()):
+                    lo, hi = np.inf, -np.inf
+                continue
+            t1, t2 = (b.max() - a.min()) / un, (b.min() - a.max()) / un
+            lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
+        if lo < hi:
+            spans.append((lo, hi))
+    t = 0.0
+    for lo, hi in sorted(spans):
+        if lo < t < hi:
+            t = hi
+    for lo, hi in sorted(spans):      # (a later span may start before the new t)
+        if lo < t < hi:
+            t = hi
+    return t
+
+
+def test_exit_from_a_concave_corner_is_the_diagonal_not_a_face():
+    """A box 0.3 m into a hull's front face and 0.2 m into a barrel's side (an L-shaped
+    union): leaving either face alone would end inside the other part (3.8 m or 1.9 m moves);
+    the shortest exit is the corner diagonal, hypot(0.3, 0.2), pointing out of both."""
+    hull, barrel = _square(0.0, 0.0, 3.25, 1.7), _square(4.9 - 2.0, 0.0, 2.0, 0.1)   # barrel x 2.9 .. 4.9
+    A, nA = _square(3.25 + 1.0 - 0.3, 0.1 + 0.5 - 0.2, 1.0, 0.5)
+    depth, n = exit_2d(A, nA, [hull, barrel])
+    assert depth == pytest.approx(math.hypot(0.3, 0.2), abs=1e-12)
+    assert np.allclose(n, np.array([0.3, 0.2]) / math.hypot(0.3, 0.2), atol=1e-12)
+    assert exit_2d(A + depth * n, nA, [hull, barrel]) is None                     # touching: apart
+    assert exit_2d(A + (depth - 1e-6) * n, nA, [hull, barrel]) is not None
+
+
+def test_an_exit_never_ends_inside_a_part_it_did_not_overlap():
+    """Two blocks 0.3 m apart, a 0.4 m wide box 0.3 m into the left one's right face: moving
+    right 0.3 m would end 0.1 m inside the right block (a part apart from the box before the
+    move); the exit goes up instead (0.4 m out of the top face)."""
+    left, right = _square(0.0, 0.0, 2.0, 2.0), _square(2.3 + 2.0, 0.0, 2.0, 2.0)   # gap x 2.0 .. 2.3
+    A, nA = _square(2.0 + 0.2 - 0.3, 2.0 + 0.5 - 0.4, 0.2, 0.5)                     # x 1.7 .. 2.1
+    depth, n = exit_2d(A, nA, [left, right])
+    assert depth == pytest.approx(0.4, abs=1e-12) and np.allclose(n, [0.0, 1.0], atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_exit_is_the_shortest_move_over_all_directions(seed):
+    """Random boxes in random rotated parts: exit_2d's depth is the minimum over 3600
+    directions of the first overlap-free distance along each (an independent separating-axis
+    ray cast), up to the grid's angular resolution, and its own direction attains it."""
+    rng = np.random.default_rng(seed)
+    parts = [_square(*rng.uniform(-1.5, 1.5, 2), *rng.uniform(0.3, 1.5, 2), rng.uniform(-np.pi, np.pi))
+             for _ in range(3)]
+    A, nA = _square(*rng.uniform(-0.5, 0.5, 2), 1.0, 0.5, rng.uniform(-np.pi, np.pi))
+    out = exit_2d(A, nA, parts)
+    assert out is not None
+    depth, n = out
+    th = np.linspace(-np.pi, np.pi, 3600, endpoint=False)
+    ray = min(_first_free(A, nA, parts, np.array([math.cos(a), math.sin(a)])) for a in th)
+    assert depth <= ray + 1e-9 and ray <= depth + 3e-3
+    assert _first_free(A, nA, parts, n) == pytest.approx(depth, abs=1e-9)
