@@ -445,3 +445,36 @@ def dead_reckon(pos: np.ndarray, vel, acc, dt, order: int) -> np.ndarray:
     if order == 1:
         return pos + vel * dt
     return pos + dt * (vel + (0.5 * dt) * acc)
+
+
+def free_motion(pos: np.ndarray, vel: np.ndarray, turn: np.ndarray, drag: float, dt: np.ndarray, size: float,
+                h_max: float):
+    """Positions and velocities (k, 2) of free entities ``dt`` (k,) s after the states ``pos``,
+    ``vel`` (k, 2; m, m/s): the scene's entity law, which every node runs itself for an entity no
+    avatar owns (§3.6.3), the world's law (:meth:`world.World.advance_to`).
+
+    Each of ``n = ceil(dt / h_max)`` sub-steps ``h = dt / n`` turns the velocity by ``turn h``
+    (``turn`` (k,) rad/s, the entity's constant turn rate from the scene file) and decays it by
+    ``exp(-drag h)`` (``drag`` 1/s); the position moves by the trapezoid of the two velocities,
+    and a wall of the square scene ``[0, size]^2`` reflects the position and that velocity
+    component. Rows with ``dt <= 0`` are returned as they are.
+    """
+    p, v = np.array(pos, float), np.array(vel, float)
+    dt = np.asarray(dt, float)
+    n = np.where(dt > 0, np.maximum(1, np.ceil(dt / h_max - 1e-9)), 0).astype(np.int64)
+    if not len(n) or n.max() == 0:
+        return p, v
+    h = dt / np.maximum(n, 1)
+    decay = np.exp(-drag * h)
+    ct, st = np.cos(turn * h) * decay, np.sin(turn * h) * decay
+    hh = 0.5 * h
+    for i in range(int(n.max())):
+        a = np.flatnonzero(n > i)
+        vx, vy = v[a, 0], v[a, 1]
+        nv = np.c_[ct[a] * vx - st[a] * vy, st[a] * vx + ct[a] * vy]
+        q = p[a] + hh[a, None] * (v[a] + nv)
+        lo, hi = q < 0.0, q > size
+        q = np.where(lo, -q, np.where(hi, 2 * size - q, q))
+        nv[lo | hi] *= -1.0
+        p[a], v[a] = q, nv
+    return p, v

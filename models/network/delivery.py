@@ -219,6 +219,7 @@ class Inflight:
                 arr, lost = fr.arrival.tolist(), fr.lost.tolist()
                 self.frames += [(math.inf if lost[i] else arr[i], node, nxt)
                                 for i, node in zip(tr.frame_msg.tolist(), tr.frame_slave.tolist())]
+        net.own.release(net)   # entities no region claims, their state of this frame sent (ownership.py)
 
     def phased(self, net, fr, due: np.ndarray, owners: np.ndarray) -> np.ndarray:
         """Frames (k,) at which this frame's records are shown with the groups' frame clocks
@@ -235,7 +236,7 @@ class Inflight:
         G = net.cfg.groups
         if epoch != net.own.epoch:   # owners changed since it was sent: check the senders
             own = net.own.owner.tolist()
-            keep = [i for i, (f, w) in enumerate(zip(fi, senders)) if w == own[f // G]]
+            keep = [i for i, (f, w) in enumerate(zip(fi, senders)) if w == own[f // G] or own[f // G] < 0]
             if len(keep) < len(fi):
                 net.metrics.rejected_updates += len(fi) - len(keep)
                 fi, rows = [fi[i] for i in keep], [rows[i] for i in keep]
@@ -270,7 +271,8 @@ class Inflight:
                     self.deliver_rows(net, fi, sender, table, epoch, t_send)
                 else:
                     if epoch != own.epoch:  # owners changed since it was sent: check the senders
-                        valid = np.take(sender, ridx) == np.take(own.owner, fi // G)
+                        now = np.take(own.owner, fi // G)   # (an entity released since: its last owner's record)
+                        valid = (np.take(sender, ridx) == now) | (now < 0)
                         if not valid.all():
                             net.metrics.rejected_updates += int((~valid).sum())
                             fi, ridx = fi[valid], ridx[valid]

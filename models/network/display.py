@@ -27,6 +27,7 @@ from typing import List, Optional
 import numpy as np
 
 from .arrays import sum_by_key, unique_values
+from .consistency import free_motion
 
 
 def squared_dr_error(c: np.ndarray, ct: np.ndarray, x: np.ndarray, y: np.ndarray, t: float,
@@ -56,6 +57,48 @@ def squared_dr_error(c: np.ndarray, ct: np.ndarray, x: np.ndarray, y: np.ndarray
 
 #: a frame that touched more than this share of the copies is evaluated per copy
 TOUCHED_SHARE = 0.25
+
+
+class FreePrediction:
+    """What every node shows of the entities no avatar owns (§3.6.3): each node runs the scene's
+    entity law (:func:`consistency.free_motion`) from its last record of the entity, instead of
+    dead reckoning it (prediction orders >= 1; order 0 predicts nothing).
+
+    Copies holding the same record (record id) show the same prediction, so one state per record
+    id is kept and advanced from frame to frame (``key`` sorted record ids, ``t`` s, ``p``, ``v``
+    (k, 2) m, m/s): a record released long ago costs one frame of sub-steps per frame.
+    """
+
+    def __init__(self) -> None:
+        self.key = np.zeros(0, np.int64)
+        self.t = np.zeros(0)
+        self.p = np.zeros((0, 2))
+        self.v = np.zeros((0, 2))
+
+    def positions(self, net, rows: np.ndarray, t: float) -> np.ndarray:
+        """Shown positions (k, 2) m at frame time ``t`` of the cache ``rows`` (k, width) of
+        ownerless entities (order >= 1); the states kept are those of these rows' records."""
+        rid = rows[:, net.records.rid_col].astype(np.int64)
+        uk, first, inv = np.unique(rid, return_index=True, return_inverse=True)
+        r = rows[first]
+        t0, p0, v0 = r[:, 0].copy(), r[:, 1:3].copy(), r[:, 3:5].copy()
+        if len(self.key):   # records predicted at an earlier frame: on from there
+            at = np.minimum(np.searchsorted(self.key, uk), len(self.key) - 1)
+            kept = (self.key[at] == uk) & (self.t[at] <= t)
+            at = at[kept]
+            t0[kept], p0[kept], v0[kept] = self.t[at], self.p[at], self.v[at]
+        cfg = net.cfg
+        turn = net.world.eturn[(uk >> 32) - cfg.groups]
+        p, v = free_motion(p0, v0, turn, cfg.world.entity_drag, t - t0, cfg.scene.scene_size,
+                           cfg.scene.frame_s / cfg.world.substeps)
+        self.key, self.t, self.p, self.v = uk, np.full(len(uk), t), p, v
+        return p[inv.ravel()]
+
+    def errors(self, net, rows: np.ndarray, obj: np.ndarray, t: float, P: np.ndarray) -> np.ndarray:
+        """Squared display errors (k,) m^2 of the ownerless copies ``rows`` of objects ``obj``
+        at frame time ``t`` against the truth ``P`` (n_obj, 2)."""
+        d = self.positions(net, rows, t) - np.take(P, obj, axis=0)
+        return np.einsum("ij,ij->i", d, d)
 
 
 class DisplayGroups:
@@ -174,8 +217,10 @@ class DisplayGroups:
             self.key, self.cnt, self.rows = self.key[keep], self.cnt[keep], self.rows[keep]
 
     # -- the metric ------------------------------------------------------------------------
-    def errors(self, t: float, P: np.ndarray, order: int):
-        """Eq. 3-1/3-2 at frame time ``t`` from the groups, truth ``P`` (n_obj, 2).
+    def errors(self, t: float, P: np.ndarray, order: int, free=None):
+        """Eq. 3-1/3-2 at frame time ``t`` from the groups, truth ``P`` (n_obj, 2); ``free``:
+        (the model's :class:`measure.DisplayError`, the model) when copies of entities without
+        an owner are shown by the entity law (:class:`FreePrediction`), else None.
 
         Returns per-object max and RMS (n_obj,) m and the overall max and RMS (m), as
         :func:`metrics.inconsistency_sq` does over the copies.
@@ -191,6 +236,11 @@ class DisplayGroups:
         ct = c[:, 0]
         # the same arithmetic as the per-copy evaluation, so each group's error is bit-identical
         ex = squared_dr_error(c, ct, np.take(P[:, 0], o), np.take(P[:, 1], o), t, order)
+        if free is not None:   # entities no avatar owns: every node's own prediction (§3.6.3)
+            shown, net = free
+            sel = np.flatnonzero(shown.free_copies(net, o, ct))
+            if len(sel):
+                ex[sel] = shown.free.errors(net, c[sel], o[sel], t, P)
         per_max = np.zeros(n_obj)
         np.maximum.at(per_max, o, ex)
         wf = w.astype(float)

@@ -13,7 +13,7 @@ from typing import Optional
 import numpy as np
 
 from .arrays import pairwise_sum
-from .display import DisplayGroups, squared_dr_error
+from .display import DisplayGroups, FreePrediction, squared_dr_error
 from .metrics import inconsistency_sq, object_runs
 from .records import T_COL
 
@@ -40,6 +40,7 @@ class DisplayError:
         self.last = (0.0, 0.0, 0)
         self._scalar: Optional[tuple] = None    # (view owners, objects, flat indices, remote copies)
         self._segments: Optional[tuple] = None  # (vo, per-object runs of vo)
+        self.free = FreePrediction()             # every node's own prediction of ownerless entities
 
     @property
     def per_max(self) -> np.ndarray:
@@ -69,6 +70,22 @@ class DisplayError:
         n = len(per_max)
         self._per_max, self._per_rms = per[:n], per[n:]
 
+    @staticmethod
+    def ownerless(net) -> bool:
+        """Some copy may be shown by the entity law (:class:`display.FreePrediction`): ``ownerless``
+        with prediction order >= 1, and an entity without an owner now or claimed since the start."""
+        cons, own = net.cfg.consistency, net.own
+        return (cons.ownerless and cons.prediction_order >= 1
+                and bool((own.owner < 0).any() or (own.claimed_t > -np.inf).any()))
+
+    @staticmethod
+    def free_copies(net, obj: np.ndarray, ct: np.ndarray) -> np.ndarray:
+        """Copies (k,) bool of objects ``obj`` holding records of time ``ct`` (s) that their node
+        shows by the entity law: the object has no owner, or was claimed after the record was
+        sent (the node learns of the claim from the new owner's first record)."""
+        own = net.own
+        return (np.take(own.owner, obj) < 0) | (ct < np.take(own.claimed_t, obj))
+
     def touch(self, fi) -> None:
         """Cache rows ``fi`` were rewritten (the record groups re-check them)."""
         if self.groups is not None:
@@ -85,7 +102,8 @@ class DisplayError:
             m = net.metrics
             m.inconsistency_max = max(m.inconsistency_max, 0.0)
             m.inconsistency_rms = 0.0
-        elif fi is not None and og is not None and len(fi) <= net.paths.scalar_view and self.groups is None:
+        elif (fi is not None and og is not None and len(fi) <= net.paths.scalar_view and self.groups is None
+              and not self.ownerless(net)):
             self.measure_scalar(net, t, P, vo, vg, fi, og)     # (what measure does for a small view)
         else:
             self.measure(net, t, P, vg, vo, fi, og, cells, online_g)
@@ -108,7 +126,7 @@ class DisplayError:
             if self.groups is None:
                 self.groups = DisplayGroups(len(rc.cache), self.n_obj, cfg.groups)
             if self.groups.update(net, cells, online_g, vo, vg, fi, og):
-                pm, pr, mx, rms = self.groups.errors(t, P, order)
+                pm, pr, mx, rms = self.groups.errors(t, P, order, (self, net) if self.ownerless(net) else None)
                 self._set(pm, pr)
                 net.metrics.inconsistency_max = max(net.metrics.inconsistency_max, mx)
                 net.metrics.inconsistency_rms = rms
@@ -116,7 +134,8 @@ class DisplayError:
         elif self.groups is not None:
             self.groups.invalidate()
         n = len(fi)
-        if n <= paths.scalar_view:
+        free = self.ownerless(net)
+        if n <= paths.scalar_view and not free:
             return self.measure_scalar(net, t, P, vo, vg, fi, og)
         px, py = P[:, 0], P[:, 1]
         chunk = paths.measure_chunk
@@ -130,6 +149,12 @@ class DisplayError:
             for a in range(0, n, chunk):
                 b = min(a + chunk, n)
                 err2[a:b], remote[a:b] = self._copy_errors(net, t, fi[a:b], vo[a:b], vg[a:b], og[a:b], px, py)
+        if free:   # entities no avatar owns: every node's own prediction (§3.6.3)
+            sel = np.flatnonzero(remote)
+            rows = np.take(rc.cache, fi[sel], axis=0)
+            law = self.free_copies(net, vo[sel], rows[:, T_COL])
+            if law.any():
+                err2[sel[law]] = self.free.errors(net, rows[law], vo[sel[law]], t, P)
         seg = self._segments
         if seg is None or seg[0] is not vo:
             seg = self._segments = (vo, object_runs(vo, self.n_obj))

@@ -6,10 +6,12 @@ is held for ``handover_hold_s``; the old owner knew the exact state when it let 
 cache starts from it. Every change bumps ``epoch``: records in flight sent before it have
 their senders checked on delivery (§3.6.1).
 
-With ``cfg.consistency.ownerless`` an entity that no region claims has no owner (-1, §3.6.3): nobody
-publishes it and every node shows its own prediction; a region (or an avatar touching it,
-:mod:`.contacts`) claims it again. Releases and claims are decided by every node from the same
-rule and state, so they send no message; only a hand-over between two owners does.
+With ``cfg.consistency.ownerless`` an entity that no region claims has no owner (-1, §3.6.3): its
+owner publishes its state of that frame and then lets it go; from then nobody publishes it and
+every node shows its own prediction (the scene's entity law from its last record,
+:class:`display.FreePrediction`); a region (or an avatar touching it, :mod:`.contacts`) claims it
+again. Releases and claims are decided by every node from the same rule and state, so they send
+no message of their own; only a hand-over between two owners does.
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from typing import Optional
 
 import numpy as np
 
-from .consistency import assign_owners
+from .consistency import PointIndex, assign_owners
 from .nodes import H
 from .pdu import PduType, record_bytes
 
@@ -46,6 +48,8 @@ class Ownership:
     ----------
     owner : (G + E,) int, owning group of every object (avatars first)
     hold : (G + E,) s, no hand-over of an object before this time
+    claimed_t : (G + E,) s, when each object was last claimed from no owner (-inf: never)
+    leaving : (E,) bool, entities no region claims, released after this frame's messages
     epoch : int, bumped at every ownership change
     """
 
@@ -54,6 +58,8 @@ class Ownership:
         self.hold = np.full(len(self.owner), -np.inf)
         self.epoch = 0
         self.entity_ids = np.arange(cfg.groups, len(self.owner))
+        self.claimed_t = np.full(len(self.owner), -np.inf)   # s, last claim of each object from no owner
+        self.leaving = np.zeros(cfg.entities, bool)   # entities released after this frame's messages (ownerless)
         self._snap: Optional[tuple] = None   # (epoch, copy of the owners, as a list or None)
 
     def snapshot(self) -> tuple:
@@ -111,6 +117,7 @@ class Ownership:
         self.owner[o] = new
         self.hold[o] = t + cfg.consistency.handover_hold_s
         taken = new >= 0
+        self.claimed_t[o[~let_go]] = t
         net.errors.touch(rc.index(new[taken], o[taken]))   # a new owner's copy is no longer remote
         n = int(np.count_nonzero(let_go & taken))
         net.metrics.handovers += n
@@ -146,11 +153,57 @@ class Ownership:
             claimed = new_local != cur_local
             new = held.copy()
             new[claimed] = cand[new_local[claimed]]
+        if cfg.consistency.ownerless:
+            new = self._last_word(cur, self._touching(net, cand, new))
         if new is not cur:   # (assign_owners may return cur itself: nobody changed owner)
             self.handover(net, self.entity_ids, new)
+
+    @staticmethod
+    def _touching(net, cand: np.ndarray, new: np.ndarray) -> np.ndarray:
+        """The claims ``new`` (E,) with every entity no region claims but the avatar of an online
+        group ``cand`` touches (centres within ``avatar_radius + entity_radius``, the contact
+        distance; a contact's separation leaves them there) given to the nearest such avatar."""
+        free = np.flatnonzero(new < 0)
+        if not len(free) or not len(cand):
+            return new
+        w, cw = net.world, net.cfg.world
+        r = (cw.avatar_radius + cw.entity_radius) * (1.0 + 1e-9)
+        ei, gi = PointIndex(w.apos[cand]).near(w.epos[free], np.full(len(free), r))
+        d2 = np.einsum("ij,ij->i", w.epos[free[ei]] - w.apos[cand[gi]], w.epos[free[ei]] - w.apos[cand[gi]])
+        ok = d2 <= r * r
+        if not ok.any():
+            return new
+        ei, gi, d2 = ei[ok], gi[ok], d2[ok]
+        order = np.lexsort((gi, d2, ei))            # per entity the nearest avatar (ties: lower group)
+        first = order[np.r_[True, np.diff(ei[order]) != 0]]
+        new = new.copy()
+        new[free[ei[first]]] = cand[gi[first]]
+        return new
+
+    def _last_word(self, cur: np.ndarray, new: np.ndarray) -> np.ndarray:
+        """The claims ``new`` (E,) without this frame's releases: an owner whose entity no region
+        claims keeps it until its state of this frame (contact responses included) is published,
+        even under DIS (:mod:`.publishing`); :meth:`release` then lets it go after the frame's
+        messages, so every node's own prediction starts from that record (§3.6.3).
+        ``leaving`` marks them."""
+        self.leaving = (new < 0) & (cur >= 0)
+        if self.leaving.any():
+            new = new.copy()
+            new[self.leaving] = cur[self.leaving]
+        return new
+
+    def release(self, net) -> None:
+        """The entities marked ``leaving`` this frame lose their owner (after the frame's
+        messages, :meth:`delivery.Inflight.post`)."""
+        if self.leaving.any():
+            objs = self.entity_ids[self.leaving]
+            self.leaving = np.zeros(len(self.leaving), bool)
+            self.handover(net, objs, np.full(len(objs), -1, np.int64))
 
     def claim(self, net, ents: np.ndarray, groups: np.ndarray) -> None:
         """Ownerless entities ``ents`` touched by the avatars of ``groups`` become theirs (the
         first contact of an entity wins)."""
         ents, first = np.unique(ents, return_index=True)
-        self.handover(net, net.cfg.groups + ents, groups[first])
+        objs = net.cfg.groups + ents
+        self.hold[objs] = -np.inf   # (a release's hold does not stop a claim: the toucher answered it)
+        self.handover(net, objs, groups[first])

@@ -50,7 +50,10 @@ class Publisher:
         if cfg.consistency.dis_threshold > 0:
             pred = dead_reckon(self.p, self.v, self.a, t - self.t, cfg.consistency.prediction_order)
             err = np.hypot(*(pred - P).T)
-            pub = self._owned(cfg, online_g, owner) & ((err > cfg.consistency.dis_threshold) | (t - self.t >= cfg.consistency.dis_heartbeat_s))
+            owned = self._owned(cfg, online_g, owner)
+            pub = owned & ((err > cfg.consistency.dis_threshold) | (t - self.t >= cfg.consistency.dis_heartbeat_s))
+            if cfg.consistency.ownerless:   # an entity's last record before its release (ownership.py)
+                pub[cfg.groups:] |= net.own.leaving & owned[cfg.groups:]
             pub_obj = np.flatnonzero(pub)
             self.t[pub_obj] = t
             self.p[pub_obj], self.v[pub_obj], self.a[pub_obj] = P[pub_obj], fr.V[pub_obj], fr.A[pub_obj]
