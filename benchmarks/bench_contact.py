@@ -56,6 +56,7 @@ FIELD = dict(n=500, spacing=9.0)       # tank_k at (x0 + 9 (k % 23), y0 + 9 (k /
 SEED = 1
 TANK_BOX = ((-3.25, 4.9), (-1.7, 1.7))               # tank footprint (body frame, m)
 AVATAR_R = math.hypot(2.0, 1.0)                      # circumradius of the 4 x 2 m avatar box
+RESTITUTION = 0.5                                    # the network's default (WorldConfig.restitution)
 
 
 def _tanks_xy(x0: float, y0: float) -> np.ndarray:
@@ -98,10 +99,10 @@ def field_origin(seed: int, margin: float = 0.05):
     raise RuntimeError(f"seed {seed}: no tank grid origin leaves the avatars' starts clear")
 
 
-def scenario_text(seed: int, stop: float, depth: bool = True, delayed: bool = False) -> str:
-    """The scene as a scenario TOML (``depth`` False: without the depth connections;
-    ``delayed``: the contacts reach the network one step late, as in campus_drive, instead of
-    in the step the collision unit reports them)."""
+def scenario_text(seed: int, stop: float, depth: bool = True, poses: str = "zoh") -> str:
+    """The scene as a scenario TOML (``depth`` False: without the depth connections; ``poses``:
+    the extrapolation of the network's x, y on their way to the collision unit, "zoh" (its
+    last pose, the pose it corrects in the step) or "linear" (extrapolated half a step ahead))."""
     pos, yaw = _starts(seed)
     x0, y0 = field_origin(seed)
     boxes = ";".join(f"box:name=avatar_{p},sx=4,sy=2,sz=4.4,dynamic=1" for p in range(1, PLAYERS + 1))
@@ -120,13 +121,11 @@ def scenario_text(seed: int, stop: float, depth: bool = True, delayed: bool = Fa
     for p in range(1, PLAYERS + 1):
         for c in ("x", "y", "yaw"):
             out += ["[[connections]]", f'from = "net.avatar[{p}].{c}"', f'to = "coll.body[{p}].{c}"', "delayed = true"]
-            if c == "yaw":
+            if c == "yaw" or poses == "zoh":
                 out.append('extrapolation = "zoh"')
         fields = [("in_contact", "active")] + [(c, c) for c in ("nx", "ny")] + ([("depth", "depth")] if depth else [])
         for src, dst in fields:
             out += ["[[connections]]", f'from = "coll.pair[{p}].{src}"', f'to = "net.contact[{p}].{dst}"']
-            if delayed:
-                out.append("delayed = true")
             if src != "in_contact":
                 out.append('extrapolation = "zoh"')
     for p in range(1, PLAYERS + 1):   # drivers: full throttle at the peaks, weaving
@@ -183,6 +182,15 @@ def true_depths(scene_spec: str, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, 
     return out
 
 
+def _reflected_heading(vx, vy, yaw, nx, ny, e: float = RESTITUTION):
+    """Headings (rad) after the response to contacts of normal ``(nx, ny)`` of avatars with
+    velocities ``(vx, vy)`` and headings ``yaw`` (k,): the reflected velocity's direction when
+    approaching (``v.n < 0``), else ``yaw`` (World.bounce_avatar)."""
+    vn = vx * nx + vy * ny
+    rx, ry = vx - (1.0 + e) * vn * nx, vy - (1.0 + e) * vn * ny
+    return np.where(vn < 0.0, np.arctan2(ry, rx), yaw)
+
+
 def measure(log: Path, scene_spec: str, lag: int) -> list:
     """Per pair the figures of the module docstring, from a run's MCAP log (``lag``: steps
     from a contact report to the network's response, 0 or 1)."""
@@ -211,13 +219,15 @@ def measure(log: Path, scene_spec: str, lag: int) -> list:
         rep = rep[rep + lag >= 1]
         resp, pre = rep + lag, rep + lag - 1
         x, y, yaw = get(f"net.avatar[{p}].x"), get(f"net.avatar[{p}].y"), get(f"net.avatar[{p}].yaw")
-        # the response's own result: that pose moved by the reported depth along the normal
-        corr = true_depths(scene_spec, x[pre] + d[rep] * nx[rep], y[pre] + d[rep] * ny[rep], yaw[pre])
+        # the response's own result: that pose moved by the reported depth along the normal,
+        # turned to the reflected velocity's heading (World.bounce_avatar)
+        yaw_r = _reflected_heading(vx[pre], vy[pre], yaw[pre], nx[rep], ny[rep])
+        corr = true_depths(scene_spec, x[pre] + d[rep] * nx[rep], y[pre] + d[rep] * ny[rep], yaw_r)
         end = td[resp]                    # after the step the driver then drove
         deep = end >= 0.01
         vn = vx[resp] * nx[rep] + vy[resp] * ny[rep]
-        turn = AVATAR_R * np.abs(np.angle(np.exp(1j * (yaw[resp] - yaw[pre]))))
-        pushed = deep & ((vn < 0) | (turn >= end))   # driven in, or a corner swung in by the turn
+        turn = AVATAR_R * np.abs(np.angle(np.exp(1j * (yaw[resp] - yaw_r))))   # the driver's steering
+        pushed = deep & ((vn < 0) | (turn >= end))   # driven in, or a corner swung in by the driver's turn
         away = c & (vx * nx + vy * ny >= 0)
         rows.append(dict(pair=p, contact_steps=int(c.sum()), depth_max=float(d[c].max()) if c.any() else 0.0,
                          bound_at_max=float(bound[k_max]), ratio_max=float(ratio.max()),
@@ -232,11 +242,11 @@ def measure(log: Path, scene_spec: str, lag: int) -> list:
     return rows
 
 
-def run(seed: int, stop: float, depth: bool, folder: Path, delayed: bool = False):
+def run(seed: int, stop: float, depth: bool, folder: Path, poses: str = "zoh"):
     from immersim.orchestrator.execution import run_scenario
 
-    path = folder / f"drive_{'depth' if depth else 'reflect'}{'_delayed' if delayed else ''}.toml"
-    path.write_text(scenario_text(seed, stop, depth, delayed))
+    path = folder / f"drive_{'depth' if depth else 'reflect'}_{poses}.toml"
+    path.write_text(scenario_text(seed, stop, depth, poses))
     log = folder / (path.stem + ".mcap")
     t0 = time.perf_counter()
     run_scenario(path, log)
@@ -245,7 +255,7 @@ def run(seed: int, stop: float, depth: bool, folder: Path, delayed: bool = False
     import tomllib
 
     spec = tomllib.loads(path.read_text())["units"][1]["parameters"]["scene"]
-    return measure(log, spec, 1 if delayed else 0), wall
+    return measure(log, spec, 0), wall
 
 
 def campus(folder: Path) -> list:
@@ -283,7 +293,8 @@ def main(argv=None) -> int:
     seed = SEED
     SCENE_FILE.write_text(scenario_text(seed, 60.0))
     with tempfile.TemporaryDirectory() as tmp:
-        res = {k: run(seed, stop, k != "reflect", Path(tmp), k == "delayed") for k in ("depth", "reflect", "delayed")}
+        res = {k: run(seed, stop, k != "reflect", Path(tmp), "linear" if k == "linear" else "zoh")
+               for k in ("depth", "reflect", "linear")}
         camp = campus(Path(tmp))
     cols = ["pair", "contact_steps", "depth_max", "bound_at_max", "ratio_max", "true_depth_max", "true_ratio_max",
             "part_depth_max", "part_ratio_max", "corrected_max", "after_max", "responses", "deep_after",
@@ -291,9 +302,11 @@ def main(argv=None) -> int:
     lines = ["# Contact response on a 500-tank field", "", stamp(COMMAND + (" --quick" if args.quick else "")), "",
              f"Scene: `benchmarks/scenarios/tank_field_drive.toml` (network seed {seed}), {stop:g} s "
              f"({round(stop / H)} steps). See `benchmarks/bench_contact.py` for the definitions.", ""]
-    for k, title in (("depth", "Response as shipped: position correction along the exit normal + reflection"),
-                     ("reflect", "Without the depth connections: reflection only (the response before)"),
-                     ("delayed", "As shipped, contacts one step late (`delayed = true` both ways, campus_drive's coupling)")):
+    for k, title in (("depth", "Response as shipped: position correction along the exit normal + reflection, "
+                               "the collision unit testing the network's pose"),
+                     ("reflect", "Without the depth connections: reflection only"),
+                     ("linear", "As shipped, but the poses extrapolated half a step on their way to the collision "
+                                "unit (campus_drive's coupling)")):
         rows, wall = res[k]
         lines += [f"## {title}", "", f"Run wall time {wall:.1f} s.", "", "| " + " | ".join(cols) + " |",
                   "|" + "---|" * len(cols)]
