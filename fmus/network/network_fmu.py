@@ -93,6 +93,8 @@ class network(TableSlave):
         Var("dis_threshold", "parameter", "Real", 0.0, "m", "DIS update threshold; <= 0 publishes every frame"),
         Var("scene_size", "parameter", "Real", 100.0, "m", "side of the square scene"),
         Var("entity_speed", "parameter", "Real", 2.0, "m/s", "initial speed of the free entities"),
+        Var("avatar_length", "parameter", "Real", 0.0, "m", "length of an avatar's footprint box: a collision response that turns the avatar moves it out by the box's turn as well (0: no box)"),
+        Var("avatar_width", "parameter", "Real", 0.0, "m", "width of an avatar's footprint box (see avatar_length)"),
         Var("latency_scale", "input", "Real", 1.0, "1", "multiplies every link latency (inject latency bursts), >= 0"),
     ) + _player_vars() + (
         Var("inconsistency_max", "output", "Real", 0.0, "m", "max position error of any displayed copy in the step (eq. 3-1/3-2)"),
@@ -133,6 +135,9 @@ class network(TableSlave):
         for name in ("latency_ms", "jitter_ms", "scene_size"):
             if v[name] < 0 or (name == "scene_size" and v[name] == 0):
                 raise self._param_error(name, "must be positive")
+        for name in ("avatar_length", "avatar_width"):
+            if v[name] < 0:
+                raise self._param_error(name, "must be >= 0")
         if v["scene_size"] > MAX_SCENE_SIZE:   # squared distances of larger scenes overflow
             raise self._param_error("scene_size", f"must be at most {MAX_SCENE_SIZE:g} m")
         if not 0 <= v["loss"] < 1:
@@ -144,7 +149,7 @@ class network(TableSlave):
             ownership_foci=v["ownership_foci"], ownerless=bool(v["ownerless"]),
             state_traffic=v["state_traffic"], frame_phase=bool(v["frame_phase"]),
             grid=bool(v["grid"]), dis_threshold=v["dis_threshold"], scene_size=v["scene_size"],
-            entity_speed=v["entity_speed"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
+            entity_speed=v["entity_speed"], avatar_length=v["avatar_length"], avatar_width=v["avatar_width"], links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": wan})
         self.model = NetworkModel(cfg)
         self._key = None         # see _output_key
         self._out = None         # the Real outputs the last step wrote (see _check_outputs)

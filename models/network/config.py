@@ -159,8 +159,9 @@ class WorldConfig:
     Entities: entity_speed (initial, m/s), entity_drag (1/s). Contacts: avatar_radius,
     entity_radius (m), restitution e, avatar_mass and entity_mass (kg; an infinite avatar mass is
     immovable): impulses and separations are split by inverse mass, so with equal masses no entity
-    leaves a collision faster than its speed plus the avatar's (e <= 1). substeps : integration
-    substeps per frame.
+    leaves a collision faster than its speed plus the avatar's (e <= 1). avatar_length,
+    avatar_width (m): the avatar's footprint box, whose turn in a collision response the position
+    correction adds (World.bounce_avatar; 0: none). substeps : integration substeps per frame.
     """
 
     max_accel: float = 4.0
@@ -172,6 +173,8 @@ class WorldConfig:
     avatar_mass: float = 1000.0
     entity_mass: float = 1000.0
     avatar_radius: float = 2.0
+    avatar_length: float = 0.0
+    avatar_width: float = 0.0
     entity_radius: float = 1.0
     entity_speed: float = 2.0
     entity_drag: float = 0.02
@@ -182,6 +185,8 @@ class WorldConfig:
     def __post_init__(self) -> None:
         _check([
             (self.avatar_start in ("cluster", "uniform"), f"avatar_start {self.avatar_start!r} not in ('cluster', 'uniform')"),
+            (self.avatar_length >= 0 and self.avatar_width >= 0,
+             f"avatar_length = {self.avatar_length}, avatar_width = {self.avatar_width} must be >= 0"),
             (self.avatar_mass > 0 and self.entity_mass > 0 and math.isfinite(self.entity_mass),
              f"avatar_mass = {self.avatar_mass}, entity_mass = {self.entity_mass} must be > 0 (entity finite)"),
         ])

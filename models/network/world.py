@@ -54,6 +54,13 @@ def _any_within(a: list, b: list, r2: float) -> bool:
     return False
 
 
+def half_extent(a: float, b: float, yaw: float, n) -> float:
+    """Half-extent (m) along the unit vector ``n`` (2,) of a box of half-length ``a`` (along
+    the heading ``yaw``, rad) and half-width ``b``: ``a |cos(yaw - phi)| + b |sin(yaw - phi)|``."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return a * abs(c * n[0] + s * n[1]) + b * abs(-s * n[0] + c * n[1])
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     """``a`` made read-only (a shared constant)."""
     a.flags.writeable = False
@@ -435,22 +442,32 @@ class World:
         ``depth`` (m). The avatar moves ``depth`` along the normal (out of the obstacle) and,
         when approaching (``v.n < 0``), its velocity is reflected: ``v <- v - (1 + e)(v.n) n``.
 
-        Returns the velocity change |dv| (m/s, the jolt; the position correction is not felt);
-        0 when the avatar is not approaching.
+        The heading follows the new velocity; the footprint box (``avatar_length`` x
+        ``avatar_width``) turned with it reaches ``sigma(yaw') - sigma(yaw)`` further towards the
+        obstacle (``sigma`` its half-extent along ``n``, :func:`half_extent`), which the position
+        correction adds: after the response the box touches a flat face instead of swinging a
+        corner into it. Returns the velocity change |dv| (m/s, the jolt; the position
+        correction is not felt); 0 when the avatar is not approaching.
         """
         n = np.asarray(normal, float)
         norm = np.hypot(*n)
         if norm == 0.0:
             return 0.0
         n = n / norm
-        if depth > 0.0:
-            apos = self.apos.copy()     # (a new array: the kept state keys compare bytes)
-            apos[g] += float(depth) * n
-            self.apos = apos
         vn = float(self.avel[g] @ n)
-        if vn >= 0.0:
-            return 0.0
-        return self._change_avatar_velocity(g, -(1.0 + restitution) * vn * n)
+        jolt, yaw0 = 0.0, float(self.yaw[g])
+        if vn < 0.0:
+            jolt = self._change_avatar_velocity(g, -(1.0 + restitution) * vn * n)
+        wc = self.cfg.world
+        move = max(float(depth), 0.0)
+        if jolt and (wc.avatar_length or wc.avatar_width):
+            a, b = 0.5 * wc.avatar_length, 0.5 * wc.avatar_width
+            move += max(0.0, half_extent(a, b, float(self.yaw[g]), n) - half_extent(a, b, yaw0, n))
+        if move > 0.0:
+            apos = self.apos.copy()     # (a new array: the kept state keys compare bytes)
+            apos[g] += move * n
+            self.apos = apos
+        return jolt
 
     def push_entity(self, e: int, dv) -> None:
         """Apply a velocity change ``dv`` (2,) m/s to entity ``e`` (collision response)."""

@@ -129,11 +129,11 @@ def _scene():
     return parse_scene(TANK)
 
 
-def _drive(throttle, steer, n_steps, start=(100.0, 80.0), yaw=math.pi / 2, v0=0.0):
+def _drive(throttle, steer, n_steps, start=(100.0, 80.0), yaw=math.pi / 2, v0=0.0, **cfg):
     """Avatar driven by ``throttle(k), steer(k)`` against a tank at (100, 100) (side face y = 98.3);
     the collision model sees the avatar's pose after each network step, the network responds to
     that report at the start of its next step. Returns per step (depth, contact, |v|, v.n, n)."""
-    m = _model()
+    m = _model(**cfg)
     w = m.world
     w.apos[0], w.yaw[0], w.speed[0] = start, yaw, v0
     coll = make_backend("fcl", _scene(), "av vs t (horizontal)", BackendConfig(max_distance=2.0))
@@ -184,3 +184,49 @@ def test_the_avatar_leaves_the_contact_when_steered_away():
     after = [r[1] for r in rows[turn:]]
     last = max([i for i, c in enumerate(after) if c], default=-1)
     assert (last + 1) * H <= 1.0
+
+
+def _corners(xy, yaw, a=2.0, b=1.0):
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[xy[0] + c * u - s * v, xy[1] + s * u + c * v] for u in (-a, a) for v in (-b, b)])
+
+
+@pytest.mark.parametrize("deg", [-80.0, -60.0, -30.0])
+def test_a_turning_bounce_leaves_the_box_touching_the_face(deg):
+    """A 4 x 2 m box 0.25 m into the face y = 0 (heading ``deg`` into it) bounces (e = 0.5): the
+    reflected velocity turns the box; with its footprint known the response moves it out by the
+    depth plus the turn's extra reach, so its lowest corner ends on the face (or above it, when
+    the turn shortens its reach) and the jolt is the velocity change alone."""
+    yaw, d = math.radians(deg), 0.25
+    xy = np.array([50.0, 0.0])
+    xy[1] -= _corners(xy, yaw)[:, 1].min() + d            # lowest corner 0.25 m below the face
+    low = {}
+    for box in ((0.0, 0.0), (4.0, 2.0)):
+        m = _model(avatar_length=box[0], avatar_width=box[1])
+        w = m.world
+        w.apos[0], w.yaw[0], w.speed[0] = xy, yaw, 10.0
+        v0 = w.avel[0].copy()
+        jolt = m.bounce(0, (0.0, 1.0), restitution=0.5, depth=d)
+        v1 = w.avel[0]
+        assert v1[1] == pytest.approx(-0.5 * v0[1]) and v1[0] == pytest.approx(v0[0])
+        assert jolt == pytest.approx(float(np.hypot(*(v1 - v0))), rel=1e-12)
+        low[box] = _corners(w.apos[0], float(w.yaw[0]))[:, 1].min()
+    # reach of the half-extents along y before and after: 2 |sin| + |cos|
+    grow = 2 * abs(math.sin(math.atan2(-0.5 * math.sin(yaw), math.cos(yaw)))) + abs(math.cos(
+        math.atan2(-0.5 * math.sin(yaw), math.cos(yaw)))) - (2 * abs(math.sin(yaw)) + abs(math.cos(yaw)))
+    assert low[(0.0, 0.0)] == pytest.approx(-grow, abs=1e-9)    # without the box: the turn alone swings it
+    assert low[(4.0, 2.0)] == pytest.approx(max(-grow, 0.0), abs=1e-9)    # touching (or clear)
+
+
+@pytest.mark.parametrize("yaw_deg, start", [(-135.0, (109.0, 105.5)), (-150.0, (110.0, 104.0)), (-160.0, (110.0, 103.0))])
+def test_into_the_corner_of_hull_and_barrel_at_full_throttle(yaw_deg, start):
+    """Driven at full throttle, obliquely, into the tank's front (the concave corner of the
+    hull's front face and the barrel's side): the depth never exceeds one step's travel plus
+    5 cm, and one step after each response it is below 1 cm unless the avatar moves in again."""
+    rows = _drive(lambda k: 1.0, lambda k: 0.0, 150, start=start, yaw=math.radians(yaw_deg), v0=5.0,
+                  avatar_length=4.0, avatar_width=2.0)
+    assert any(r[1] for r in rows)
+    for k, (depth, c, sp, vn, n) in enumerate(rows):
+        assert depth <= sp * H + 0.05
+        if k and rows[k - 1][1] and vn >= 0.0:
+            assert depth < 0.01
