@@ -51,6 +51,39 @@ SCENE_UPDATE_SCHEMA = {
 }
 
 
+
+def _obj(**properties: Any) -> Dict[str, Any]:
+    return {"type": "object", "properties": properties}
+
+
+def _array(items: Dict[str, Any]) -> Dict[str, Any]:
+    return {"type": "array", "items": items}
+
+
+_NUM, _INT, _STR, _BOOL = ({"type": t} for t in ("number", "integer", "string", "boolean"))
+_VEC3, _COLOR = _obj(x=_NUM, y=_NUM, z=_NUM), _obj(r=_NUM, g=_NUM, b=_NUM, a=_NUM)
+_POSE, _TIME = _obj(position=_VEC3, orientation=_obj(x=_NUM, y=_NUM, z=_NUM, w=_NUM)), _obj(sec=_INT, nsec=_INT)
+#: the fields of each primitive ``/scene/meshes`` may hold
+_PRIMITIVES = {
+    "cubes": _obj(pose=_POSE, size=_VEC3, color=_COLOR),
+    "lines": _obj(type=_INT, pose=_POSE, thickness=_NUM, scale_invariant=_BOOL, points=_array(_VEC3),
+                  color=_COLOR, colors=_array(_COLOR), indices=_array(_INT)),
+    "models": _obj(pose=_POSE, scale=_VEC3, color=_COLOR, override_color=_BOOL, url=_STR, media_type=_STR,
+                   data={"type": "string", "contentEncoding": "base64"}),
+}
+
+
+def meshes_schema(kinds: Sequence[str]) -> bytes:
+    """The JSON schema (compact text) of a ``/scene/meshes`` SceneUpdate whose entities hold
+    the primitives ``kinds`` (``cubes``, ``lines``, ``models``). Every field is declared:
+    Foxglove's JSON reader needs each object's properties, and a model's ``data`` as base64
+    text (``contentEncoding``) to hand the GLB bytes to its model loader."""
+    entity = _obj(timestamp=_TIME, frame_id=_STR, id=_STR, lifetime=_TIME, frame_locked=_BOOL,
+                  **{k: _array(_PRIMITIVES[k]) for k in sorted(set(kinds))})
+    schema = {"title": "foxglove.SceneUpdate", **_obj(deletions=_array(_obj()), entities=_array(entity))}
+    return json.dumps(schema, separators=(",", ":")).encode()
+
+
 @dataclass
 class Body:
     name: str
@@ -182,7 +215,7 @@ class FoxgloveObserver:
     cosine. ``/scene`` holds frame-locked entities of a fixed shape, size and colour that never
     expire: it is written at the first step and then once per ``scene_period_s`` of simulated
     time (a viewer that seeks or joins late finds a recent one; Foxglove keeps the last one per
-    topic).
+    topic); a view whose bodies are all drawn by ``/scene/meshes`` has no ``/scene``.
 
     Parameters
     ----------
@@ -262,11 +295,18 @@ class FoxgloveObserver:
             sid = w.register_schema(name="foxglove.FrameTransforms", encoding="jsonschema",
                                     data=json.dumps(FRAME_TRANSFORMS_SCHEMA).encode())
             self._tf = w.register_channel(topic="/tf", message_encoding="json", schema_id=sid)
-        sid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
-                                data=json.dumps(SCENE_UPDATE_SCHEMA).encode())
-        self._scene = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid)
-        self._meshes = (w.register_channel(topic="/scene/meshes", message_encoding="json", schema_id=sid)
-                        if self.meshes else None)
+        # /scene only when a body is a primitive of it (the units' bodies are drawn by /scene/meshes)
+        drawn = any(b.shape != "mesh" for b in bodies)
+        sid = self._scene = self._meshes = None
+        if drawn or self._steps:
+            sid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
+                                    data=json.dumps(SCENE_UPDATE_SCHEMA).encode())
+        if drawn:
+            self._scene = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid)
+        if self.meshes:
+            mid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
+                                    data=meshes_schema([m.kind for m in self.meshes]))
+            self._meshes = w.register_channel(topic="/scene/meshes", message_encoding="json", schema_id=mid)
         self._step_channels = [w.register_channel(topic=part.topic, message_encoding="json", schema_id=sid)
                                for part, _ in self._steps]
 
@@ -325,6 +365,8 @@ class FoxgloveObserver:
                                          data=orjson.dumps(meshes_message(self.meshes, t_ns)))
         if self._next_scene is None or t_ns >= self._next_scene:
             self._next_scene = t_ns + self._period_ns
+            if self._scene is None:
+                return
             stamp = time_stamp(t_ns)
             self.mcap.writer.add_message(self._scene, log_time=t_ns, publish_time=t_ns, sequence=k,
                                          data=orjson.dumps({"deletions": [], "entities": self._entities(stamp)}))

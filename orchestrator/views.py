@@ -6,25 +6,29 @@ posed by ``pose.*`` with A = A_x(gamma) A_y(beta) A_z(alpha), eq. 6-8), its six 
 (static lines over the stroke range) and its six rods from the closed-form inverse kinematics
 (eq. 6-14..6-19: ball joint B_i to slider C_i, redrawn every step on ``/scene/<unit>``); and
 for every loaded instance of the built-in ``collision`` unit, the bodies of its scene drawn
-with their own triangles:
+with their own triangles, as glTF models (Foxglove ``ModelPrimitive``, :mod:`.glb`):
 
 * a dynamic body (the FMU's ``body[j]``) is a frame of ``/tf`` posed by its inputs
   ``body[j].x, y, z, roll, pitch, yaw`` (R = Rz(yaw) Ry(pitch) Rx(roll), eq. 4-4), and its
   mesh, in the body's own coordinates, is frame-locked to that frame;
-* a static body never moves: its triangles are placed in the ``world`` frame once.
+* the static bodies never move: one model in the ``world`` frame holds each distinct mesh
+  once and every static body as a copy of it at the body's pose.
 
 The meshes go into the log once, on ``/scene/meshes`` at the start time (Foxglove keeps the
 last message of a topic, so a viewer that seeks still has them), never per step. Above
 ``mesh_triangles`` triangles of static bodies in a scene, the static bodies are drawn as their
-oriented bounding boxes instead (a 5040-tank field would otherwise put 27 million triangles
-into the log).
+oriented bounding boxes instead (a 5040-tank field would otherwise make a viewer draw 27
+million triangles).
 """
 from __future__ import annotations
 
+import base64
 from dataclasses import dataclass
-from typing import Any, List, Sequence, Tuple
+from typing import Any, Dict, List, Sequence, Tuple
 
 import numpy as np
+
+from .glb import Placed, model_glb
 
 #: colours (RGBA) by body group; other groups get the default
 COLORS = {"tank": (0.35, 0.42, 0.3, 1.0), "missile": (0.85, 0.2, 0.15, 1.0)}
@@ -34,33 +38,38 @@ PLATFORM_MODEL = "platform"
 PLATE_COLOR = (0.2, 0.5, 0.9, 1.0)
 RAIL_COLOR = (0.45, 0.45, 0.45, 1.0)
 ROD_COLOR = (0.95, 0.75, 0.2, 1.0)
+GLB_MEDIA_TYPE = "model/gltf-binary"
 
 
 @dataclass(frozen=True)
 class MeshEntity:
-    """One entity of ``/scene/meshes``: triangles (``vertices[faces]``) in frame ``frame_id``,
-    or, with ``box`` set, a cube of size ``box[0]`` posed by ``box[1]`` (4x4) in that frame."""
+    """One entity of ``/scene/meshes`` in frame ``frame_id``: a glTF model (``model``: GLB
+    bytes, :mod:`.glb`), a cube of size ``box`` (x, y, z, m) at the frame's origin, or the
+    segments of ``lines``."""
 
     id: str
     frame_id: str
-    vertices: Any = None   # (n, 3) float
-    faces: Any = None      # (m, 3) int
     color: Tuple[float, float, float, float] = DEFAULT_COLOR
-    box: Any = None
+    model: bytes = b""
+    box: Any = None        # (3,) float: size, m
     lines: Any = None      # (2k, 3) float: k segments (a LINE_LIST)
 
+    @property
+    def kind(self) -> str:
+        """The Foxglove primitive the entity is drawn with: ``lines``, ``cubes`` or ``models``."""
+        return "lines" if self.lines is not None else "cubes" if self.box is not None else "models"
+
     def primitive(self) -> dict:
-        """The entity's Foxglove primitive (``triangles``, ``cubes`` or ``lines``) as a JSON-ready dict."""
+        """The entity's Foxglove primitive (``models``, ``cubes`` or ``lines``) as a JSON-ready
+        dict; a model's bytes as base64 text (the schema's ``contentEncoding``)."""
         color = dict(zip("rgba", self.color))
         if self.lines is not None:
             return {"lines": [line_list(self.lines, self.color)]}
         if self.box is not None:
-            size, T = self.box
-            return {"cubes": [{"pose": _pose(T), "size": dict(zip("xyz", map(float, size))), "color": color}]}
-        pts = np.asarray(self.vertices, dtype=float)
-        return {"triangles": [{"pose": _identity_pose(), "points": [dict(zip("xyz", p)) for p in pts.tolist()],
-                               "color": color, "colors": [],
-                               "indices": np.asarray(self.faces, dtype=np.int64).ravel().tolist()}]}
+            return {"cubes": [{"pose": _identity_pose(), "size": dict(zip("xyz", map(float, self.box))), "color": color}]}
+        return {"models": [{"pose": _identity_pose(), "scale": {"x": 1.0, "y": 1.0, "z": 1.0}, "color": color,
+                            "override_color": False, "url": "", "media_type": GLB_MEDIA_TYPE,
+                            "data": base64.b64encode(self.model).decode()}]}
 
 
 def line_list(points: Any, color: Sequence[float], thickness: float = 0.02) -> dict:
@@ -71,17 +80,16 @@ def line_list(points: Any, color: Sequence[float], thickness: float = 0.02) -> d
 
 
 def _identity_pose() -> dict:
-    """The pose of :func:`_pose` for the identity (no rotation call: a platform's rods are
-    redrawn every step)."""
+    """The identity pose (a platform's rods are redrawn every step: no rotation call)."""
     return {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
 
 
-def _pose(T: np.ndarray) -> dict:
-    from scipy.spatial.transform import Rotation
+def _box_mesh(bounds: Any) -> Tuple[np.ndarray, np.ndarray]:
+    """Vertices (8, 3) and faces (12, 3) of the axis-aligned box ``bounds`` = (lo, hi)."""
+    import trimesh
 
-    x, y, z, w = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_quat()
-    return {"position": dict(zip("xyz", map(float, np.asarray(T)[:3, 3]))),
-            "orientation": {"x": float(x), "y": float(y), "z": float(z), "w": float(w)}}
+    box = trimesh.creation.box(bounds=np.asarray(bounds, dtype=float))
+    return np.asarray(box.vertices), np.asarray(box.faces)
 
 
 def collision_view(unit: str, scene_spec: str, mesh_triangles: int) -> Tuple[List[Any], List[MeshEntity]]:
@@ -90,15 +98,15 @@ def collision_view(unit: str, scene_spec: str, mesh_triangles: int) -> Tuple[Lis
     Parameters
     ----------
     unit : str
-        Instance name (frames are ``<unit>/<body name>``).
+        Instance name (frames are ``<unit>/<body name>``; the static bodies are the entity
+        ``<unit>/static`` in ``world``).
     scene_spec : str
         The instance's ``scene`` parameter (the collision unit's scene language).
     mesh_triangles : int
         Budget of static triangles; beyond it static bodies are drawn as bounding boxes.
     """
-    from ..models.collision.geometry import pose_matrix
     from ..models.collision.scene import parse_scene
-    from .foxglove import Body
+    from .foxglove import Body, euler_quaternion
 
     scene = parse_scene(scene_spec)
     bodies, meshes = [], []
@@ -106,24 +114,26 @@ def collision_view(unit: str, scene_spec: str, mesh_triangles: int) -> Tuple[Lis
     boxes = sum(len(scene.mesh(i).faces) for i in static) > mesh_triangles
     for j, i in enumerate(scene.dynamic, 1):
         b = scene.bodies[i]
-        frame = f"{unit}/{b.name}"
+        frame, color = f"{unit}/{b.name}", COLORS.get(b.group, DEFAULT_COLOR)
         refs = [f"{unit}.body[{j}].{axis}" for axis in ("x", "y", "z", "roll", "pitch", "yaw")]
         bodies.append(Body(frame, "world", tuple(refs[:3]), tuple(refs[3:]), "zyx", (0.0, 0.0, 0.0), "mesh",
-                           (1.0, 1.0, 1.0), COLORS.get(b.group, DEFAULT_COLOR)))
+                           (1.0, 1.0, 1.0), color))
         mesh = scene.mesh(i)
-        meshes.append(MeshEntity(frame, frame, mesh.vertices, mesh.faces, COLORS.get(b.group, DEFAULT_COLOR)))
+        meshes.append(MeshEntity(frame, frame, color, model_glb([Placed(mesh.vertices, mesh.faces, color,
+                                                                        [[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0, 1.0]])])))
+    copies: Dict[Tuple[str, tuple], List[int]] = {}   # (mesh, colour) -> its static bodies
     for i in static:
         b = scene.bodies[i]
-        mesh, T = scene.mesh(i), pose_matrix(b.pose)
-        color = COLORS.get(b.group, DEFAULT_COLOR)
-        if boxes:
-            lo, hi = mesh.bounds
-            centre = np.eye(4)
-            centre[:3, 3] = (lo + hi) / 2
-            meshes.append(MeshEntity(f"{unit}/{b.name}", "world", color=color, box=(hi - lo, T @ centre)))
-        else:
-            verts = np.asarray(mesh.vertices) @ T[:3, :3].T + T[:3, 3]
-            meshes.append(MeshEntity(f"{unit}/{b.name}", "world", verts, mesh.faces, color))
+        copies.setdefault((b.mesh_key, COLORS.get(b.group, DEFAULT_COLOR)), []).append(i)
+    parts = []
+    for (_, color), members in copies.items():
+        mesh = scene.mesh(members[0])
+        vertices, faces = _box_mesh(mesh.bounds) if boxes else (mesh.vertices, mesh.faces)
+        poses = np.array([scene.bodies[i].pose for i in members], dtype=float)
+        parts.append(Placed(vertices, faces, color, poses[:, :3],
+                            [euler_quaternion(*p[3:], "zyx") for p in poses.tolist()]))
+    if parts:
+        meshes.append(MeshEntity(f"{unit}/static", "world", DEFAULT_COLOR, model_glb(parts)))
     return bodies, meshes
 
 
@@ -167,7 +177,7 @@ def platform_view(unit: str, parameters: dict) -> Tuple[List[Any], List[MeshEnti
     body = Body(plate, "world", tuple(refs[:3]), tuple(refs[3:]), "xyz", (0.0, 0.0, 0.0), "mesh",
                 (p.size_x, p.size_y, p.size_z), PLATE_COLOR)
     rails = np.concatenate([[c + p.stroke_min * e, c + p.stroke_max * e] for c, e in zip(p.sliders_home, p.axes)])
-    meshes = [MeshEntity(plate, plate, color=PLATE_COLOR, box=((p.size_x, p.size_y, p.size_z), np.eye(4))),
+    meshes = [MeshEntity(plate, plate, color=PLATE_COLOR, box=(p.size_x, p.size_y, p.size_z)),
               MeshEntity(f"{unit}/rails", "world", color=RAIL_COLOR, lines=rails)]
     return [body], meshes, [PlatformRods(unit, p)]
 

@@ -1,6 +1,7 @@
 """The 3D view of what the units describe: the collision unit's meshes, once, posed by its inputs."""
 from __future__ import annotations
 
+import base64
 import json
 
 import numpy as np
@@ -49,26 +50,113 @@ def _messages(path):
                 if c.topic in ("/tf", "/scene/meshes", "coll")]
 
 
+def _accessor(gltf, binary, i):
+    """An accessor's values as read by the glTF 2.0 specification (tightly packed views)."""
+    acc = gltf["accessors"][i]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    dtype = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}[acc["componentType"]]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc["type"]]
+    data = np.frombuffer(binary, dtype, acc["count"] * width, view.get("byteOffset", 0) + acc.get("byteOffset", 0))
+    return data.reshape(acc["count"], width).astype(float)
+
+
+def _trs(node):
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(node.get("rotation", [0, 0, 0, 1])).as_matrix()
+    T[:3, 3] = node.get("translation", [0, 0, 0])
+    return T
+
+
+def _drawn(model):
+    """Every copy of every mesh of a ``ModelPrimitive``'s GLB as Foxglove places it: the node
+    chain, each GPU instance (EXT_mesh_gpu_instancing) and Foxglove's +90 degrees about x of a
+    glTF model (y-up) into its z-up world. Returns a list of (vertices (n, 3), faces (m, 3))."""
+    import io
+    import struct
+
+    import trimesh
+
+    assert model["media_type"] == "model/gltf-binary" and model["url"] == ""
+    data = base64.b64decode(model["data"])   # the schema's contentEncoding
+    magic, version, total = struct.unpack_from("<4sII", data)
+    assert (magic, version, total) == (b"glTF", 2, len(data))
+    n = struct.unpack_from("<I", data, 12)[0]
+    gltf, binary = json.loads(data[20:20 + n]), data[28 + n:]
+    scene = trimesh.load(io.BytesIO(data), file_type="glb", force="scene")   # a reference importer reads it
+    assert len(scene.graph.nodes_geometry) == sum("mesh" in node for node in gltf["nodes"])
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_euler("x", 90, degrees=True).as_matrix()
+    out = []
+
+    def walk(i, parent):
+        node = gltf["nodes"][i]
+        T = parent @ _trs(node)
+        if "mesh" in node:
+            (prim,) = gltf["meshes"][node["mesh"]]["primitives"]
+            vertices = _accessor(gltf, binary, prim["attributes"]["POSITION"])
+            faces = _accessor(gltf, binary, prim["indices"]).astype(int).reshape(-1, 3)
+            inst = node.get("extensions", {}).get("EXT_mesh_gpu_instancing", {}).get("attributes")
+            copies = [np.eye(4)]
+            if inst:
+                t = _accessor(gltf, binary, inst["TRANSLATION"])
+                q = _accessor(gltf, binary, inst["ROTATION"]) if "ROTATION" in inst else [[0, 0, 0, 1]] * len(t)
+                copies = [_trs({"translation": a, "rotation": b}) for a, b in zip(t, q)]
+            for C in copies:
+                M = T @ C
+                out.append((vertices @ M[:3, :3].T + M[:3, 3], faces))
+        for child in node.get("children", []):
+            walk(child, T)
+
+    for root in gltf["scenes"][gltf.get("scene", 0)]["nodes"]:
+        walk(root, turn)
+    return out
+
+
+def _conforms(schema, value, path="message"):
+    """``value`` holds only fields ``schema`` declares, of their types, in the shape Foxglove's
+    JSON reader needs (every object with its properties, every array with typed items)."""
+    kind = schema["type"]
+    if kind == "object":
+        assert isinstance(value, dict) and "properties" in schema, path
+        for k, v in value.items():
+            assert k in schema["properties"], f"{path}.{k} is not in the schema"
+            _conforms(schema["properties"][k], v, f"{path}.{k}")
+    elif kind == "array":
+        assert isinstance(value, list) and "type" in schema["items"], path
+        for v in value:
+            _conforms(schema["items"], v, path + "[]")
+    else:
+        types = {"number": (int, float), "integer": int, "string": str, "boolean": bool}[kind]
+        assert isinstance(value, types), path
+
+
 def test_meshes_are_logged_once_with_their_own_triangles(tmp_path, built_fmus):
+    """Each body drawn with its own triangles: the dynamic ones in their own frame, every static
+    one a copy of its mesh at its pose (trimesh's own transform as the reference)."""
     out = tmp_path / "view.mcap"
     Execution(_scenario(tmp_path, built_fmus["collision"]), out).run()
     msgs = _messages(out)
     meshes = [m for t, _, m in msgs if t == "/scene/meshes"]
     assert len(meshes) == 1   # once, not per step
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()
+    (channel,) = [c for c in summary.channels.values() if c.topic == "/scene/meshes"]
+    _conforms(json.loads(summary.schemas[channel.schema_id].data), meshes[0])
     scene = parse_scene(SCENE)
     entities = {e["id"]: e for e in meshes[0]["entities"]}
-    assert set(entities) == {f"coll/{b.name}" for b in scene.bodies}
-    for i, b in enumerate(scene.bodies):
-        tri = entities[f"coll/{b.name}"]["triangles"][0]
-        mesh = scene.mesh(i)
-        assert len(tri["indices"]) == 3 * len(mesh.faces)
-        pts = np.array([[p["x"], p["y"], p["z"]] for p in tri["points"]])
-        if b.dynamic:   # in the body's own frame, frame-locked to its /tf frame
-            assert entities[f"coll/{b.name}"]["frame_id"] == f"coll/{b.name}"
-            np.testing.assert_array_equal(pts, mesh.vertices)
-        else:           # static: placed in the world once (trimesh's own transform as the reference)
-            assert entities[f"coll/{b.name}"]["frame_id"] == "world"
-            np.testing.assert_allclose(pts, mesh.copy().apply_transform(pose_matrix(b.pose)).vertices, atol=1e-12)
+    assert set(entities) == {"coll/missile", "coll/static"}
+    (missile,) = _drawn(entities["coll/missile"]["models"][0])
+    assert entities["coll/missile"]["frame_id"] == "coll/missile"   # frame-locked to its /tf frame
+    mesh = scene.mesh(scene.index("missile"))
+    np.testing.assert_allclose(missile[0], mesh.vertices, atol=1e-6)
+    np.testing.assert_array_equal(missile[1], mesh.faces)
+    assert entities["coll/static"]["frame_id"] == "world"
+    drawn = _drawn(entities["coll/static"]["models"][0])
+    static = [i for i, b in enumerate(scene.bodies) if not b.dynamic]
+    assert len(drawn) == len(static) == 3
+    for i in static:
+        want = scene.mesh(i).copy().apply_transform(pose_matrix(scene.bodies[i].pose))
+        assert sum(np.allclose(v, want.vertices, atol=1e-5) and np.array_equal(f, want.faces) for v, f in drawn) == 1
 
 
 def test_dynamic_bodies_follow_their_pose_inputs(tmp_path, built_fmus):
@@ -92,16 +180,36 @@ def test_static_bodies_beyond_the_budget_are_their_bounding_boxes(tmp_path, buil
     Execution(_scenario(tmp_path, built_fmus["collision"], "mesh_triangles = 1000"), out).run()
     (meshes,) = [m for t, _, m in _messages(out) if t == "/scene/meshes"]
     scene = parse_scene(SCENE)
-    for e in meshes["entities"]:
-        i = scene.index(e["id"].split("/", 1)[1])
-        if scene.bodies[i].dynamic:
-            assert "triangles" in e   # dynamic bodies keep their meshes
-            continue
-        (cube,) = e["cubes"]
+    entities = {e["id"]: e for e in meshes["entities"]}
+    (missile,) = _drawn(entities["coll/missile"]["models"][0])   # dynamic bodies keep their meshes
+    assert len(missile[1]) == len(scene.mesh(scene.index("missile")).faces)
+    drawn = _drawn(entities["coll/static"]["models"][0])
+    static = [i for i, b in enumerate(scene.bodies) if not b.dynamic]
+    assert len(drawn) == len(static)
+    for i in static:   # the 8 corners of the body's bounds, at its pose
         lo, hi = scene.mesh(i).bounds
-        assert [cube["size"][k] for k in "xyz"] == pytest.approx(hi - lo)
-        centre = pose_matrix(scene.bodies[i].pose) @ np.append((lo + hi) / 2, 1.0)
-        assert [cube["pose"]["position"][k] for k in "xyz"] == pytest.approx(centre[:3])
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        T = pose_matrix(scene.bodies[i].pose)
+        want = corners @ T[:3, :3].T + T[:3, 3]
+        hits = [v for v, f in drawn if len(f) == 12 and np.allclose(np.sort(v, axis=0), np.sort(want, axis=0), atol=1e-5)]
+        assert len(hits) == 1
+
+
+def test_a_field_of_tanks_is_one_mesh_and_a_table_per_row():
+    """5040 tanks on a 71 x 71 grid: one box mesh, rows sharing an instance table, every tank
+    drawn once at its place; the model stays a few kilobytes."""
+    from immersim.orchestrator.views import collision_view
+
+    scene = parse_scene("tanks:n=5040,tris=5.4k,spacing=10")
+    _, (static,) = collision_view("coll", "tanks:n=5040,tris=5.4k,spacing=10", 500_000)
+    model = static.primitive()["models"][0]
+    drawn = _drawn(model)
+    assert len(drawn) == 5040
+    lo, hi = scene.mesh(0).bounds
+    centres = np.array(sorted(tuple(np.round(v.mean(axis=0) - (lo + hi) / 2, 6)) for v, _ in drawn))
+    want = np.array(sorted(tuple(np.round(b.pose[:3], 6)) for b in scene.bodies))
+    np.testing.assert_allclose(centres, want, atol=1e-4)
+    assert len(base64.b64decode(model["data"])) < 16_000
 
 
 def test_the_platform_is_drawn_from_its_geometry_at_its_pose(tmp_path, built_fmus):
