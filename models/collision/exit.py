@@ -40,16 +40,41 @@ def convex_parts(mesh) -> List[np.ndarray]:
     return out
 
 
+#: relative tolerance of :func:`polygon`: a point within this times the largest coordinate of
+#: the line through its neighbours is no vertex (qhull's merging of nearly collinear edges)
+COLLINEAR = 1e-12
+
+
 def polygon(points: np.ndarray) -> np.ndarray:
     """Convex hull (counter-clockwise vertices, (m, 2)) of 2-D ``points`` (k, 2); fewer than
-    three points or collinear ones: the points themselves."""
-    from scipy.spatial import ConvexHull, QhullError  # (scipy.spatial: ~0.3 s to import, only on a contact)
+    three points or collinear ones: the points themselves.
 
-    try:
-        h = ConvexHull(points)
-    except (QhullError, ValueError):
-        return np.asarray(points, float)
-    return np.asarray(points, float)[h.vertices]
+    Andrew's monotone chain over the points sorted by x, then y: the lower and the upper chain,
+    a point dropped while it is not left of the line from the one before to the next by more
+    than :data:`COLLINEAR` (duplicates and nearly collinear points are no vertices, as in
+    qhull's hull); the vertices are input points, the first the leftmost (then lowest).
+    """
+    P = np.asarray(points, float)
+    if len(P) < 3:
+        return P
+    pts = P[np.lexsort((P[:, 1], P[:, 0]))].tolist()
+    tol = COLLINEAR * (float(np.abs(P).max()) or 1.0)
+    hull = _chain(pts, tol)[:-1] + _chain(pts[::-1], tol)[:-1]
+    return np.array(hull) if len(hull) >= 3 else P
+
+
+def _chain(pts: list, tol: float) -> list:
+    """One half of the monotone chain: the points of ``pts`` (sorted) that turn left."""
+    out: list = []
+    for p in pts:
+        while len(out) >= 2:
+            (ox, oy), (ax, ay) = out[-2], out[-1]
+            ex, ey = p[0] - ox, p[1] - oy
+            if (ax - ox) * ey - (ay - oy) * ex > tol * (abs(ex) + abs(ey)):
+                break
+            out.pop()
+        out.append(p)
+    return out
 
 
 def edge_normals(poly: np.ndarray) -> np.ndarray:

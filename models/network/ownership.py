@@ -27,18 +27,30 @@ from .pdu import PduType, record_bytes
 def initial_owners(cfg, world) -> np.ndarray:
     """Owning group (G + E,) of every object at the start: avatars their group, entities the
     nearest avatar (round robin without an ownership rule); with ``cfg.consistency.ownerless`` the region
-    of a resting avatar holding the entity, else none (-1)."""
+    of a resting avatar holding the entity, else none (-1). The nearest avatar: every pair up to
+    ``world.paths.brute_owners`` pairs, else a k-d tree (the same squared distances, the same
+    owners; of two avatars at exactly the same distance the brute force takes the first)."""
     G, E = cfg.groups, cfg.entities
     if cfg.consistency.ownership == "none" or E == 0:
         ent = np.arange(E) % G
     elif cfg.consistency.ownerless:
         ent = assign_owners(cfg.consistency.ownership, world.apos, np.zeros((G, 2)), world.epos, np.full(E, -1, np.int64),
                             cfg.scene.frame_s, cfg.consistency.ownership_scale, cfg.consistency.ownership_min_axis, cfg.consistency.ownership_foci)
+    elif G * E <= world.paths.brute_owners:
+        ent = nearest(world.epos, world.apos)
     else:
         from scipy.spatial import cKDTree
 
         ent = cKDTree(world.apos).query(world.epos)[1].astype(np.int64)
     return np.r_[np.arange(G), ent]
+
+
+def nearest(q: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Index (k,) int64 of the point of ``pts`` (n, 2) m nearest each query point ``q`` (k, 2) m,
+    by every pair's squared distance ``dx dx + dy dy`` (a k-d tree's own sum); ties: the first."""
+    dx = q[:, None, 0] - pts[None, :, 0]
+    dy = q[:, None, 1] - pts[None, :, 1]
+    return np.argmin(dx * dx + dy * dy, axis=1).astype(np.int64)
 
 
 class Ownership:

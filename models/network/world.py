@@ -61,6 +61,15 @@ def half_extent(a: float, b: float, yaw: float, n) -> float:
     return a * abs(c * n[0] + s * n[1]) + b * abs(-s * n[0] + c * n[1])
 
 
+def ball_pairs(a: np.ndarray, b: np.ndarray, r: float):
+    """Every pair (i, j) of points ``a[i]`` (n, 2), ``b[j]`` (m, 2) m at most ``r`` m apart,
+    ``dx dx + dy dy <= r r``, by ``i`` then ``j``: the pairs and order of a k-d tree's
+    ``query_ball_tree`` (its lists are sorted), from the same squared distances."""
+    dx = b[:, 0] - a[:, 0, None]
+    dy = b[:, 1] - a[:, 1, None]
+    return np.nonzero(dx * dx + dy * dy <= r * r)
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     """``a`` made read-only (a shared constant)."""
     a.flags.writeable = False
@@ -502,7 +511,6 @@ class World:
             close = np.flatnonzero(d2 <= r * r * (1.0 + 1e-9))
             if not len(close):   # (an overlap needs its separation even when not approaching)
                 return _NO_CONTACTS
-            etree = etree.tree
         elif etree is None and G * E <= self.paths.scalar_contacts:
             # tiny scenes: the same brute-force check in Python floats (the same differences,
             # squares and bound)
@@ -516,14 +524,13 @@ class World:
             dy = self.epos[:, 1] - self.apos[:, 1, None]
             if not ((dx * dx + dy * dy) <= r * r * (1.0 + 1e-9)).any():
                 return _NO_CONTACTS
-        from scipy.spatial import cKDTree   # (here: a frame without a contact candidate needs no import)
+        if G < 8:
+            ai, ei = ball_pairs(self.apos, self.epos, r)
+        else:   # (the pair order of the k-d tree's sparse distance matrix)
+            from scipy.spatial import cKDTree   # (here: a frame without a contact candidate needs no import)
 
-        etree = etree if etree is not None else cKDTree(self.epos)
-        pairs = cKDTree(self.apos).query_ball_tree(etree, r) if G < 8 else None
-        if pairs is not None:
-            ai = np.array([g for g, lst in enumerate(pairs) for _ in lst], int)
-            ei = np.array([e for lst in pairs for e in lst], int)
-        else:
+            etree = etree.tree if isinstance(etree, PointIndex) else etree
+            etree = etree if etree is not None else cKDTree(self.epos)
             sd = cKDTree(self.apos).sparse_distance_matrix(etree, r, output_type="ndarray")
             ai, ei = sd["i"].astype(int), sd["j"].astype(int)
         if online is not None:
