@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import ROOT, stamp  # noqa: E402
 
 OUT = ROOT / "results" / "network" / "scale_ab.md"
-DEFAULT_BASE = "c21e0c6^"
+DEFAULT_BASE = "1998c63"
 CHILD = r"""
 import json, sys, time
 if sys.argv[1]:
@@ -34,7 +34,8 @@ if sys.argv[1]:
 import numpy as np
 import immersim.models.network as net
 from immersim.models.network import NetworkConfig, NetworkModel
-cfg = NetworkConfig.from_flat(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform", seed=4)
+make = getattr(NetworkConfig, "from_flat", NetworkConfig)   # (a tree before the option groups: flat keywords)
+cfg = make(groups=250, render_nodes=4, entities=10_000, scene_size=2000.0, avatar_start="uniform", seed=4)
 m = NetworkModel(cfg)
 for _ in range(5):
     m.step(0.033)

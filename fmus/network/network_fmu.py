@@ -82,10 +82,10 @@ class network(TableSlave):
         Var("prediction_order", "parameter", "Integer", 1, "", "dead-reckoning order 0, 1, 2 (§3.6.3)"),
         Var("ownership", "parameter", "String", "mahalanobis", "", "entity ownership rule: mahalanobis (eq. 3-11/3-12) | euclidean | none"),
         Var("ownership_foci", "parameter", "String", "reach", "", "reading of eq. 3-12: reach (foci a apart, the region reaches ahead) | frame (literal: foci one frame apart, a circle)"),
-        Var("ownerless", "parameter", "Boolean", False, "", "an entity outside every ownership region has no owner: nobody publishes it, every node shows its own prediction (§3.6.3); false: it keeps its last owner"),
+        Var("ownerless", "parameter", "Boolean", True, "", "an entity outside every ownership region has no owner: nobody publishes it, every node shows its own prediction, the scene's entity law from its last record (§3.6.3); false: it keeps its last owner; no effect with ownership none"),
         Var("grid", "parameter", "Boolean", True, "", "10x10 scene grid with 9-cell neighbourhoods (§3.3)"),
-        Var("state_traffic", "parameter", "String", "object_view", "", "who gets an object's STATE records: object_view (every node whose 9 cells hold the object), or neighbour_nodes (only those whose avatar is in the 9 cells of the owner's avatar, §3.3)"),
-        Var("frame_phase", "parameter", "Boolean", False, "", "each render group's frame clock at its own seeded phase in [0, 33 ms): a record is shown at the receiver's first frame after its arrival (false: every clock in phase, records shown at the first tick after arrival)"),
+        Var("state_traffic", "parameter", "String", "neighbour_nodes", "", "who gets an object's STATE records: object_view (every node whose 9 cells hold the object), or neighbour_nodes (only those whose avatar is in the 9 cells of the owner's avatar, §3.3)"),
+        Var("frame_phase", "parameter", "Boolean", True, "", "every node's frame clock at its own seeded phase in [0, 33 ms), a group's slaves locked to its master: a record is shown at the receiver's first frame after its arrival (false: every clock in phase, records shown at the first tick after arrival)"),
         Var("latency_ms", "parameter", "Real", 20.0, "ms", "base one-way latency of WAN links (between sites)"),
         Var("jitter_ms", "parameter", "Real", 5.0, "ms", "mean of the exponential jitter added to WAN latency"),
         Var("loss", "parameter", "Real", 0.0, "1", "WAN message loss probability"),
@@ -128,8 +128,6 @@ class network(TableSlave):
             raise self._param_error("ownership_foci", "must be reach or frame")
         if v["state_traffic"] not in STATE_TRAFFIC:
             raise self._param_error("state_traffic", f"must be one of {', '.join(STATE_TRAFFIC)}")
-        if v["ownerless"] and v["ownership"] == "none":
-            raise self._param_error("ownerless", "needs an ownership rule (ownership is none)")
         if v["prediction_order"] not in (0, 1, 2):
             raise self._param_error("prediction_order", "must be 0, 1 or 2")
         for name in ("latency_ms", "jitter_ms", "scene_size"):

@@ -60,11 +60,13 @@ class SceneConfig:
     scene_size : side of the square scene (m). grid_cells : cells per side of the scene grid;
     grid : the grid with 9-cell neighbourhoods (§3.3) on/off. scene_id : the scene's id in the
     supernode's index table (§3.2.2). frame_s : frame period T (s); compose_ms : time to compose
-    a FRAME packet (ms). frame_phase : frame clocks with their own phase: each render group (its
-    master and the slaves locked to it, §3.5.2) shows its frame ``k`` at ``k T + phi_g``, ``phi_g``
-    uniform in ``[0, T)`` (seeded, a stream of its own); a STATE record is shown at the receiver's
-    first frame at or after its arrival, so the display error follows the latency continuously;
-    False: every clock in phase (a record is shown at the first frame tick after its arrival).
+    a FRAME packet (ms). frame_phase : frame clocks with their own phase (default: each master
+    runs its own 33 ms loop, §3.4.1, and nothing in the thesis aligns the loops of different
+    groups): every node's clock has a phase uniform in ``[0, T)`` (seeded, a stream of its own)
+    and a group shows its frame ``k`` at ``k T + phi_g``, ``phi_g`` its master's phase, the slaves
+    locked to it (§3.5.2: they show the master's cached frame at its update); a STATE record is
+    shown at the receiver's first frame at or after its arrival, so the display error follows
+    the latency continuously; False: every clock in phase (the first frame tick after arrival).
     """
 
     scene_size: float = 100.0
@@ -73,7 +75,7 @@ class SceneConfig:
     scene_id: int = 1
     frame_s: float = 0.033
     compose_ms: float = 2.0
-    frame_phase: bool = False
+    frame_phase: bool = True
 
     def __post_init__(self) -> None:
         _check([
@@ -92,8 +94,9 @@ class NetConfig:
     by the supernode), 'full_mesh' (every render node broadcasts to every other one, no grid).
     state_traffic : who gets a published object's STATE record (hybrid_p2p and client_server; a
     full mesh broadcasts): 'object_view' every node whose 9-cell neighbourhood holds the object,
-    wherever its owner is; 'neighbour_nodes' (§3.3, hybrid P2P between neighbours) only those of
-    them whose avatar is in the 9-cell neighbourhood of the owner's avatar.
+    wherever its owner is; 'neighbour_nodes' (default; §3.3: only neighbour nodes exchange
+    avatar and entity state) only those of them whose avatar is in the 9-cell neighbourhood of
+    the owner's avatar.
     """
 
     links: Dict[str, LinkClass] = field(default_factory=lambda: {
@@ -101,7 +104,7 @@ class NetConfig:
         "wan": LinkClass(20.0, 5.0, 0.0, 100.0),
     })
     topology: str = "hybrid_p2p"
-    state_traffic: str = "object_view"
+    state_traffic: str = "neighbour_nodes"
 
     def __post_init__(self) -> None:
         _check([
@@ -119,9 +122,11 @@ class ConsistencyConfig:
     (eq. 3-11/3-12), 'euclidean' (nearest avatar, Yonekura) or 'none' (a fixed owner per entity,
     never handed over); ownership_scale, ownership_min_axis (m) : the region's size (eq. 3-12);
     ownership_foci : reading of eq. 3-12, see :func:`consistency.ellipsoid_axes`. ownerless :
-    entities outside every ownership region belong to no avatar (§3.6.3): nobody publishes them,
-    every node shows its own prediction from its last record, and a region (or an avatar touching
-    one) claims them again; False: such an entity keeps its last owner. handover_hold_s : an
+    entities outside every ownership region belong to no avatar (default; §3.6.3 treats the
+    prediction of entities that belong to no role): nobody publishes them, every node shows its
+    own prediction (the scene's entity law from its last record), and a region (or an avatar
+    touching one) claims them again; False: such an entity keeps its last owner; no effect with
+    ownership 'none' (fixed owners). handover_hold_s : an
     entity handed over (region or collision) keeps its new owner at least this long (s), so the
     collision report and the region rule do not flap. dis_threshold : an owner publishes an object
     only when the receivers' dead-reckoned position would be off by more than this (m) or
@@ -133,7 +138,7 @@ class ConsistencyConfig:
     ownership_scale: float = 30.0
     ownership_min_axis: float = 5.0
     ownership_foci: str = "reach"
-    ownerless: bool = False
+    ownerless: bool = True
     handover_hold_s: float = 0.2
     dis_threshold: float = 0.0
     dis_heartbeat_s: float = 1.0
@@ -141,7 +146,6 @@ class ConsistencyConfig:
     def __post_init__(self) -> None:
         _check([
             (self.ownership in OWNERSHIP_RULES, f"ownership {self.ownership!r} not in {OWNERSHIP_RULES}"),
-            (not (self.ownerless and self.ownership == "none"), "ownerless needs an ownership rule (not 'none')"),
             (self.prediction_order in (0, 1, 2), f"prediction_order = {self.prediction_order} must be 0, 1 or 2"),
             (self.ownership_foci in OWNERSHIP_FOCI, f"ownership_foci {self.ownership_foci!r} not in {OWNERSHIP_FOCI}"),
             (self.handover_hold_s >= 0, f"handover_hold_s = {self.handover_hold_s} must be >= 0"),

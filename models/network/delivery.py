@@ -5,9 +5,10 @@ A record is filed under the first frame ``k`` with ``k T >= arrival``: it has ar
 tick and not by the one before. At a tick every record due is applied in send order; records
 from a group that no longer owns the object are rejected (§3.6.1), a record older than the
 cached one (reordering) is ignored. A slave shows frame ``k`` only if its FRAME packet arrived
-by ``k T``; a late packet is dropped. With frame clock phases (``cfg.scene.frame_phase``) a record is
-due at the viewer's first frame at or after its arrival on the viewer's clock
-(:meth:`Inflight.phased`).
+by ``k T``; a late packet is dropped. With frame clock phases (``cfg.scene.frame_phase``: every
+node's clock has its own phase, a group's display runs on its master's clock, the slaves locked
+to it, §3.5.2) a record is due at the viewer's first frame at or after its arrival on the
+viewer's clock (:meth:`Inflight.phased`).
 """
 from __future__ import annotations
 
@@ -172,7 +173,8 @@ class Inflight:
         relayed record waits for, was lost); the senders are the owners now."""
         cfg, tr, arr_l = net.cfg, fr.tr, fr.arr_l
         due = None
-        if net.phase is not None and arr_l is not None:   # the frame clocks' phases: the array form below
+        small = arr_l is not None     # a small lossless batch timed in Python floats
+        if net.phase is not None and small:   # the frame clocks' phases: the array form below
             fr.arrival, fr.lost, arr_l = np.array(arr_l), np.zeros(len(arr_l), bool), None
         if len(tr.rec_msg):
             if arr_l is not None:
@@ -193,8 +195,8 @@ class Inflight:
             snap = net.own.snapshot()
             if net.phase is not None:
                 due = self.phased(net, fr, due, snap[1])
-            if arr_l is not None and len(tr.rec_msg) <= net.paths.few_records and fr.memo is not None:
-                self.file_rows(net, fr, due, snap)
+            if small and len(tr.rec_msg) <= net.paths.few_records and fr.memo is not None:
+                self.file_rows(net, fr, due.tolist() if isinstance(due, np.ndarray) else due, snap)
                 due = None
         if due is not None:
             # one record table per frame (objects x cache width, rows like the cache's); pairs
@@ -219,11 +221,13 @@ class Inflight:
                 arr, lost = fr.arrival.tolist(), fr.lost.tolist()
                 self.frames += [(math.inf if lost[i] else arr[i], node, nxt)
                                 for i, node in zip(tr.frame_msg.tolist(), tr.frame_slave.tolist())]
-        net.own.release(net)   # entities no region claims, their state of this frame sent (ownership.py)
+        if net.own.release(net):   # entities no region claims, their state of this frame sent (ownership.py)
+            fr.og = net.msgs.view_owners(net, fr.view)    # (the display counts the former owners' copies)
 
     def phased(self, net, fr, due: np.ndarray, owners: np.ndarray) -> np.ndarray:
         """Frames (k,) at which this frame's records are shown with the groups' frame clocks
-        (``cfg.scene.frame_phase``): the owner sends at its frame, ``t_k + phi_owner``; a record
+        (``cfg.scene.frame_phase``, :attr:`NetworkModel.phase`: each group's master's clock): the
+        owner sends at its frame, ``t_k + phi_owner``; a record
         arriving ``a - t_k`` later is shown at the viewer's first frame ``m`` with
         ``t_m + phi_viewer >= a + phi_owner`` (at least this one), -1 where ``due`` is (lost)."""
         tr, ph = fr.tr, net.phase
@@ -236,7 +240,9 @@ class Inflight:
         G = net.cfg.groups
         if epoch != net.own.epoch:   # owners changed since it was sent: check the senders
             own = net.own.owner.tolist()
-            keep = [i for i, (f, w) in enumerate(zip(fi, senders)) if w == own[f // G] or own[f // G] < 0]
+            last = net.own.last
+            keep = [i for i, (f, w) in enumerate(zip(fi, senders))
+                    if w == own[f // G] or (own[f // G] < 0 and w == last[f // G])]
             if len(keep) < len(fi):
                 net.metrics.rejected_updates += len(fi) - len(keep)
                 fi, rows = [fi[i] for i in keep], [rows[i] for i in keep]
@@ -272,7 +278,8 @@ class Inflight:
                 else:
                     if epoch != own.epoch:  # owners changed since it was sent: check the senders
                         now = np.take(own.owner, fi // G)   # (an entity released since: its last owner's record)
-                        valid = (np.take(sender, ridx) == now) | (now < 0)
+                        who = np.take(sender, ridx)
+                        valid = (who == now) | ((now < 0) & (who == np.take(own.last, fi // G)))
                         if not valid.all():
                             net.metrics.rejected_updates += int((~valid).sum())
                             fi, ridx = fi[valid], ridx[valid]

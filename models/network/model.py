@@ -101,8 +101,9 @@ class NetworkModel:
         self.pub = Publisher(n_obj)
         self.msgs = Messaging(self.reg.n)
         self.flight = Inflight()
-        # frame clock phase of each group (s), cfg.scene.frame_phase; its own stream leaves the model's draws as they are
-        self.phase = (np.random.default_rng([cfg.seed, 5]).uniform(0.0, cfg.scene.frame_s, G) if cfg.scene.frame_phase else None)
+        # frame clock phase of every node (s), cfg.scene.frame_phase (see phase); its own stream leaves the model's draws as they are
+        self.node_phase = (np.random.default_rng([cfg.seed, 5]).uniform(0.0, cfg.scene.frame_s, self.reg.n)
+                           if cfg.scene.frame_phase else None)
         self.errors = DisplayError(n_obj)
         self.history = AvatarHistory(G)
         self.metrics = StepMetrics()
@@ -288,6 +289,14 @@ class NetworkModel:
         self.history.write(self, t, P)
 
     # -- queries ------------------------------------------------------------------------------------
+    @property
+    def phase(self) -> Optional[np.ndarray]:
+        """Frame clock phase (G,) s of each group: its master's own (``node_phase``), the slaves
+        locked to it (§3.5.2); None with every clock in phase."""
+        if self.node_phase is None:
+            return None
+        return self.node_phase[np.maximum(self.groups.master, 0)]
+
     def index(self, viewer, obj):
         """Flat cache index of (viewer group, object)."""
         return self.records.index(viewer, obj)

@@ -61,6 +61,7 @@ class Ownership:
     owner : (G + E,) int, owning group of every object (avatars first)
     hold : (G + E,) s, no hand-over of an object before this time
     claimed_t : (G + E,) s, when each object was last claimed from no owner (-inf: never)
+    last : (G + E,) int, the group that let go of each ownerless object (its records in flight count)
     leaving : (E,) bool, entities no region claims, released after this frame's messages
     epoch : int, bumped at every ownership change
     """
@@ -71,6 +72,7 @@ class Ownership:
         self.epoch = 0
         self.entity_ids = np.arange(cfg.groups, len(self.owner))
         self.claimed_t = np.full(len(self.owner), -np.inf)   # s, last claim of each object from no owner
+        self.last = self.owner.copy()                         # the last owner of each object (ownerless: who let go)
         self.leaving = np.zeros(cfg.entities, bool)   # entities released after this frame's messages (ownerless)
         self._snap: Optional[tuple] = None   # (epoch, copy of the owners, as a list or None)
 
@@ -130,6 +132,7 @@ class Ownership:
         self.hold[o] = t + cfg.consistency.handover_hold_s
         taken = new >= 0
         self.claimed_t[o[~let_go]] = t
+        self.last[o[let_go & ~taken]] = old[let_go & ~taken]
         net.errors.touch(rc.index(new[taken], o[taken]))   # a new owner's copy is no longer remote
         n = int(np.count_nonzero(let_go & taken))
         net.metrics.handovers += n
@@ -204,13 +207,16 @@ class Ownership:
             new[self.leaving] = cur[self.leaving]
         return new
 
-    def release(self, net) -> None:
+    def release(self, net) -> bool:
         """The entities marked ``leaving`` this frame lose their owner (after the frame's
-        messages, :meth:`delivery.Inflight.post`)."""
-        if self.leaving.any():
-            objs = self.entity_ids[self.leaving]
-            self.leaving = np.zeros(len(self.leaving), bool)
-            self.handover(net, objs, np.full(len(objs), -1, np.int64))
+        messages, :meth:`delivery.Inflight.post`); whether any did."""
+        if not self.leaving.any():
+            return False
+        objs = self.entity_ids[self.leaving]
+        self.leaving = np.zeros(len(self.leaving), bool)
+        epoch = self.epoch
+        self.handover(net, objs, np.full(len(objs), -1, np.int64))
+        return self.epoch != epoch
 
     def claim(self, net, ents: np.ndarray, groups: np.ndarray) -> None:
         """Ownerless entities ``ents`` touched by the avatars of ``groups`` become theirs (the

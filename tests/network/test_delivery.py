@@ -22,8 +22,8 @@ def run(cfg, steps):
 
 
 def test_forged_update_from_non_owner_is_rejected_and_counted():
-    cfg = NetworkConfig.from_flat(groups=3, render_nodes=1, entities=10).with_links(latency_ms=0.0, jitter_ms=0.0,
-                                                                          bandwidth_mbps=0.0)
+    cfg = NetworkConfig.from_flat(groups=3, render_nodes=1, entities=10, ownerless=False).with_links(
+        latency_ms=0.0, jitter_ms=0.0, bandwidth_mbps=0.0)
     m = NetworkModel(cfg)
     m.step(T)
     G = cfg.groups
@@ -72,9 +72,11 @@ def test_due_frames_equal_the_array_code():
 
 FEW_CASES = [
     dict(),                                                              # the campus_drive size
-    dict(prediction_order=2, entities=12, scene_size=40.0, entity_speed=5.0),   # order 2, hand-overs
-    dict(prediction_order=0, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(15.0, 25.0, 0.0, 0.2)}),
+    dict(prediction_order=2, entities=12, scene_size=40.0, entity_speed=5.0, ownerless=False),   # order 2, hand-overs
+    dict(prediction_order=0, links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(15.0, 25.0, 0.0, 0.2)},
+         ownerless=False),
     dict(groups=2, driven_groups=2, render_nodes=2, entities=1, grid=False),
+    dict(ownerless=False, frame_phase=False, state_traffic="object_view"),   # the former defaults
 ]
 
 
@@ -111,11 +113,12 @@ def test_few_records_as_lists_change_nothing(monkeypatch, case):
 
     monkeypatch.setattr(Inflight, "deliver_rows", counted)
     fast, fo = trace()
-    assert calls["rows"] > 50 and (case == 3 or calls["epoch"] > 0) and (case != 2 or calls["older"] > 0)
+    assert calls["rows"] > 50 and (case in (0, 3) or calls["epoch"] > 0) and (case != 2 or calls["older"] > 0)
     plain, po = trace(Paths(few_records=-1))
     assert fo == po
     for name in ("cache", "owner", "hist", "shown_frame", "busy"):
         assert np.array_equal(getattr(fast, name), getattr(plain, name)), name
     assert fast.rng.bit_generator.state == plain.rng.bit_generator.state
     assert fast.totals.by_type == plain.totals.by_type and fast.records.uid == plain.records.uid
-    assert case == 3 or sum(s["handovers"] for s, *_ in fo) > 0
+    assert case == 3 or sum(s["handovers"] + s["released"] + s["claimed"] for s, *_ in fo) > 0
+    assert case in (0, 3) or sum(s["handovers"] for s, *_ in fo) > 0

@@ -1,5 +1,6 @@
-"""Frame clocks with their own phase (``NetworkConfig.scene.frame_phase``): group ``g`` shows its frame
-``k`` at ``k T + phi_g``; a record sent at the owner's frame ``k`` arrives after its latency ``L``
+"""Frame clocks with their own phase (``NetworkConfig.scene.frame_phase``, the default): every node
+has its own seeded phase, a group runs on its master's (the slaves locked to it, §3.5.2), so
+group ``g`` shows its frame ``k`` at ``k T + phi_g``; a record sent at the owner's frame ``k`` arrives after its latency ``L``
 and is shown at the viewer's first frame ``m`` with ``m T + phi_v >= k T + phi_o + L``, so
 ``m - k = ceil((L + phi_o - phi_v) / T)`` (at least 0). Closed form: order 0, one entity in
 straight motion at 1 m/s, no jitter: the viewer's copy is ``(m - k) T`` seconds old, its error
@@ -20,13 +21,21 @@ def _links(L_ms: float) -> dict:
     return {"lan": LinkClass(0.3, 0.0, 0.0, 0.0), "wan": LinkClass(L_ms, 0.0, 0.0, 0.0)}
 
 
-def test_the_default_keeps_every_clock_in_phase():
-    assert NetworkConfig().scene.frame_phase is False
-    assert NetworkModel(NetworkConfig.from_flat(groups=2, entities=0)).phase is None
-    ph = NetworkModel(NetworkConfig.from_flat(groups=5, entities=0, frame_phase=True, seed=4)).phase
-    assert ph.shape == (5,) and np.all((ph >= 0) & (ph < T))
-    again = NetworkModel(NetworkConfig.from_flat(groups=5, entities=0, frame_phase=True, seed=4)).phase
-    assert np.array_equal(ph, again)                 # seeded
+def test_every_node_has_its_own_clock_and_a_group_runs_on_its_masters():
+    """Default: a seeded phase per node (render nodes, controllers, supernode); a group's clock is
+    its master's, the slaves locked to it (§3.5.2); when the master leaves, the slave taking
+    over brings its own clock. ``frame_phase=False``: every clock in phase."""
+    assert NetworkConfig().scene.frame_phase is True
+    assert NetworkModel(NetworkConfig.from_flat(groups=2, entities=0, frame_phase=False)).phase is None
+    m = NetworkModel(NetworkConfig.from_flat(groups=5, render_nodes=2, entities=0, seed=4))
+    ph = m.node_phase
+    assert ph.shape == (m.reg.n,) and np.all((ph >= 0) & (ph < T)) and len(np.unique(ph)) == m.reg.n
+    assert np.array_equal(m.phase, ph[m.master]) and m.master.tolist() == [0, 2, 4, 6, 8]
+    again = NetworkModel(NetworkConfig.from_flat(groups=5, render_nodes=2, entities=0, seed=4))
+    assert np.array_equal(ph, again.node_phase)      # seeded
+    m.schedule_leave(m.t + 0.01, 2)                  # group 1's master leaves, node 3 takes over
+    m.step(T)
+    assert m.master[1] == 3 and m.phase[1] == ph[3] and m.phase[0] == ph[0]
 
 
 def test_model_draws_do_not_depend_on_the_phases():
@@ -47,9 +56,10 @@ def test_a_record_is_shown_at_the_viewers_first_frame_after_its_arrival(phi_o, p
     scene); the viewer's order-0 copy is ``n = max(0, ceil((L + phi_o - phi_v) / T))`` frames
     old, its error ``n T`` m at every frame once the first record has arrived."""
     cfg = NetworkConfig.from_flat(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, entity_drag=0.0,
-                                  links=_links(L_ms), prediction_order=0, frame_phase=True)
+                                  links=_links(L_ms), prediction_order=0, frame_phase=True, ownerless=False,
+                                  state_traffic="object_view")
     m = NetworkModel(cfg)
-    m.phase[:] = [phi_o, phi_v]
+    m.node_phase[m.master] = [phi_o, phi_v]
     w = m.world
     w.apos[:] = [[5.0, 5.0], [35.0, 5.0]]
     w.epos[0] = [25.0, 1.0]
@@ -65,7 +75,7 @@ def test_a_record_is_shown_at_the_viewers_first_frame_after_its_arrival(phi_o, p
 
 def _mean_rms(L_ms: float, phase: bool, groups: int, seed: int, steps: int = 100) -> float:
     cfg = NetworkConfig.from_flat(groups=groups, entities=40, driven_groups=groups, seed=seed, prediction_order=0,
-                                  frame_phase=phase, links=_links(L_ms))
+                                  frame_phase=phase, links=_links(L_ms), ownerless=False, state_traffic="object_view")
     m = NetworkModel(cfg)
     return float(np.mean([m.step(T).inconsistency_rms for _ in range(steps)][5:]))
 

@@ -272,13 +272,12 @@ if __name__ == "__main__" and "--write-reference" in sys.argv:
     print(f"wrote {UNIT / 'reference.csv'} ({len(data)} rows)")
 
 
-def test_fmu_ownerless_parameter_reaches_the_model_and_needs_an_ownership_rule():
-    """``ownerless`` (off by default) is the model's ``NetworkConfig.consistency.ownerless``: with it the
+def test_fmu_ownerless_parameter_reaches_the_model():
+    """``ownerless`` (on by default) is the model's ``NetworkConfig.consistency.ownerless``: with it the
     entities outside every region have no owner (-1) and are not published, so fewer objects
-    are published than without it; with ``ownership = none`` it is an error naming the
-    parameter."""
+    are published than without it; with ``ownership = none`` (fixed owners) it has no effect."""
     cls = _load_wrapper()
-    assert next(v for v in cls.VARIABLES if v.name == "ownerless").start is False
+    assert next(v for v in cls.VARIABLES if v.name == "ownerless").start is True
     params = dict(players=2, render_nodes=2, entities=24, seed=3, scene_size=200.0)
     published = {}
     for flag in (False, True):
@@ -290,26 +289,29 @@ def test_fmu_ownerless_parameter_reaches_the_model_and_needs_an_ownership_rule()
         assert (owners >= 0).all() if not flag else (owners == -1).any()
         published[flag] = s.model.metrics.published
     assert published[True] < published[False] == 2 + 24
-    with pytest.raises(ValueError, match=r"parameter ownerless = True needs an ownership rule \(ownership is none\)"):
-        _instance(cls, {**params, "ownerless": True, "ownership": "none"}, "bad")
+    s = _instance(cls, {**params, "ownerless": True, "ownership": "none"}, "fixed")
+    for k in range(10):
+        assert s.do_step(k * T, T), s.failed
+    assert (s.model.owner >= 0).all() and s.model.metrics.published == 2 + 24
 
 
 def test_fmu_state_traffic_parameter_reaches_the_model_and_names_a_bad_rule():
     cls = _load_wrapper()
-    assert next(v for v in cls.VARIABLES if v.name == "state_traffic").start == "object_view"
+    assert next(v for v in cls.VARIABLES if v.name == "state_traffic").start == "neighbour_nodes"
     params = dict(players=2, render_nodes=1, entities=4, seed=0)
-    s = _instance(cls, {**params, "state_traffic": "neighbour_nodes"}, "nb")
-    assert s.model.cfg.net.state_traffic == "neighbour_nodes"
+    s = _instance(cls, {**params, "state_traffic": "object_view"}, "ov")
+    assert s.model.cfg.net.state_traffic == "object_view"
     with pytest.raises(ValueError, match="parameter state_traffic = 'all' must be one of object_view, neighbour_nodes"):
         _instance(cls, {**params, "state_traffic": "all"}, "bad")
 
 
 def test_fmu_frame_phase_parameter_reaches_the_model():
     cls = _load_wrapper()
-    assert next(v for v in cls.VARIABLES if v.name == "frame_phase").start is False
-    s = _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0, frame_phase=True), "ph")
+    assert next(v for v in cls.VARIABLES if v.name == "frame_phase").start is True
+    s = _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0), "ph")
     assert s.model.cfg.scene.frame_phase is True and s.model.phase.shape == (3,)
-    assert _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0), "noph").model.phase is None
+    assert _instance(cls, dict(players=3, render_nodes=1, entities=4, seed=0, frame_phase=False),
+                     "noph").model.phase is None
 
 
 def test_fmu_options_set_through_fmpy_give_the_models_outputs(fmu):
@@ -317,7 +319,7 @@ def test_fmu_options_set_through_fmpy_give_the_models_outputs(fmu):
     parameters) give, step for step, the outputs of the model configured with them directly."""
     from immersim.models.network import NetworkConfig, NetworkModel
 
-    opts = dict(ownerless=True, state_traffic="neighbour_nodes", frame_phase=True)
+    opts = dict(ownerless=False, state_traffic="object_view", frame_phase=False)   # (each not its default)
     r = Runner(fmu, "opts", {**PARAMS, **opts})
     cfg = NetworkConfig.from_flat(groups=2, render_nodes=3, entities=24, driven_groups=2, seed=7,
                                   links={"lan": LinkClass(0.3, 0.1, 0.0, 1000.0), "wan": LinkClass(30.0, 5.0, 0.0, 100.0)}, **opts)

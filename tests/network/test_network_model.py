@@ -22,10 +22,12 @@ def run(cfg, steps):
 @pytest.mark.parametrize("grid", [True, False])
 def test_inconsistency_zero_without_latency_and_loss(topology, grid):
     cfg = NetworkConfig.from_flat(groups=4, render_nodes=2, entities=60, topology=topology, grid=grid,
-                                  prediction_order=1).with_links(latency_ms=0.0, jitter_ms=0.0, loss=0.0, bandwidth_mbps=0.0)
+                                  prediction_order=1, frame_phase=False).with_links(latency_ms=0.0, jitter_ms=0.0, loss=0.0, bandwidth_mbps=0.0)
     m, out = run(cfg, 120)
     assert sum(s.messages for s in out) > 0
-    assert max(s.inconsistency_max for s in out) == 0.0
+    # exact for owned objects; entities without an owner are every node's own prediction (the
+    # scene's entity law), equal to the world's up to the round-off of other sub-step splits
+    assert max(s.inconsistency_max for s in out) < 1e-9
     assert max(s.dropped_frames for s in out) == 0
     # ... and it is not zero once the links have latency
     m2, out2 = run(NetworkConfig.from_flat(groups=4, render_nodes=2, entities=60, topology=topology, grid=grid), 120)

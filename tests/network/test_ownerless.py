@@ -19,7 +19,7 @@ def _model(x0: float, vx: float, order: int = 1, **kw) -> NetworkModel:
     """Avatar 0 parked at (50, 50), avatar 1 parked at (40, 50) (in the neighbouring grid cell:
     it views the entity, its region never reaches it), one entity at (x0, 50) moving at ``vx``
     m/s along x without drag or turning; links without delay."""
-    cfg = NetworkConfig.from_flat(**{**dict(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, ownerless=True,
+    cfg = NetworkConfig.from_flat(**{**dict(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, ownerless=True, frame_phase=False,
                                             entity_drag=0.0, links=NO_DELAY, prediction_order=order, ownership_min_axis=5.0),
                                      **kw})
     m = NetworkModel(cfg)
@@ -32,10 +32,14 @@ def _model(x0: float, vx: float, order: int = 1, **kw) -> NetworkModel:
     return m
 
 
-def test_the_default_keeps_the_last_owner_and_ownerless_needs_a_rule():
-    assert NetworkConfig().consistency.ownerless is False
-    with pytest.raises(ValueError, match="ownerless needs an ownership rule"):
-        NetworkConfig.from_flat(ownerless=True, ownership="none")
+def test_ownerless_is_the_default_and_fixed_owners_keep_their_entities():
+    """§3.6.3 is the default; with ownership 'none' (fixed owners, round robin) no entity is
+    ever without an owner."""
+    assert NetworkConfig().consistency.ownerless is True
+    m = NetworkModel(NetworkConfig.from_flat(groups=3, entities=9, ownership="none", seed=1))
+    for _ in range(60):
+        m.step(T)
+    assert m.owner[3:].tolist() == [0, 1, 2] * 3 and m.totals.handovers == 0
 
 
 def test_an_entity_leaving_every_region_is_released_and_no_longer_published():
@@ -174,3 +178,18 @@ def test_owned_entities_lie_in_their_owners_region_unless_a_hand_over_holds():
     old, _ = outside_share(False)
     new, released = outside_share(True)
     assert old > 0.5 and new == 0.0 and released > 0
+
+
+def test_only_the_last_owners_records_of_an_ownerless_entity_count():
+    """§3.6.1 after a release: a record of the entity from its last owner (in flight when it let
+    go) is accepted, one from any other group is rejected and counted."""
+    m = _model(53.5, 1.0)
+    for _ in range(50):
+        m.step(T)
+    assert m.owner[2] == -1 and m.own.last[2] == 0
+    m.inject_update(1, 0, 2, pos=(1e4, 1e4))
+    m.flight.deliver(m)
+    assert m.metrics.rejected_updates == 1 and m.record(0, 2)[1] != 1e4
+    m.inject_update(0, 1, 2, pos=(5.0, 6.0))
+    m.flight.deliver(m)
+    assert m.metrics.rejected_updates == 1 and tuple(m.record(1, 2)[1:3]) == (5.0, 6.0)

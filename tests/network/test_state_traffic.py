@@ -17,7 +17,8 @@ NO_DELAY = {"lan": LinkClass(0.0, 0.0, 0.0, 0.0), "wan": LinkClass(0.0, 0.0, 0.0
 
 def _run(rule: str, x1: float, frames: int = 60):
     cfg = NetworkConfig.from_flat(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0, entity_drag=0.0,
-                                  links=NO_DELAY, prediction_order=0, state_traffic=rule)
+                                  links=NO_DELAY, prediction_order=0, state_traffic=rule, ownerless=False,
+                                  frame_phase=False)
     m = NetworkModel(cfg)
     w = m.world
     w.apos[:] = [[5.0, 5.0], [x1, 5.0]]
@@ -35,8 +36,8 @@ def _run(rule: str, x1: float, frames: int = 60):
     return m, rec0, np.array(err), m.totals.by_type.get("STATE", 0) - state0
 
 
-def test_the_default_is_the_object_view_rule_and_a_bad_rule_is_refused():
-    assert NetworkConfig().net.state_traffic == "object_view"
+def test_the_default_is_the_neighbour_rule_and_a_bad_rule_is_refused():
+    assert NetworkConfig().net.state_traffic == "neighbour_nodes"
     with pytest.raises(ValueError, match=r"state_traffic 'nearest' not in \('object_view', 'neighbour_nodes'\)"):
         NetworkConfig.from_flat(state_traffic="nearest")
 
