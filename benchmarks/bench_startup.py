@@ -1,10 +1,13 @@
 """Start-up of a short run: ``immersim run scenarios/campus_drive.toml`` as a whole command, and
 each phase up to the first step, side by side with another commit.
 
-Each side is a source tree (this checkout; each ``--base REV``: a temporary git worktree of REV)
-imported through its own ``immersim`` package folder on ``PYTHONPATH`` (so each side runs its
-own orchestrator; its units are built from its own sources into its own ``build/fmus``) and
-runs its own copy of the scenario. Two measurements, interleaved side by side:
+Each side is a copy of a source tree (this checkout's tracked files as they are on disk; each
+``--base REV``, default :data:`BASE`: REV's files from ``git archive``) imported through its own
+``immersim`` package folder on ``PYTHONPATH`` (so each side runs its own orchestrator; its units
+are built from its own sources into its own ``build/fmus``) and runs its own copy of the
+scenario. Each copy gets its Python bytecode compiled once, as an installed package has it
+(``--source``: none, every run compiles the sources, as a checkout run under
+``PYTHONDONTWRITEBYTECODE=1``); no run writes bytecode. Two measurements, interleaved side by side:
 
 * the whole command (the program ``immersim run SCENARIO -q -o LOG``, as a user runs it): wall
   seconds from spawn to exit;
@@ -17,7 +20,7 @@ Sides of this checkout: ``cache`` (the extraction and mesh caches warm, as every
 first), ``no mesh cache`` (``IMMERSIM_MESH_CACHE=0``: each run builds the scene's meshes with
 trimesh), ``no cache`` (both caches off: each run extracts and compiles anew as well).
 
-    python benchmarks/bench_startup.py [--base REV ...] [--repeats N] [--quick]
+    python benchmarks/bench_startup.py [--base REV ...] [--repeats N] [--quick] [--source] [--no-ablation]
 """
 from __future__ import annotations
 
@@ -39,6 +42,10 @@ from common import ROOT, median, stamp  # noqa: E402
 
 SCENARIO = "scenarios/campus_drive.toml"
 OUT = ROOT / "results" / "startup"
+#: the commit the start-up figures are compared with by default (before the start-up work)
+BASE = "1998c63"
+#: the folders of a tree that make up the ``immersim`` package
+PACKAGE = ("api", "orchestrator", "models", "fmus", "scenarios")
 
 #: the entry point of the ``immersim`` program (what pip writes into the venv's bin/)
 PROGRAM = "import sys\nfrom immersim.orchestrator.cli import main\nsys.exit(main())\n"
@@ -104,7 +111,7 @@ class Side:
         (pkg / "immersim" / "__init__.py").symlink_to(tree / "api" / "__init__.py")
         for top in ("orchestrator", "models", "fmus", "scenarios"):
             (pkg / "immersim" / top).symlink_to(tree / top)
-        self.env = {**os.environ, "PYTHONPATH": str(pkg), **env}
+        self.env = {**os.environ, "PYTHONPATH": str(pkg), "PYTHONDONTWRITEBYTECODE": "1", **env}
         self.env.pop("IMMERSIM_BUILD_DIR", None)
         self.program = work / "immersim"
         self.program.write_text(PROGRAM)
@@ -160,27 +167,54 @@ class Side:
         return phases
 
 
+def copy_tree(rev: str | None, dest: Path, bytecode: bool) -> Path:
+    """The package folders of ``rev`` (``git archive``; None: this checkout's tracked files as they
+    are on disk) copied to ``dest``, their bytecode compiled when ``bytecode``."""
+    dest.mkdir(parents=True)
+    if rev is None:
+        files = subprocess.run(["git", "ls-files", "-z", "--", *PACKAGE], cwd=ROOT, check=True,
+                               capture_output=True).stdout.decode().split("\0")
+        for f in filter(None, files):
+            if (ROOT / f).is_file():
+                (dest / f).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(ROOT / f, dest / f)
+        shutil.copy2(ROOT / "pyproject.toml", dest / "pyproject.toml")
+    else:
+        archive = subprocess.run(["git", "archive", rev, "pyproject.toml", *PACKAGE], cwd=ROOT, check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    if bytecode:
+        subprocess.run([sys.executable, "-m", "compileall", "-q", *(str(dest / p) for p in PACKAGE)], check=True,
+                       stdout=subprocess.DEVNULL, env={k: v for k, v in os.environ.items()
+                                                       if k != "PYTHONDONTWRITEBYTECODE"})
+    return dest
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", action="append", default=[],
-                    help="git revision to compare with (a temporary worktree); may be given more than once")
+                    help=f"git revision to compare with (default {BASE}); may be given more than once")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--quick", action="store_true", help="3 repeats")
+    ap.add_argument("--source", action="store_true", help="no bytecode: every run compiles the sources")
+    ap.add_argument("--no-ablation", action="store_true", help="only the bases and this checkout's cache side")
     args = ap.parse_args()
+    args.base = args.base or [BASE]
     repeats = 3 if args.quick else args.repeats
     work = Path(tempfile.mkdtemp(prefix="immersim_bench_startup_"))
-    base_trees: List[Path] = []
     try:
         sides: List[Side] = []
         cache, meshes = work / "fmu_cache", work / "mesh_cache"
         for k, rev in enumerate(args.base):
-            base_trees.append(work / f"base_{k}")
-            subprocess.run(["git", "worktree", "add", "--detach", str(base_trees[-1]), rev], cwd=ROOT, check=True,
-                           capture_output=True)
-            sides.append(Side(rev, base_trees[-1], work, {}))
-        sides.append(Side("cache", ROOT, work, {"IMMERSIM_FMU_CACHE": str(cache), "IMMERSIM_MESH_CACHE": str(meshes)}))
-        sides.append(Side("no mesh cache", ROOT, work, {"IMMERSIM_FMU_CACHE": str(cache), "IMMERSIM_MESH_CACHE": "0"}))
-        sides.append(Side("no cache", ROOT, work, {"IMMERSIM_FMU_CACHE": "0", "IMMERSIM_MESH_CACHE": "0"}))
+            name = subprocess.run(["git", "rev-parse", "--short", rev], cwd=ROOT, check=True, capture_output=True,
+                                  text=True).stdout.strip()
+            sides.append(Side(name, copy_tree(rev, work / f"base_{k}", not args.source), work, {}))
+        tree = copy_tree(None, work / "checkout", not args.source)
+        sides.append(Side("cache", tree, work, {"IMMERSIM_FMU_CACHE": str(cache), "IMMERSIM_MESH_CACHE": str(meshes)}))
+        if not args.no_ablation:
+            sides.append(Side("no mesh cache", tree, work, {"IMMERSIM_FMU_CACHE": str(cache),
+                                                            "IMMERSIM_MESH_CACHE": "0"}))
+            sides.append(Side("no cache", tree, work, {"IMMERSIM_FMU_CACHE": "0", "IMMERSIM_MESH_CACHE": "0"}))
         for s in sides:
             s.check()
         whole: Dict[str, List[tuple]] = {s.name: [] for s in sides}
@@ -190,10 +224,8 @@ def main() -> None:
                 whole[s.name].append(s.whole())
             for s in sides:
                 phases[s.name].append(s.phases())
-        write(sides, whole, phases, args, repeats, sides[-3].imports())
+        write(sides, whole, phases, args, repeats, next(s for s in sides if s.name == "cache").imports())
     finally:
-        for tree in base_trees:
-            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, capture_output=True)
         shutil.rmtree(work, ignore_errors=True)
 
 
@@ -202,7 +234,11 @@ def write(sides: List[Side], whole, phases, args, repeats: int, imports: List[tu
     ref = names[0]
     lines = ["# Start-up of a short run", "",
              stamp(f"python benchmarks/bench_startup.py{''.join(' --base ' + b for b in args.base)}"
-                   f"{' --quick' if args.quick else ''}"), "",
+                   f"{' --quick' if args.quick else ''}{' --source' if args.source else ''}"
+                   f"{' --no-ablation' if args.no_ablation else ''}"),
+             "Bytecode: " + ("none (every run compiles the sources, as a checkout run under "
+                             "`PYTHONDONTWRITEBYTECODE=1`)." if args.source else
+                             "compiled once per side (as an installed package has it); no run writes any."), "",
              f"Whole command `immersim run {SCENARIO} -q -o LOG` (20 s simulated, 607 steps), wall seconds, "
              f"median of {repeats} interleaved runs per side, and the CPU seconds they used (user + system, less "
              f"sensitive to other load on the machine); ratios to `{ref}`:", "",
@@ -232,11 +268,10 @@ def write(sides: List[Side], whole, phases, args, repeats: int, imports: List[tu
     lines.append("| **whole run** | " + " | ".join(
         f"**{median([sum(r.values()) for r in phases[n]]):.3f}**" for n in names) + " |")
     lines += ["", "The largest imports made directly by the program or a unit's code (`python -X importtime`, one run "
-                  "of `cache`, cumulative seconds; on a machine without Python bytecode of the checkout, compiling "
-                  "is part of it):", "", "| module | s |", "|---|---|"]
+                  "of `cache`, cumulative seconds; without bytecode, compiling is part of it):", "", "| module | s |", "|---|---|"]
     lines += [f"| `{m}` | {t:.3f} |" for m, t in imports[:15]]
     OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "bench.md").write_text("\n".join(lines) + "\n")
+    (OUT / ("bench_source.md" if args.source else "bench.md")).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
