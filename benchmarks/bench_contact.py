@@ -4,14 +4,15 @@ Four players drive for 60 s (sine throttle 0.2..1.0 and sine steering, each its 
 through a field of 500 tanks (``tanks:n=500,tris=5.4k,spacing=9``, 23 columns x 22 rows in a
 200 m scene); the collision unit's pairs ``avatar_p vs any tank* (horizontal)`` come back to
 the network as ``net.contact[p].active / nx / ny / depth`` (held). The poses reach the
-collision unit delayed (its input is the network's last output, extrapolated over the step;
-yaw held: a bounce turns the heading in one step, and interpolating that jump would swing
-the box through the obstacle), so the collision unit steps first and the network responds
-in the same step to the contact it reports. The scene is written to ``benchmarks/scenarios/tank_field_drive.toml`` (network seed 1;
-the tank grid's origin is the first one, on a 0.25 m lattice, that leaves the four start
-poses clear of every tank, so no overlap is there before anyone drives). Two runs: the response as shipped (depth wired:
-position correction + reflection) and the same scene without the depth connections (the
-reflection alone, the response before the position correction).
+collision unit delayed and held (its input is the network's last output, the pose the
+network corrects at the start of the step), so the collision unit steps first and the network
+responds in the same step to the contact it reports; the network knows the avatars' 4 x 2 m
+footprint (``avatar_length``, ``avatar_width``) for the turn of a bounce. The scene is written
+to ``benchmarks/scenarios/tank_field_drive.toml`` (network seed 1; the tank grid's origin is
+the first one, on a 0.25 m lattice, that leaves the four start poses clear of every tank, so
+no overlap is there before anyone drives). Three runs: the response as shipped, the same
+scene without the depth connections (the reflection alone), and the poses extrapolated half
+a step ahead on their way to the collision unit (x, y linear, as campus_drive wires them).
 
 Measured per run and pair, from the log:
 
@@ -20,12 +21,13 @@ Measured per run and pair, from the log:
   the bound ``|v| h + 5 cm`` (``|v|`` the avatar's largest speed over
   the step reported and the one before it): the largest ratio depth / bound;
 * depth after a response: the network responds in step k to the contact reported in step
-  k - lag (lag 0 as shipped, 1 with delayed contacts), from its pose at the end of step
-  k - 1. ``corrected_max``: the depth of that pose moved by the reported depth along the
-  reported normal (the response's own result, before the driver acts); ``after_max`` and
+  k, from its pose at the end of step k - 1. ``corrected_max``: the depth of that pose moved
+  by the reported depth (plus the box's gained reach) along the reported normal, at the
+  reflected heading (the response's own result, before the driver acts); ``after_max`` and
   ``deep_after``: the depth at the end of step k (>= 1 cm), split into ``pushed`` (the
-  avatar moves into the obstacle, ``v.n < 0``, or its turn in the step swings a corner in
-  as far as the depth, ``R |dyaw| >= depth``, ``R`` = 2.24 m its circumradius) and not;
+  avatar moves into the obstacle, ``v.n < 0``, or the driver's steering in the step (the
+  heading change beyond the response's) swings a corner in as far as the depth,
+  ``R |dyaw| >= depth``, ``R`` = 2.24 m the box's circumradius) and not;
 * the longest run of contact steps during which the avatar moves away from the obstacle
   (``v.n >= 0`` in every step of the run), and the longest contact run of any kind.
 
@@ -55,6 +57,7 @@ SIZE = 200.0
 FIELD = dict(n=500, spacing=9.0)       # tank_k at (x0 + 9 (k % 23), y0 + 9 (k // 23))
 SEED = 1
 TANK_BOX = ((-3.25, 4.9), (-1.7, 1.7))               # tank footprint (body frame, m)
+AVATAR_BOX = (4.0, 2.0)                              # the avatars' footprint (m), both units
 AVATAR_R = math.hypot(2.0, 1.0)                      # circumradius of the 4 x 2 m avatar box
 RESTITUTION = 0.5                                    # the network's default (WorldConfig.restitution)
 
@@ -105,13 +108,15 @@ def scenario_text(seed: int, stop: float, depth: bool = True, poses: str = "zoh"
     last pose, the pose it corrects in the step) or "linear" (extrapolated half a step ahead))."""
     pos, yaw = _starts(seed)
     x0, y0 = field_origin(seed)
-    boxes = ";".join(f"box:name=avatar_{p},sx=4,sy=2,sz=4.4,dynamic=1" for p in range(1, PLAYERS + 1))
+    boxes = ";".join(f"box:name=avatar_{p},sx={AVATAR_BOX[0]:g},sy={AVATAR_BOX[1]:g},sz=4.4,dynamic=1"
+                     for p in range(1, PLAYERS + 1))
     field = f"tanks:n={FIELD['n']},tris=5.4k,spacing={FIELD['spacing']:g},x={x0:g},y={y0:g}"
     pairs = "; ".join(f"avatar_{p} vs any tank* (horizontal)" for p in range(1, PLAYERS + 1))
     out = [f'description = "tank_field_drive: {PLAYERS} players, 60 s through 500 tanks; contact response"',
            "", "[simulation]", "start = 0.0", f"stop = {stop:g}", f"step = {H}", 'algorithm = "gauss-seidel"', "",
            "[[units]]", 'name = "net"', 'fmu = "network"', "[units.parameters]", f"players = {PLAYERS}",
-           "render_nodes = 2", "entities = 8", f"seed = {seed}", f"scene_size = {SIZE:g}", "",
+           "render_nodes = 2", "entities = 8", f"seed = {seed}", f"scene_size = {SIZE:g}",
+           f"avatar_length = {AVATAR_BOX[0]:g}", f"avatar_width = {AVATAR_BOX[1]:g}", "",
            "[[units]]", 'name = "coll"', 'fmu = "collision"', "[units.parameters]", 'backend = "fcl"',
            f'scene = "{boxes};{field}"', f'pairs = "{pairs}"']
     for p in range(PLAYERS):
@@ -191,9 +196,18 @@ def _reflected_heading(vx, vy, yaw, nx, ny, e: float = RESTITUTION):
     return np.where(vn < 0.0, np.arctan2(ry, rx), yaw)
 
 
-def measure(log: Path, scene_spec: str, lag: int) -> list:
-    """Per pair the figures of the module docstring, from a run's MCAP log (``lag``: steps
-    from a contact report to the network's response, 0 or 1)."""
+def _turn_reach(yaw0, yaw1, nx, ny) -> np.ndarray:
+    """The reach (m, >= 0) along ``(nx, ny)`` the avatar box gains turning from ``yaw0`` to
+    ``yaw1`` (k,), which the response adds to its correction (World.bounce_avatar)."""
+    from immersim.models.network.world import half_extent
+
+    a, b = 0.5 * AVATAR_BOX[0], 0.5 * AVATAR_BOX[1]
+    return np.array([max(0.0, half_extent(a, b, w1, (u, v)) - half_extent(a, b, w0, (u, v)))
+                     for w0, w1, u, v in zip(yaw0, yaw1, nx, ny)])
+
+
+def measure(log: Path, scene_spec: str) -> list:
+    """Per pair the figures of the module docstring, from a run's MCAP log."""
     from immersim.orchestrator.mcapio import read_series
 
     s = read_series(log, ["coll.pair*", "net.avatar*", "net.contact*"])
@@ -213,16 +227,17 @@ def measure(log: Path, scene_spec: str, lag: int) -> list:
         ratio = np.where(c, d / bound, 0.0)
         k_max = int(np.argmax(ratio))
         tratio = td / bound
-        # responses: the network acts in step k = report + lag, from the pose it had before
+        # responses: the network acts in the step k of the report, from the pose it had before
         # the step (the output of step k - 1)
         rep = np.flatnonzero(c[:-2] & (d[:-2] > 0))
-        rep = rep[rep + lag >= 1]
-        resp, pre = rep + lag, rep + lag - 1
+        rep = rep[rep >= 1]
+        resp, pre = rep, rep - 1
         x, y, yaw = get(f"net.avatar[{p}].x"), get(f"net.avatar[{p}].y"), get(f"net.avatar[{p}].yaw")
         # the response's own result: that pose moved by the reported depth along the normal,
         # turned to the reflected velocity's heading (World.bounce_avatar)
         yaw_r = _reflected_heading(vx[pre], vy[pre], yaw[pre], nx[rep], ny[rep])
-        corr = true_depths(scene_spec, x[pre] + d[rep] * nx[rep], y[pre] + d[rep] * ny[rep], yaw_r)
+        move = d[rep] + _turn_reach(yaw[pre], yaw_r, nx[rep], ny[rep])
+        corr = true_depths(scene_spec, x[pre] + move * nx[rep], y[pre] + move * ny[rep], yaw_r)
         end = td[resp]                    # after the step the driver then drove
         deep = end >= 0.01
         vn = vx[resp] * nx[rep] + vy[resp] * ny[rep]
@@ -255,7 +270,7 @@ def run(seed: int, stop: float, depth: bool, folder: Path, poses: str = "zoh"):
     import tomllib
 
     spec = tomllib.loads(path.read_text())["units"][1]["parameters"]["scene"]
-    return measure(log, spec, 0), wall
+    return measure(log, spec), wall
 
 
 def campus(folder: Path) -> list:
@@ -339,15 +354,24 @@ def main(argv=None) -> int:
     lines += ["", f"Bounce depths within `|v| h + 5 cm`: largest ratio {max(r['ratio'] for r in camp):.2f} "
               f"({'met' if max(r['ratio'] for r in camp) <= 1 else 'NOT met'}).", ""]
     lines += ["## Reading", "",
-              "- `depth_max` is what the collision unit reports at its input pose (the network's last pose "
-              "extrapolated half a step, yaw held); `true_depth_max` / `part_depth_max` are the avatar box at "
-              "the network's own poses. The exit (what the response removes) can exceed the step's travel where "
-              "a box is wedged between two convex parts of a tank (side of the turret and the barrel): leaving "
-              "both at once takes a longer move than the penetration into either (`part_depth_max`).",
-              "- `corrected_max` above 1 cm: the reported depth and normal belong to the extrapolated pose with "
-              "the held yaw, not exactly the pose the network corrects.",
-              "- Without the depth connections avatars stay inside tanks for seconds; with the contacts one step "
-              "late the avatar travels 1.5 steps in before the response.", ""]
+              "- The depth held to the bound is the avatar box's penetration depth into the union of the tanks' "
+              "convex parts: the shortest horizontal move that frees it (`true_depth_max`, at the network's pose "
+              "at the end of each step, the pose every player sees and the platform cues). It is how far the "
+              "vehicle is inside solid steel; it is at least the penetration into any single part "
+              "(`part_depth_max`) and larger only where a box sits in a concave corner (a hull's front face and "
+              "the barrel's side), where the shortest move is the diagonal out of both.",
+              "- As shipped the collision unit tests the network's own pose (x, y, yaw held), so `depth_max` is "
+              "that same depth at the pose the network corrects, and `corrected_max` (the response's own result: "
+              "moved by the reported depth, plus the reach the box gains when the bounce turns it, at the "
+              "reflected heading) is the depth left by the response before anyone drives.",
+              "- `deep_after_pushed`: the driver drives or steers in during the response step, or the avatar "
+              "slides along a curved face (the turret): a move of `s = |v| h` along a face of radius `r` goes "
+              "`s^2 / (2 r)` into it.",
+              "- With the poses extrapolated half a step (third table) the collision unit measures a pose the "
+              "network does not have: the reported depth overstates the real one and the correction misses by "
+              "up to `corrected_max`.",
+              "- Without the depth connections (second table) nothing moves an avatar out once it is inside: "
+              "depths of several steps' travel and contacts longer than the bound.", ""]
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text("\n".join(lines))
     print("\n".join(lines))
