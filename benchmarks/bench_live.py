@@ -8,7 +8,8 @@
    without it, interleaved, each in a fresh process; median loop wall time. The logs of both
    are compared message by message.
 3. The units' meshes in the log: tank_field with 5040 tanks, its log with and without
-   ``[foxglove] units = true`` (and campus-sized: 7 tanks).
+   ``[foxglove] units = true`` (and campus-sized: 7 tanks; and a 20 s run), and what ``/tf``
+   and ``/scene/meshes`` each add.
 
 Usage::
 
@@ -61,6 +62,15 @@ print(n)
 '''
 
 
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (Linux /proc; 0.0 once it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def one_run(spec: dict) -> dict:
     """One campus_drive run in this process (``--child``)."""
     from immersim.orchestrator.execution import Execution
@@ -75,8 +85,16 @@ def one_run(spec: dict) -> dict:
                                   preexec_fn=lambda: os.nice(19))
         time.sleep(1.0)   # the client connects before the run starts
     ex = Execution(CAMPUS, spec["out"], live=server, realtime=spec.get("realtime"))
+    start = []   # CPU seconds of the main thread, the process and the client when step 0 is logged
+
+    def mark(k: int, t_ns: int) -> None:
+        if k == 0:
+            start.extend([time.thread_time(), time.process_time(), cpu_s(client.pid) if client else 0.0])
+    ex.observers.append(mark)
     res = ex.run()
-    out = {"loop": res.timing["loop"], "steps": res.steps_done}
+    main, threads = time.thread_time() - start[0], time.process_time() - start[1]
+    out = {"loop": res.timing["loop"], "steps": res.steps_done, "main_cpu": main, "other_cpu": threads - main,
+           "client_cpu": cpu_s(client.pid) - start[2] if client else 0.0}
     if ex.pacer is not None:
         out.update(ex.pacer.summary())
     if server is not None:
@@ -103,31 +121,69 @@ def messages(path: Path) -> list:
         return [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()]
 
 
+def rewritten_size(path: Path, drop: str = "") -> int:
+    """Bytes of the log's messages rewritten into a fresh MCAP file (the log writer's chunk size
+    and compression), without the topic ``drop``: what one topic adds to a log."""
+    import io
+
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    from immersim.orchestrator.observers import McapObserver
+
+    out = io.BytesIO()
+    w = Writer(out, chunk_size=McapObserver.CHUNK_BYTES, compression=CompressionType[McapObserver.COMPRESSION.upper()])
+    w.start("", "bench")
+    schemas, channels = {}, {}
+    with open(path, "rb") as f:
+        for schema, ch, m in make_reader(f).iter_messages():
+            if ch.topic == drop:
+                continue
+            if schema is not None and schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if ch.id not in channels:
+                channels[ch.id] = w.register_channel(ch.topic, ch.message_encoding, schemas.get(ch.schema_id, 0),
+                                                     dict(ch.metadata))
+            w.add_message(channels[ch.id], m.log_time, m.data, m.publish_time, m.sequence)
+    w.finish()
+    return len(out.getvalue())
+
+
 def mesh_sizes(tmp: Path) -> list:
-    """Section 3: log sizes of tank_field with and without the units' meshes."""
+    """Section 3: log sizes of tank_field with and without the units' meshes, and what the
+    view's topics add."""
     base = (ROOT / "scenarios" / "tank_field.toml").read_text()
-    rows, growth = [], 0.0
-    for n in (7, 5040):
+    rows, growth = [], {}
+    for n, stop in ((7, 4.0), (5040, 4.0), (5040, 20.0)):
         scene = f"tanks:n={n},tris=5.4k,spacing=10;missile:x=-30,y=0,z=15,pitch=0.41"
-        sizes = []
+        sizes, paths = [], []
         for view in (False, True):
             path = tmp / f"tank_field_{n}_{view}.toml"
             path.write_text(base + ("\n[foxglove]\nunits = true\n" if view else ""))
-            out = tmp / f"tank_field_{n}_{view}.mcap"
+            out = tmp / f"tank_field_{n}_{stop:g}_{view}.mcap"
             r = subprocess.run([sys.executable, "-m", "immersim.orchestrator.cli", "run", str(path), "-o", str(out),
-                                "-q", "--set", f"coll.scene={scene}"], capture_output=True, text=True, cwd=ROOT)
+                                "-q", "--set", f"coll.scene={scene}", "--set", f"simulation.stop={stop}"],
+                               capture_output=True, text=True, cwd=ROOT)
             if r.returncode != 0:
                 raise RuntimeError(r.stderr[-2000:])
             sizes.append(out.stat().st_size)
-        growth = sizes[1] / sizes[0] - 1
-        rows.append(f"| {n} | {sizes[0] / 1e3:.1f} | {sizes[1] / 1e3:.1f} | {100 * growth:+.1f} % |")
+            paths.append(out)
+        growth[(n, stop)] = sizes[1] / sizes[0] - 1
+        whole = rewritten_size(paths[1])
+        part = {t: (whole - rewritten_size(paths[1], t)) / sizes[0] for t in ("/tf", "/scene/meshes")}
+        rows.append(f"| {n} | {stop:g} | {sizes[0] / 1e3:.1f} | {sizes[1] / 1e3:.1f} | {100 * growth[(n, stop)]:+.1f} % | "
+                    f"{100 * part['/tf']:+.1f} % | {100 * part['/scene/meshes']:+.1f} % |")
+    g = growth[(5040, 4.0)]
     return ["## 3. The units' meshes in the log", "",
-            "`scenarios/tank_field.toml` (4 s, the collision unit alone, every signal logged) with N tanks, "
-            "without and with `[foxglove] units = true` (meshes once on `/scene/meshes`; above 500000 static "
-            "triangles the static bodies are bounding boxes).", "",
-            "| tanks | log without view [kB] | log with the units' view [kB] | growth |", "|---|---|---|---|",
-            *rows, "", f"Target for 5040 tanks: within 10 % of the log without the view: "
-                       f"**{'met' if growth <= 0.10 else 'NOT met'}** ({100 * growth:+.1f} %).", ""]
+            "`scenarios/tank_field.toml` (the collision unit alone, every signal logged, JSON) with N tanks, "
+            "without and with `[foxglove] units = true`: the meshes once on `/scene/meshes` as glTF models (each "
+            "distinct mesh once, the static bodies its GPU instances; above 500000 static triangles the static "
+            "bodies are bounding boxes), the missile's pose on `/tf` every step. What a topic adds: the log "
+            "rewritten without it, as a share of the log without the view.", "",
+            "| tanks | simulated s | log without view [kB] | log with the units' view [kB] | growth | of it `/tf` | "
+            "of it `/scene/meshes` |", "|---|---|---|---|---|---|---|",
+            *rows, "", f"Target for 5040 tanks (the 4 s run): within 10 % of the log without the view: "
+                       f"**{'met' if g <= 0.10 else 'NOT met'}** ({100 * g:+.1f} %).", ""]
 
 
 def server_cost(n_steps: int = 2000) -> list:
@@ -164,13 +220,13 @@ def server_cost(n_steps: int = 2000) -> list:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="2 repeats instead of 5")
+    ap.add_argument("--quick", action="store_true", help="2 repeats instead of 7")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(one_run(json.loads(args.child))))
         return
-    repeats = 2 if args.quick else 5
+    repeats = 2 if args.quick else 7
     OUT.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="bench_live_"))
     lines = ["# Real-time pacing and the live view (campus_drive)", "",
@@ -190,28 +246,42 @@ def main() -> None:
               f"Target p99 lateness < 2 ms, 0 steps skipped: **{'met' if paced['p99_ms'] < 2.0 and paced['steps'] == 607 else 'NOT met'}**.", ""]
 
     default, every = "live view, 1 client (default: <= 60 messages per channel and s)", "live view, 1 client, every message"
-    loops = {"without live view": [], default: [], every: []}
-    received = {default: [], every: []}
+    runs: dict = {"without live view": [], default: [], every: []}
     for r in range(repeats):
-        loops["without live view"].append(child({"out": str(tmp / f"a{r}.mcap")})["loop"])
+        runs["without live view"].append(child({"out": str(tmp / f"a{r}.mcap")}))
         for name, rate in ((default, 60.0), (every, None)):
-            res = child({"out": str(tmp / f"b{r}.mcap"), "live": True, "rate": rate})
-            loops[name].append(res["loop"])
-            received[name].append((res["received"], res["sent"]))
+            runs[name].append(child({"out": str(tmp / f"b{r}.mcap"), "live": True, "rate": rate}))
     same_live = messages(tmp / "a0.mcap") == messages(tmp / "b0.mcap")
-    a, b = median(loops["without live view"]), median(loops[default])
-    cost, cost_every = b / a - 1, median(loops[every]) / a - 1
+    loop = {k: median([x["loop"] for x in v]) for k, v in runs.items()}
+    cpu = {k: median([x["main_cpu"] for x in v]) for k, v in runs.items()}
+    a, b = loop["without live view"], loop[default]
+    cost, cost_every = b / a - 1, loop[every] / a - 1
+    # each live run against the run without it just before it (the machine's load drifts slowly)
+    paired = {k: median([x["loop"] / y["loop"] - 1 for x, y in zip(runs[k], runs["without live view"])])
+              for k in (default, every)}
     lines += ["## 2. The live view's cost", "",
               f"campus_drive unpaced, {repeats} interleaved runs each in a fresh process; loop wall time "
-              "(set-up excluded). The client (another process) subscribes to every channel as it is advertised.", "",
-              "| configuration | loop s (median) | runs |", "|---|---|---|"]
-    lines += [f"| {k} | {median(v):.4f} | {', '.join(f'{x:.4f}' for x in v)} |" for k, v in loops.items()]
-    lines += [""] + [f"{name}: messages the client received / messages streamed per run: "
-                     f"{', '.join(f'{r}/{s}' for r, s in got)}." for name, got in received.items()]
+              "(set-up excluded). The client (another process, at the lowest priority) subscribes to every "
+              "channel as it is advertised. CPU seconds from the first step's log to the end of the run: the "
+              "run's main thread, the run's other threads (the server's), the client process.", "",
+              "| configuration | loop s (median) | main thread CPU s | other threads CPU s | client CPU s | loop s, runs |",
+              "|---|---|---|---|---|---|"]
+    for k, v in runs.items():
+        walls = ", ".join(f"{x['loop']:.4f}" for x in v)
+        lines.append(f"| {k} | {loop[k]:.4f} | {cpu[k]:.4f} | {median([x['other_cpu'] for x in v]):.3f} | "
+                     f"{median([x['client_cpu'] for x in v]):.2f} | {walls} |")
+    lines.append("")
+    for name in (default, every):
+        got = ", ".join(f"{x['received']}/{x['sent']}" for x in runs[name])
+        lines.append(f"{name}: messages the client received / messages streamed per run: {got}.")
     lines += [f"Log with the live view = log without: {'yes' if same_live else 'NO'}.", "",
               f"Cost of the live view with one client, as `--live` streams by default: **{cost * 100:+.1f} %** of the "
               f"loop time (target <= 10 %: **{'met' if cost <= 0.10 else 'NOT met'}**); streaming every message "
-              f"(`--live-rate 0`): {cost_every * 100:+.1f} %.", ""]
+              f"(`--live-rate 0`): {cost_every * 100:+.1f} %. Median of each live run's loop time over the run "
+              f"without it before it: {paired[default] * 100:+.1f} % (default), {paired[every] * 100:+.1f} % (every "
+              f"message). The main thread's CPU time: "
+              f"{(cpu[default] / cpu['without live view'] - 1) * 100:+.1f} % (default), "
+              f"{(cpu[every] / cpu['without live view'] - 1) * 100:+.1f} % (every message).", ""]
     lines += server_cost()
     lines += mesh_sizes(tmp)
     (OUT / "README.md").write_text("\n".join(lines))

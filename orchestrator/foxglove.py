@@ -307,6 +307,8 @@ class FoxgloveObserver:
             mid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
                                     data=meshes_schema([m.kind for m in self.meshes]))
             self._meshes = w.register_channel(topic="/scene/meshes", message_encoding="json", schema_id=mid)
+            if getattr(w, "tee", None) is not None:   # the live view: a viewer joining late gets them too
+                w.tee.latch(self._meshes)
         self._step_channels = [w.register_channel(topic=part.topic, message_encoding="json", schema_id=sid)
                                for part, _ in self._steps]
 

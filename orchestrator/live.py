@@ -191,9 +191,13 @@ class _Listener:
         self.inputs = inputs
         self.topics: Dict[Tuple[int, int], str] = {}
         self.subscribed = 0
+        #: ids of the server's channels subscribed to since the master last looked (list.append
+        #: is atomic: the master takes them in :meth:`LiveServer.step`)
+        self.joined: List[int] = []
 
     def on_subscribe(self, client, channel) -> None:
         self.subscribed += 1
+        self.joined.append(channel.id)
 
     def on_unsubscribe(self, client, channel) -> None:
         self.subscribed -= 1
@@ -230,7 +234,9 @@ class LiveServer:
         the server. None or 0: every message (a run paced at real time makes 30 a second).
 
     Clients may publish (client-publish capability); what they send reaches unit inputs only
-    through the :class:`LiveInputs` given to :meth:`listen`.
+    through the :class:`LiveInputs` given to :meth:`listen`. A channel written once (the
+    meshes, :meth:`latch`) is sent again, its last message with its log time, when a client
+    subscribes to it after that message: a viewer that joins mid-run still gets the meshes.
     """
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = 0, max_rate: Optional[float] = 60.0) -> None:
@@ -251,8 +257,11 @@ class LiveServer:
         self._channels: Dict[int, Any] = {}
         self._period = 1.0 / max_rate if max_rate else 0.0
         self._last: Dict[int, float] = {}   # channel id -> wall time of its last streamed message
+        self._latched: Dict[int, Optional[Tuple[int, bytes]]] = {}   # channel id -> its last message
+        self._ids: Dict[int, int] = {}   # the server's channel id -> the log's
         self.messages = 0   # streamed
         self.skipped = 0    # not streamed (max_rate)
+        self.resent = 0     # latched messages sent again to a client that subscribed late
 
     def listen(self, inputs: LiveInputs) -> None:
         """Route what clients publish to ``inputs``."""
@@ -268,18 +277,27 @@ class LiveServer:
                 metadata: Optional[Dict[str, str]] = None) -> None:
         import foxglove
 
-        self._channels[channel_id] = foxglove.Channel(
+        ch = self._channels[channel_id] = foxglove.Channel(
             topic, schema=self._schemas.get(schema_id), message_encoding=message_encoding,
             context=self.context, metadata=dict(metadata or {}))
+        self._ids[ch.id()] = channel_id
+
+    def latch(self, channel_id: int) -> None:
+        """A client subscribing to ``channel_id`` after its last message gets that message."""
+        self._latched[channel_id] = None
 
     def step(self, log_time: int, items: Sequence[Tuple[int, bytes]]) -> None:
         """The messages of one step, ``(channel id, data)`` at ``log_time`` ns."""
-        channels, last, period = self._channels, self._last, self._period
+        channels, last, period, latched = self._channels, self._last, self._period, self._latched
+        if self.listener.joined:
+            self._resend()
         now = time.perf_counter() if period else 0.0
         for cid, data in items:
             ch = channels.get(cid)
             if ch is None:
                 continue
+            if cid in latched:
+                latched[cid] = (log_time, bytes(data))
             if period:
                 if now - last.get(cid, -math.inf) < period:
                     self.skipped += 1
@@ -287,6 +305,16 @@ class LiveServer:
                 last[cid] = now
             ch.log(bytes(data), log_time=log_time)
             self.messages += 1
+
+    def _resend(self) -> None:
+        """The latched messages of the channels clients subscribed to since the last step."""
+        joined = self.listener.joined
+        while joined:
+            cid = self._ids.get(joined.pop())
+            message = self._latched.get(cid)
+            if message is not None:
+                self._channels[cid].log(message[1], log_time=message[0])
+                self.resent += 1
 
     @property
     def url(self) -> str:

@@ -219,3 +219,29 @@ def test_a_fast_run_streams_at_most_max_rate_messages_per_channel_and_second():
         assert server.messages + server.skipped == 6000
     finally:
         server.stop()
+
+
+def test_a_viewer_joining_after_the_meshes_still_gets_them():
+    """A latched channel (the meshes, written once at the start) is sent again, the log's bytes at
+    the log's time, to a client that subscribes after it was written; other channels are not."""
+    server = LiveServer(port=0, max_rate=None)
+    client = Client(server.url)
+    try:
+        server.schema(1, "s", "jsonschema", b"{}")
+        server.channel(1, "/scene/meshes", "json", 1)
+        server.channel(2, "/tf", "json", 1)
+        server.latch(1)
+        server.step(5, [(1, b'{"meshes":1}'), (2, b'{"tf":5}')])   # before anyone listens
+        client.start()
+        assert client.ready.wait(10)
+        k, deadline = 6, time.monotonic() + 10
+        while time.monotonic() < deadline and not any(t == "/scene/meshes" for t, _, _ in client.messages):
+            server.step(k, [(2, b'{"tf":%d}' % k)])   # the subscription is handed over with a step
+            k += 1
+            time.sleep(0.01)
+        meshes = {m for m in client.messages if m[0] == "/scene/meshes"}
+        assert meshes == {("/scene/meshes", 5, b'{"meshes":1}')} and server.resent >= 1
+        assert all(t > 5 for topic, t, _ in client.messages if topic == "/tf")   # not latched: never sent again
+    finally:
+        client.stop.set()
+        server.stop()
