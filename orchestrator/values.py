@@ -63,9 +63,13 @@ def check_value(value: Any, fmi_type: str, bounds: Bounds = (None, None), non_fi
     non_finite : bool
         Accept NaN/inf for a Real (a fault forced into a Real input).
     """
-    why = type_error(value, fmi_type)
-    if why:
-        return why
+    return type_error(value, fmi_type) or range_error(value, fmi_type, bounds, non_finite)
+
+
+def range_error(value: Any, fmi_type: str, bounds: Bounds = (None, None), non_finite: bool = False) -> Optional[str]:
+    """Why ``value``, of a kind ``fmi_type`` takes (:func:`type_error` says None), is out of its
+    range (finite, Float32, the integer type's range and ``bounds``); None if it is in. Parameters
+    as :func:`check_value`."""
     if fmi_type in REAL_TYPES:
         try:
             number = float(value)
@@ -127,7 +131,7 @@ def check_values(scenario, variables: Dict[str, Dict[str, Any]], paths: Dict[str
             if type_error(value, v.type):
                 raise ScenarioError(f"{where}: parameter {u.name}.{pname}: type mismatch, the FMU declares "
                                     f"{v.type} but the scenario gives {type(value).__name__} {value!r}")
-            why = check_value(value, v.type, bounds[u.name].get(pname, (None, None)))
+            why = range_error(value, v.type, bounds[u.name].get(pname, (None, None)))
             if why:
                 raise ScenarioError(f"{where}: {u.name}.{pname}: {why}")
     for i, s in enumerate(scenario.faults):
