@@ -84,6 +84,14 @@ def one_run(spec: dict) -> dict:
         client = subprocess.Popen([sys.executable, "-c", CLIENT, server.url], stdout=subprocess.PIPE, text=True,
                                   preexec_fn=lambda: os.nice(19))
         time.sleep(1.0)   # the client connects before the run starts
+        handed = server.handed = [0]   # ns the run's thread spends handing its messages to the server
+        step = server.step
+
+        def timed(log_time, items):
+            t = time.perf_counter_ns()
+            step(log_time, items)
+            handed[0] += time.perf_counter_ns() - t
+        server.step = timed
     ex = Execution(CAMPUS, spec["out"], live=server, realtime=spec.get("realtime"))
     start = []   # CPU seconds of the main thread, the process and the client when step 0 is logged
 
@@ -103,6 +111,7 @@ def one_run(spec: dict) -> dict:
         received, _ = client.communicate(timeout=30)
         out["received"] = int(received.strip() or 0)
         out["sent"] = server.messages
+        out["handed"] = server.handed[0] / 1e9
     return out
 
 
@@ -273,7 +282,9 @@ def main() -> None:
     lines.append("")
     for name in (default, every):
         got = ", ".join(f"{x['received']}/{x['sent']}" for x in runs[name])
-        lines.append(f"{name}: messages the client received / messages streamed per run: {got}.")
+        handed = median([x["handed"] / x["loop"] for x in runs[name]])
+        lines.append(f"{name}: messages the client received / messages streamed per run: {got}; the run's "
+                     f"thread spends {100 * handed:.1f} % of its loop time handing messages to the server (median).")
     lines += [f"Log with the live view = log without: {'yes' if same_live else 'NO'}.", "",
               f"Cost of the live view with one client, as `--live` streams by default: **{cost * 100:+.1f} %** of the "
               f"loop time (target <= 10 %: **{'met' if cost <= 0.10 else 'NOT met'}**); streaming every message "
