@@ -41,14 +41,18 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import hashlib
 import logging
+import pickle
+from pathlib import Path
 from typing import Optional
 
 import casadi as ca
 import numpy as np
 
-from .codegen import RK4_LOOP_C, FastFunction, _work_sizes, compile_library
-from .control import NC
+from ..cachefiles import write_atomic
+from .codegen import CFLAGS, RK4_LOOP_C, FastFunction, _work_sizes, cache_dir, compile_library
+from .control import NC, prefiltered_loop
 from .cueing import NWM, NWS, washout_sx
 from .dynamics import NP, functions, param_dict
 from .integrators import rk4_substep
@@ -208,6 +212,36 @@ def _library(rhs: ca.Function):
     return compile_library(driver[0], list(fns), extra_c), fns, driver
 
 
+@functools.lru_cache(maxsize=None)
+def stored_library(control: str, model: str) -> Optional[tuple]:
+    """:func:`_library` of ``prefiltered_loop(control, model)`` without building it again: the
+    Functions (CasADi's serialization) and the compiled library's path are kept in the codegen
+    cache (:func:`.codegen.cache_dir`), keyed by ``control``, ``model``, CasADi's version, the C
+    flags and the sources of this package, which are all the generated code depends on. A missing
+    or damaged entry is made again (building the closed loop and generating its C, ~0.1 s). None
+    without a C compiler."""
+    here = Path(__file__).parent
+    h = hashlib.sha256(f"{control}\n{model}\n{ca.__version__}\n{' '.join(CFLAGS)}".encode())
+    for src in sorted(here.glob("*.py")):
+        h.update(src.name.encode() + b"\0" + src.read_bytes())
+    entry = cache_dir() / f"macro_{h.hexdigest()[:24]}.pickle"
+    try:
+        rec = pickle.loads(entry.read_bytes())
+        fns = tuple(ca.Function.deserialize(s) for s in rec["functions"])
+        return ctypes.CDLL(rec["library"]), fns, tuple(rec["driver"])
+    except (OSError, KeyError, TypeError, ValueError, RuntimeError, EOFError, pickle.UnpicklingError):
+        pass   # (absent, cut or damaged; a library removed from the cache)
+    lib, fns, driver = _library(prefiltered_loop(control, model))
+    if lib is None:
+        return None
+    rec = {"functions": [f.serialize() for f in fns], "library": lib._name, "driver": list(driver)}
+    try:
+        write_atomic(entry, lambda f: f.write(pickle.dumps(rec)))
+    except OSError:   # a read-only or full cache: the next run builds it again
+        pass
+    return lib, fns, driver
+
+
 def macro_parts(rhs: ca.Function):
     """((pre, check, sub, post), (driver name, its sz_arg, sz_res), C of the RK4 loop and the driver)
     for the closed loop ``rhs``; :func:`.codegen.library_source` of these is the library's whole C."""
@@ -253,8 +287,11 @@ class MacroStep:
         Whether the raw reference of the step is inside the workspace.
     """
 
-    def __init__(self, rhs: ca.Function, compiled: bool = True, driver: bool = True) -> None:
-        if compiled:
+    def __init__(self, rhs: Optional[ca.Function], compiled: bool = True, driver: bool = True,
+                 library: Optional[tuple] = None) -> None:
+        if library is not None:
+            lib, fns, driver_c = library
+        elif compiled:
             lib, fns, driver_c = _library(rhs)
         else:
             lib, fns, driver_c = None, (pre_function(f"{rhs.name()}_pre"), check_function(f"{rhs.name()}_check"),

@@ -110,12 +110,14 @@ class PlatformSim:
         self.cfg = cfg
         self.p = cfg.params.vector()
         self.c = cfg.control.vector()
-        rhs = prefiltered_loop(cfg.control_mode, cfg.model)
         ic = cfg.integrator
-        self.macro = m = ms.MacroStep(rhs, compiled=ic.compiled, driver=ic.method == "rk4")
+        # the compiled driver's Functions and library from the cache: no closed loop to build
+        stored = ms.stored_library(cfg.control_mode, cfg.model) if ic.compiled and ic.method == "rk4" else None
+        rhs = None if stored else prefiltered_loop(cfg.control_mode, cfg.model)
+        self.macro = m = ms.MacroStep(rhs, compiled=ic.compiled, driver=ic.method == "rk4", library=stored)
         # the composed path's integrator; the driver integrates the step itself (with it the
         # composed path only runs to raise on a reference outside the workspace)
-        self.integ = None if m.has_driver else StepIntegrator(rhs, ic)
+        self.integ = None if m.has_driver else StepIntegrator(rhs or prefiltered_loop(cfg.control_mode, cfg.model), ic)
         m.p[:], m.c[:] = self.p, self.c
         m.ctrl[:] = (cfg.cueing == "washout", 0.0, int(ic.substeps), cfg.cos_beta_min, cfg.on_workspace == "clamp")
         m.state[ms.REACH] = 1.0
