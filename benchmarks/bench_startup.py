@@ -20,7 +20,7 @@ Sides of this checkout: ``cache`` (the extraction and mesh caches warm, as every
 first), ``no mesh cache`` (``IMMERSIM_MESH_CACHE=0``: each run builds the scene's meshes with
 trimesh), ``no cache`` (both caches off: each run extracts and compiles anew as well).
 
-    python benchmarks/bench_startup.py [--base REV ...] [--repeats N] [--quick] [--source] [--no-ablation]
+    python benchmarks/bench_startup.py [--base REV ...] [--repeats N] [--quick] [--source] [--no-ablation] [--no-checkout]
 """
 from __future__ import annotations
 
@@ -198,6 +198,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="3 repeats")
     ap.add_argument("--source", action="store_true", help="no bytecode: every run compiles the sources")
     ap.add_argument("--no-ablation", action="store_true", help="only the bases and this checkout's cache side")
+    ap.add_argument("--no-checkout", action="store_true", help="only the bases (not this checkout's files)")
     args = ap.parse_args()
     args.base = args.base or [BASE]
     repeats = 3 if args.quick else args.repeats
@@ -209,9 +210,11 @@ def main() -> None:
             name = subprocess.run(["git", "rev-parse", "--short", rev], cwd=ROOT, check=True, capture_output=True,
                                   text=True).stdout.strip()
             sides.append(Side(name, copy_tree(rev, work / f"base_{k}", not args.source), work, {}))
-        tree = copy_tree(None, work / "checkout", not args.source)
-        sides.append(Side("cache", tree, work, {"IMMERSIM_FMU_CACHE": str(cache), "IMMERSIM_MESH_CACHE": str(meshes)}))
-        if not args.no_ablation:
+        tree = None if args.no_checkout else copy_tree(None, work / "checkout", not args.source)
+        if tree is not None:
+            sides.append(Side("cache", tree, work, {"IMMERSIM_FMU_CACHE": str(cache),
+                                                    "IMMERSIM_MESH_CACHE": str(meshes)}))
+        if tree is not None and not args.no_ablation:
             sides.append(Side("no mesh cache", tree, work, {"IMMERSIM_FMU_CACHE": str(cache),
                                                             "IMMERSIM_MESH_CACHE": "0"}))
             sides.append(Side("no cache", tree, work, {"IMMERSIM_FMU_CACHE": "0", "IMMERSIM_MESH_CACHE": "0"}))
@@ -224,7 +227,7 @@ def main() -> None:
                 whole[s.name].append(s.whole())
             for s in sides:
                 phases[s.name].append(s.phases())
-        write(sides, whole, phases, args, repeats, next(s for s in sides if s.name == "cache").imports())
+        write(sides, whole, phases, args, repeats, sides[-1 if args.no_checkout else len(args.base)].imports())
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
@@ -235,7 +238,7 @@ def write(sides: List[Side], whole, phases, args, repeats: int, imports: List[tu
     lines = ["# Start-up of a short run", "",
              stamp(f"python benchmarks/bench_startup.py{''.join(' --base ' + b for b in args.base)}"
                    f"{' --quick' if args.quick else ''}{' --source' if args.source else ''}"
-                   f"{' --no-ablation' if args.no_ablation else ''}"),
+                   f"{' --no-ablation' if args.no_ablation else ''}{' --no-checkout' if args.no_checkout else ''}"),
              "Bytecode: " + ("none (every run compiles the sources, as a checkout run under "
                              "`PYTHONDONTWRITEBYTECODE=1`)." if args.source else
                              "compiled once per side (as an installed package has it); no run writes any."), "",
@@ -268,7 +271,8 @@ def write(sides: List[Side], whole, phases, args, repeats: int, imports: List[tu
     lines.append("| **whole run** | " + " | ".join(
         f"**{median([sum(r.values()) for r in phases[n]]):.3f}**" for n in names) + " |")
     lines += ["", "The largest imports made directly by the program or a unit's code (`python -X importtime`, one run "
-                  "of `cache`, cumulative seconds; without bytecode, compiling is part of it):", "", "| module | s |", "|---|---|"]
+                  f"of `{names[-1] if args.no_checkout else 'cache'}`, cumulative seconds; without bytecode, "
+                  "compiling is part of it):", "", "| module | s |", "|---|---|"]
     lines += [f"| `{m}` | {t:.3f} |" for m, t in imports[:15]]
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / ("bench_source.md" if args.source else "bench.md")).write_text("\n".join(lines) + "\n")
