@@ -17,7 +17,9 @@ The base class checks the master (current time must be the end of the previous s
 size > 0, following the FMI Reference-FMUs), rejects NaN/inf inputs and refuses to hand out
 non-finite outputs, each with a message naming instance, variable and time. An exception
 raised in ``fmi2DoStep`` makes the pythonfmu binary return ``fmi2Discard``; its text reaches
-the master's logger.
+the master's logger. What the packed models log (Python ``logging``) while an instance sets up
+or steps goes to that instance's FMI logger (status ok, warning for warnings and above), not
+to the logging of the process that loaded the FMU.
 
 ``get_real`` / ``set_real`` resolve each distinct list of value references once (a master asks
 for the same list every step) into an ``operator.itemgetter`` over ``self.values``; inputs are
@@ -27,8 +29,10 @@ output returns :data:`OUTPUTS_UNCHANGED` from ``step_model`` and skips the outpu
 from __future__ import annotations
 
 import copy
+import logging
 import math
 import pickle
+import threading
 from operator import itemgetter
 from typing import Any, Callable, ClassVar, Dict, List, Sequence, Tuple
 from xml.etree.ElementTree import Element, SubElement
@@ -66,6 +70,30 @@ def _first_nonfinite(names: Sequence[str], values: Dict[str, Any]):
         if not math.isfinite(value):
             return name, value
     return None
+
+
+class _FmiLog(logging.Handler):
+    """Records of the packed package's loggers, handed to the FMI logger of the instance that is
+    setting up or stepping in this thread (:meth:`TableSlave.exit_initialization_mode`,
+    :meth:`TableSlave.do_step`); a record outside those calls is dropped."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.active = threading.local()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        slave = getattr(self.active, "slave", None)
+        if slave is not None:
+            slave.log(record.getMessage(), Fmi2Status.warning if record.levelno >= logging.WARNING else Fmi2Status.ok)
+
+
+#: the package a unit is packed with (``immersim_<digest>``): its loggers end at the FMI
+#: logger; the ``immersim`` package itself (the slave imported from it, as tests do) keeps its own
+_PACKAGE = __name__.split(".")[0]
+_FMI_LOG = _FmiLog()
+if _PACKAGE != "immersim":
+    logging.getLogger(_PACKAGE).addHandler(_FMI_LOG)
+    logging.getLogger(_PACKAGE).propagate = False
 
 
 class FmuInputError(ValueError):
@@ -179,13 +207,18 @@ class TableSlave(Fmi2Slave):
                     raise FmuInputError(
                         f"{self.instance_name}: {var.causality} {var.name} = {value} is not finite "
                         f"at initialization (t = {self._time:g} s)")
-        self.setup_model()
+        _FMI_LOG.active.slave = self
+        try:
+            self.setup_model()
+        finally:
+            _FMI_LOG.active.slave = None
         self._initialized = True
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         """One communication step. A failure is logged with status error (naming instance,
         variable and time) and returned as ``False``: the pythonfmu binary then reports a
         failed step instead of a fatal Python exception that would poison the instance."""
+        _FMI_LOG.active.slave = self
         try:
             self._check_master(current_time, step_size)
             if self.step_model(current_time, step_size) is not OUTPUTS_UNCHANGED:
@@ -194,6 +227,8 @@ class TableSlave(Fmi2Slave):
             self.log(f"{type(exc).__name__}: {exc}", Fmi2Status.error)
             self.failed = f"{type(exc).__name__}: {exc}"
             return False
+        finally:
+            _FMI_LOG.active.slave = None
         self._time = current_time + step_size
         return True
 
