@@ -459,11 +459,34 @@ def free_motion(pos: np.ndarray, vel: np.ndarray, turn: np.ndarray, drag: float,
     and a wall of the square scene ``[0, size]^2`` reflects the position and that velocity
     component. Rows with ``dt <= 0`` are returned as they are.
     """
-    p, v = np.array(pos, float), np.array(vel, float)
     dt = np.asarray(dt, float)
     n = np.where(dt > 0, np.maximum(1, np.ceil(dt / h_max - 1e-9)), 0).astype(np.int64)
+    x, y = np.array(pos[:, 0], float), np.array(pos[:, 1], float)
+    vx, vy = np.array(vel[:, 0], float), np.array(vel[:, 1], float)
     if not len(n) or n.max() == 0:
-        return p, v
+        return np.stack([x, y], axis=1), np.stack([vx, vy], axis=1)
+    h = dt / np.maximum(n, 1)
+    decay = np.exp(-drag * h)
+    ct, st = np.cos(turn * h) * decay, np.sin(turn * h) * decay
+    hh = 0.5 * h
+    n_max = int(n.max())
+    same = bool((n == n_max).all())       # (the usual case: every row one frame on)
+    for i in range(n_max):
+        a = slice(None) if same else np.flatnonzero(n > i)
+        ax, ay = vx[a], vy[a]
+        c, s_, k = ct[a], st[a], hh[a]
+        bx = c * ax - s_ * ay
+        by = s_ * ax + c * ay
+        px = x[a] + k * (ax + bx)
+        py = y[a] + k * (ay + by)
+        for q, b in ((px, bx), (py, by)):     # walls: reflect the position and that velocity component
+            lo, hi = q < 0.0, q > size
+            if lo.any() or hi.any():
+                q[lo] = -q[lo]
+                q[hi] = 2.0 * size - q[hi]
+                b[lo | hi] *= -1.0
+        x[a], y[a], vx[a], vy[a] = px, py, bx, by
+    return np.stack([x, y], axis=1), np.stack([vx, vy], axis=1)
     h = dt / np.maximum(n, 1)
     decay = np.exp(-drag * h)
     ct, st = np.cos(turn * h) * decay, np.sin(turn * h) * decay

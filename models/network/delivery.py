@@ -174,10 +174,11 @@ class Inflight:
         cfg, tr, arr_l = net.cfg, fr.tr, fr.arr_l
         due = None
         small = arr_l is not None     # a small lossless batch timed in Python floats
-        if net.phase is not None and small:   # the frame clocks' phases: the array form below
-            fr.arrival, fr.lost, arr_l = np.array(arr_l), np.zeros(len(arr_l), bool), None
         if len(tr.rec_msg):
-            if arr_l is not None:
+            snap = net.own.snapshot()
+            if arr_l is not None and net.phase is not None:   # the frame clocks' phases (:meth:`phased`)
+                due = self.phased_floats(net, fr, net.own.snapshot_list(snap))
+            elif arr_l is not None:
                 rec_msg, _, carriers = tr.plan.lists()
                 due_c = due_frames([arr_l[i] for i in carriers], cfg.scene.frame_s, net.k)
                 if due_c.count(due_c[0]) == len(due_c):   # every record due at one frame
@@ -192,8 +193,7 @@ class Inflight:
                 if tr.plan.wait is not None:
                     hop = tr.rec_hop1
                     due[(hop >= 0) & np.take(fr.lost, np.maximum(hop, 0))] = -1
-            snap = net.own.snapshot()
-            if net.phase is not None:
+            if net.phase is not None and arr_l is None:
                 due = self.phased(net, fr, due, snap[1])
             if small and len(tr.rec_msg) <= net.paths.few_records and fr.memo is not None:
                 self.file_rows(net, fr, due.tolist() if isinstance(due, np.ndarray) else due, snap)
@@ -233,6 +233,16 @@ class Inflight:
         tr, ph = fr.tr, net.phase
         arr = np.take(fr.arrival, tr.rec_msg) + ph.take(owners.take(tr.rec_obj)) - ph.take(tr.rec_viewer)
         return np.where(due >= 0, self.due(net, arr), -1)
+
+    def phased_floats(self, net, fr, owners: list) -> list:
+        """:meth:`phased` of a small lossless batch in Python floats (``fr.arr_l``; ``owners`` the
+        owners' snapshot as a list): the same sums ``arrival + phi_owner - phi_viewer`` and
+        frames (:func:`due_frames`)."""
+        tr, ph, arr = fr.tr, net.phase.tolist(), fr.arr_l
+        msg = tr.plan.lists()[0]
+        return due_frames([arr[m] + ph[owners[o]] - ph[v] for m, o, v in zip(msg, tr.rec_obj.tolist(),
+                                                                               tr.rec_viewer.tolist())],
+                          net.cfg.scene.frame_s, net.k)
 
     def deliver_rows(self, net, fi: list, senders: list, rows: list, epoch: int, t_send: float) -> None:
         """:meth:`deliver` of a chunk filed by :meth:`file_rows`: the same sender check

@@ -102,8 +102,7 @@ class DisplayError:
             m = net.metrics
             m.inconsistency_max = max(m.inconsistency_max, 0.0)
             m.inconsistency_rms = 0.0
-        elif (fi is not None and og is not None and len(fi) <= net.paths.scalar_view and self.groups is None
-              and not self.ownerless(net)):
+        elif fi is not None and og is not None and len(fi) <= net.paths.scalar_view and self.groups is None:
             self.measure_scalar(net, t, P, vo, vg, fi, og)     # (what measure does for a small view)
         else:
             self.measure(net, t, P, vg, vo, fi, og, cells, online_g)
@@ -135,7 +134,7 @@ class DisplayError:
             self.groups.invalidate()
         n = len(fi)
         free = self.ownerless(net)
-        if n <= paths.scalar_view and not free:
+        if n <= paths.scalar_view:
             return self.measure_scalar(net, t, P, vo, vg, fi, og)
         px, py = P[:, 0], P[:, 1]
         chunk = paths.measure_chunk
@@ -173,6 +172,19 @@ class DisplayError:
         remote = (og != vg) & (ct >= c[:, rc.enter_col] - 1e-12)
         return squared_dr_error(c, ct, np.take(px, vo), np.take(py, vo), t, net.cfg.consistency.prediction_order), remote
 
+    def _free_scalar(self, net, t, memo) -> dict:
+        """For :meth:`measure_scalar`: the counted remote copies (their position in ``memo``'s
+        list) shown by the entity law, and their positions ``[x, y]`` (m) at ``t``, as
+        :meth:`measure` selects and predicts them."""
+        rc = net.records
+        rows = rc.cache.take(memo[5], axis=0)
+        ct = rows[:, T_COL]
+        sel = np.flatnonzero((ct >= rows[:, rc.enter_col] - 1e-12)
+                             & self.free_copies(net, np.array(memo[4], np.int64), ct))
+        if not len(sel):
+            return {}
+        return dict(zip(sel.tolist(), self.free.positions(net, rows[sel], t).tolist()))
+
     def measure_scalar(self, net, t, P, vo, vg, fi, og) -> None:
         """:meth:`measure` of a view of a few copies in Python floats (the operations of
         :meth:`_copy_errors` and :func:`metrics.inconsistency_sq` in the same order; the total
@@ -190,15 +202,21 @@ class DisplayError:
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
         err2 = [0.0] * len(fi)    # the own copies (and remote ones without a record) count as 0
         first_order, second_order = order >= 1, order >= 2
-        for i, o, c in zip(memo[3], memo[4], rows):
+        law = self._free_scalar(net, t, memo) if memo[3] and self.ownerless(net) else {}
+        for j, (i, o, c) in enumerate(zip(memo[3], memo[4], rows)):
             ct = c[0]
             if not ct >= c[enter] - 1e-12:   # no record since it subscribed
                 continue
             cnt[o] += 1
             p = pos[o]
-            ex = c[1] - p[0]
-            ey = c[2] - p[1]
-            if first_order:
+            q = law.get(j)
+            if q is not None:      # an entity without an owner: the node's own prediction
+                ex = q[0] - p[0]
+                ey = q[1] - p[1]
+            else:
+                ex = c[1] - p[0]
+                ey = c[2] - p[1]
+            if first_order and q is None:
                 dt = t - ct
                 ex += c[3] * dt
                 ey += c[4] * dt

@@ -183,8 +183,13 @@ class Ownership:
             return new
         w, cw = net.world, net.cfg.world
         r = (cw.avatar_radius + cw.entity_radius) * (1.0 + 1e-9)
-        ei, gi = PointIndex(w.apos[cand]).near(w.epos[free], np.full(len(free), r))
-        d2 = np.einsum("ij,ij->i", w.epos[free[ei]] - w.apos[cand[gi]], w.epos[free[ei]] - w.apos[cand[gi]])
+        ep, ap = w.epos[free], w.apos[cand]
+        if len(free) * len(cand) <= net.paths.brute_owners:   # every pair (cheaper than an index)
+            ei, gi = np.divmod(np.arange(len(free) * len(cand)), len(cand))
+        else:
+            ei, gi = PointIndex(ap).near(ep, np.full(len(free), r))
+        d = ep[ei] - ap[gi]
+        d2 = np.einsum("ij,ij->i", d, d)
         ok = d2 <= r * r
         if not ok.any():
             return new
