@@ -488,8 +488,9 @@ def bench_campus(quick: bool, baseline: str = ""):
     if not baseline:
         return campus_inprocess(steps), campus_fmpy(steps), []
     rows = []
+    trees = [(Path(b).name, b) for b in baseline.split(",")] + [("current", None)]   # (several: comma-separated)
     for rnd in range(3):
-        for code, tree in (("baseline", baseline), ("current", None)):
+        for code, tree in trees:
             rows += [dict(r, code=code, round=rnd + 1) for r in in_tree(tree, "campus_inprocess", steps)]
     current = [r for r in rows if r["code"] == "current" and r["round"] == 3]
     return current, campus_fmpy(steps), rows
