@@ -130,6 +130,27 @@ def _conforms(schema, value, path="message"):
         assert isinstance(value, types), path
 
 
+def _foxglove(key, value):
+    """A decoded ``/scene/meshes`` value rebuilt with foxglove-sdk's own message classes (a
+    field Foxglove's SceneUpdate does not have, or of another type, raises); ``key`` names it."""
+    import foxglove.messages as fm
+
+    classes = {"entities": fm.SceneEntity, "deletions": fm.SceneEntityDeletion, "timestamp": fm.Timestamp,
+               "lifetime": fm.Duration, "cubes": fm.CubePrimitive, "lines": fm.LinePrimitive,
+               "models": fm.ModelPrimitive, "pose": fm.Pose, "position": fm.Vector3, "orientation": fm.Quaternion,
+               "size": fm.Vector3, "scale": fm.Vector3, "color": fm.Color, "colors": fm.Color, "points": fm.Point3}
+    if isinstance(value, list):
+        return [_foxglove(key, v) for v in value]
+    if key == "data":
+        return base64.b64decode(value)
+    if key == "type":
+        return {t.value: t for t in (fm.LinePrimitiveLineType.LineStrip, fm.LinePrimitiveLineType.LineLoop,
+                                     fm.LinePrimitiveLineType.LineList)}[value]
+    if isinstance(value, dict):
+        return classes[key](**{k: _foxglove(k, v) for k, v in value.items()})
+    return value
+
+
 def test_meshes_are_logged_once_with_their_own_triangles(tmp_path, built_fmus):
     """Each body drawn with its own triangles: the dynamic ones in their own frame, every static
     one a copy of its mesh at its pose (trimesh's own transform as the reference)."""
@@ -142,6 +163,9 @@ def test_meshes_are_logged_once_with_their_own_triangles(tmp_path, built_fmus):
         summary = make_reader(f).get_summary()
     (channel,) = [c for c in summary.channels.values() if c.topic == "/scene/meshes"]
     _conforms(json.loads(summary.schemas[channel.schema_id].data), meshes[0])
+    import foxglove.messages as fm
+
+    assert fm.SceneUpdate(**{k: _foxglove(k, v) for k, v in meshes[0].items()}).encode()
     scene = parse_scene(SCENE)
     entities = {e["id"]: e for e in meshes[0]["entities"]}
     assert set(entities) == {"coll/missile", "coll/static"}
@@ -262,3 +286,8 @@ units = true
         np.testing.assert_allclose(np.linalg.norm(B - C, axis=1), p.c, atol=1e-9)
         moved = max(moved, float(np.max(np.abs(strokes))))
     assert moved > 1e-3   # the cue moved the actuators: the check is not of the home pose only
+    import foxglove.messages as fm
+
+    (meshes,) = [m for topic, _, m in msgs if topic == "/scene/meshes"]   # the plate's cube, the rails' lines
+    assert {k for e in meshes["entities"] for k in ("cubes", "lines") if k in e} == {"cubes", "lines"}
+    assert fm.SceneUpdate(**{k: _foxglove(k, v) for k, v in meshes.items()}).encode()
