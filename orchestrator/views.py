@@ -66,7 +66,8 @@ class MeshEntity:
         if self.lines is not None:
             return {"lines": [line_list(self.lines, self.color)]}
         if self.box is not None:
-            return {"cubes": [{"pose": _identity_pose(), "size": dict(zip("xyz", map(float, self.box))), "color": color}]}
+            size = dict(zip("xyz", map(float, self.box)))
+            return {"cubes": [{"pose": _identity_pose(), "size": size, "color": color}]}
         return {"models": [{"pose": _identity_pose(), "scale": {"x": 1.0, "y": 1.0, "z": 1.0}, "color": color,
                             "override_color": False, "url": "", "media_type": GLB_MEDIA_TYPE,
                             "data": base64.b64encode(self.model).decode()}]}
