@@ -469,6 +469,9 @@ def free_motion(pos: np.ndarray, vel: np.ndarray, turn: np.ndarray, drag: float,
     decay = np.exp(-drag * h)
     ct, st = np.cos(turn * h) * decay, np.sin(turn * h) * decay
     hh = 0.5 * h
+    if len(n) <= SCALAR_FREE:
+        return _free_motion_scalar(n.tolist(), x.tolist(), y.tolist(), vx.tolist(), vy.tolist(), ct.tolist(),
+                                   st.tolist(), hh.tolist(), size)
     n_max = int(n.max())
     same = bool((n == n_max).all())       # (the usual case: every row one frame on)
     for i in range(n_max):
@@ -501,3 +504,33 @@ def free_motion(pos: np.ndarray, vel: np.ndarray, turn: np.ndarray, drag: float,
         nv[lo | hi] *= -1.0
         p[a], v[a] = q, nv
     return p, v
+
+
+#: up to this many rows :func:`free_motion` steps in Python floats (the same operations)
+SCALAR_FREE = 16
+
+
+def _free_motion_scalar(n, x, y, vx, vy, ct, st, hh, size):
+    """:func:`free_motion`'s sub-steps for a few rows in Python floats: per row ``n`` sub-steps of
+    the same products, sums and wall reflections as the array code, so the same results bit for
+    bit; returns positions and velocities (k, 2)."""
+    S2 = 2.0 * size
+    pos, vel = [], []
+    for k, px, py, ax, ay, c, s, h in zip(n, x, y, vx, vy, ct, st, hh):
+        for _ in range(k):
+            bx = c * ax - s * ay
+            by = s * ax + c * ay
+            px = px + h * (ax + bx)
+            py = py + h * (ay + by)
+            if px < 0.0:
+                px, bx = -px, bx * -1.0
+            elif px > size:
+                px, bx = S2 - px, bx * -1.0
+            if py < 0.0:
+                py, by = -py, by * -1.0
+            elif py > size:
+                py, by = S2 - py, by * -1.0
+            ax, ay = bx, by
+        pos.append((px, py))
+        vel.append((ax, ay))
+    return np.array(pos, float).reshape(-1, 2), np.array(vel, float).reshape(-1, 2)

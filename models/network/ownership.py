@@ -53,6 +53,25 @@ def nearest(q: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return np.argmin(dx * dx + dy * dy, axis=1).astype(np.int64)
 
 
+def _touching_scalar(free: list, ep: list, cand: list, ap: list, r2: float, new: np.ndarray) -> np.ndarray:
+    """:meth:`Ownership._touching` for a few pairs in Python floats: the same squared distances
+    ``dx dx + dy dy``, the nearest avatar within ``r2`` (m^2), ties to the lower group."""
+    out = None
+    for e, (ex, ey) in zip(free, ep):
+        best, who = r2, -1
+        for g, (ax, ay) in zip(cand, ap):
+            dx = ex - ax
+            dy = ey - ay
+            d2 = dx * dx + dy * dy
+            if d2 < best or (who < 0 and d2 == best):
+                best, who = d2, g
+        if who >= 0:
+            if out is None:
+                out = new.copy()
+            out[e] = who
+    return new if out is None else out
+
+
 class Ownership:
     """Who owns each object.
 
@@ -184,6 +203,8 @@ class Ownership:
         w, cw = net.world, net.cfg.world
         r = (cw.avatar_radius + cw.entity_radius) * (1.0 + 1e-9)
         ep, ap = w.epos[free], w.apos[cand]
+        if len(free) * len(cand) <= net.paths.scalar_owners:   # a few pairs: in Python floats
+            return _touching_scalar(free.tolist(), ep.tolist(), cand.tolist(), ap.tolist(), r * r, new)
         if len(free) * len(cand) <= net.paths.brute_owners:   # every pair (cheaper than an index)
             ei, gi = np.divmod(np.arange(len(free) * len(cand)), len(cand))
         else:

@@ -193,3 +193,41 @@ def test_only_the_last_owners_records_of_an_ownerless_entity_count():
     m.inject_update(0, 1, 2, pos=(5.0, 6.0))
     m.flight.deliver(m)
     assert m.metrics.rejected_updates == 1 and tuple(m.record(1, 2)[1:3]) == (5.0, 6.0)
+
+
+def test_free_motion_of_a_few_rows_in_python_floats_equals_the_array_code():
+    """A few rows step in Python floats (``SCALAR_FREE``), many as arrays: the same positions and
+    velocities bit for bit, walls, several sub-step counts and rows that do not move included."""
+    gen = np.random.default_rng(4)
+    k = 200
+    pos = gen.uniform(0.0, 40.0, (k, 2))
+    vel = gen.uniform(-9.0, 9.0, (k, 2))
+    turn = gen.uniform(-0.5, 0.5, k)
+    dt = np.where(gen.uniform(size=k) < 0.1, 0.0, gen.uniform(0.0, 2.0, k))
+    p, v = free_motion(pos, vel, turn, 0.02, dt, 40.0, T / 4)
+    for i in range(0, k, 10):
+        q, w = free_motion(pos[i:i + 10], vel[i:i + 10], turn[i:i + 10], 0.02, dt[i:i + 10], 40.0, T / 4)
+        assert np.array_equal(q, p[i:i + 10]) and np.array_equal(w, v[i:i + 10])
+    crossing = ((pos + vel * dt[:, None] < 0) | (pos + vel * dt[:, None] > 40.0)).any(axis=1)
+    assert crossing.sum() > 5 and ((p >= 0) & (p <= 40.0)).all()      # walls hit, and reflected
+
+
+@pytest.mark.parametrize("scalar_owners", [256, -1])
+def test_an_avatar_touching_an_entity_claims_it_without_a_contact_report(scalar_owners):
+    """Regions of radius 2 m, contact distance 3 m: an entity resting 2.9 m from parked avatar 1
+    (no approach, no contact response; the overlap is separated to 3 m) and 3.3 m from avatar 0
+    belongs to avatar 1 from the first frame, in Python floats and as arrays alike; 3.1 m from
+    avatar 1 it touches nobody and stays ownerless."""
+    from immersim.models.network.paths import Paths
+
+    for x, owner in ((2.9, 1), (3.1, -1)):
+        cfg = NetworkConfig.from_flat(groups=2, render_nodes=1, entities=1, driven_groups=2, seed=0,
+                                      ownership_min_axis=2.0, links=NO_DELAY, entity_drag=0.0)
+        m = NetworkModel(cfg, Paths(scalar_owners=scalar_owners))
+        w = m.world
+        w.apos[:] = [[50.0 - 3.3 - x, 50.0], [50.0, 50.0]]
+        w.epos[0] = [50.0 - x, 50.0]
+        w.evel[0] = [0.0, 0.0]
+        m.own.owner[2] = -1
+        m.step(T)
+        assert m.owner[2] == owner and m.metrics.contacts == 0
