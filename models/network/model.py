@@ -22,7 +22,7 @@ import numpy as np
 
 from . import events as ev
 from .config import NetworkConfig
-from .consistency import SceneGrid, dead_reckon
+from .consistency import SceneGrid, dead_reckon, free_motion
 from .contacts import Contacts
 from .delivery import Inflight
 from .history import AvatarHistory
@@ -347,11 +347,17 @@ class NetworkModel:
 
     def shown_position(self, viewer: int, obj: int) -> np.ndarray:
         """Position (2,) m of object ``obj`` as the master of group ``viewer`` shows it at the
-        current frame (its cache dead-reckoned to the frame time; the truth for its own objects)."""
+        current frame (its cache dead-reckoned to the frame time, or for an entity without an
+        owner the scene's entity law run from it, :class:`display.FreePrediction`; the truth for
+        its own objects)."""
         if self.owner[obj] == viewer:
             return self.world.positions()[obj].copy()
         c = self.cache[int(self.index(viewer, obj))]
         dt = np.array([self.k * self.cfg.scene.frame_s - c[0]])
+        if self.errors.ownerless(self) and self.errors.free_copies(self, np.array([obj]), c[None, 0])[0]:
+            scene, w = self.cfg.scene, self.cfg.world
+            return free_motion(c[None, 1:3], c[None, 3:5], self.world.eturn[[obj - self.cfg.groups]], w.entity_drag,
+                               dt, scene.scene_size, scene.frame_s / w.substeps)[0][0]
         return dead_reckon(c[None, 1:3], c[None, 3:5], c[None, 5:7], dt, self.cfg.consistency.prediction_order)[0]
 
     def heartbeat_table(self) -> List[dict]:

@@ -231,3 +231,16 @@ def test_an_avatar_touching_an_entity_claims_it_without_a_contact_report(scalar_
         m.own.owner[2] = -1
         m.step(T)
         assert m.owner[2] == owner and m.metrics.contacts == 0
+
+
+def test_a_node_shows_an_ownerless_entity_where_the_world_has_it():
+    """``shown_position`` of an ownerless entity turning and slowing down is the entity law from
+    the viewer's last record: on the truth to round-off, where dead reckoning is metres off."""
+    m = _model(53.5, 1.0, entity_drag=0.02)
+    m.world.eturn[:] = 0.2
+    for _ in range(300):
+        m.step(T)
+    c = m.record(1, 2)
+    dr = c[1:3] + c[3:5] * (m.t - c[0])
+    assert m.owner[2] == -1 and np.allclose(m.shown_position(1, 2), m.world.epos[0], atol=1e-6)
+    assert np.hypot(*(dr - m.world.epos[0])) > 1.0
