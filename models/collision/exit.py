@@ -160,7 +160,8 @@ def exit_2d(A: np.ndarray, nA: np.ndarray, parts: Sequence[tuple]) -> Optional[T
     ``M_j = B_j (+) (-A)``; the origin lies in their union ``U`` and the exit is the point of
     the boundary of ``U`` nearest the origin: the nearest point of some edge of some ``M_j``,
     a vertex, or a crossing of two edges of different ``M_j``, that lies inside no ``M_k``
-    (exact for one convex part: the nearest face; in a concave corner a diagonal move).
+    (exact for one convex part: the nearest face, its move computed from the supports as the
+    separating-axis test does; in a concave corner a diagonal move).
 
     Parameters
     ----------
@@ -171,29 +172,56 @@ def exit_2d(A: np.ndarray, nA: np.ndarray, parts: Sequence[tuple]) -> Optional[T
         (an exit does not end inside one).
     """
     parts = [_part(p) for p in parts]
-    if not any(overlaps(A, nA, q[0], q[1], q[2]) for q in parts):
+    hit = [overlaps(A, nA, q[0], q[1], q[2]) for q in parts]
+    if not any(hit):
         return None
+    # the faces of each overlapped M_j: along each of its normals (and +nA) the move
+    # max(B_j . n) - min(A . n) (a part's support along its own normals: its edge offsets)
+    axes_a = np.concatenate([nA, -nA])
+    dist, normal = [], []
+    for (B, nB, offB), h in zip(parts, hit):
+        if h:
+            axes = np.concatenate([axes_a, nB])
+            dist.append(np.concatenate([(B @ axes_a.T).max(0), offB]) - (A @ axes.T).min(0))
+            normal.append(axes)
+    points = [d[:, None] * n for d, n in zip(dist, normal)]
+    # the vertices, the nearest points of the edges and the crossings of the edges of every M_j
     M = [minkowski_difference(q[0], A) for q in parts]
     halves = [_edges(P) for P in M]       # outward normals, offsets: inside M_k iff q . n < offset
-    cand = [P for P in M] + [_closest_on_edges(P) for P in M]
-    lo = [P.min(axis=0) for P in M]
-    hi = [P.max(axis=0) for P in M]
+    pts = M + [_closest_on_edges(P) for P in M]
+    lo, hi = [P.min(axis=0) for P in M], [P.max(axis=0) for P in M]
     for i in range(len(M)):
         for j in range(i + 1, len(M)):
             if np.all(lo[i] <= hi[j]) and np.all(lo[j] <= hi[i]):
-                cand.append(_segments_cross(M[i], M[j]))
-    q = np.concatenate(cand)
-    dist = np.hypot(q[:, 0], q[:, 1])
+                pts.append(_segments_cross(M[i], M[j]))
+    p = np.concatenate(pts)
+    r = np.hypot(p[:, 0], p[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = p / r[:, None]
+    face = _nearest_free(np.concatenate(points), np.concatenate(dist), np.concatenate(normal), halves)
+    point = _nearest_free(p, r, u, halves)
+    # a face's move is computed as the separating-axis test does; a point (from the vertices'
+    # sums) wins only when shorter beyond rounding: in a corner, where no face move is free
+    best = face if point is None or (face is not None and face[0] <= point[0] + TOUCH) else point
+    if best is None:
+        raise AssertionError("exit_2d: no boundary point of the union found")   # (the union is bounded)
+    return best
+
+
+def _nearest_free(q: np.ndarray, dist: np.ndarray, normal: np.ndarray, halves: list):
+    """The candidate moves ``q`` (n, 2) (lengths ``dist``, directions ``normal``): the shortest
+    one (> 0) inside none of the convex polygons ``halves`` (outward normals, offsets), as
+    ``(length, direction)``, or None."""
     order = np.argsort(dist, kind="stable")
     for start in range(0, len(order), 64):   # nearest first: the first not inside any M_k
         k = order[start:start + 64]
-        free = np.ones(len(k), bool)
+        free = dist[k] > 0.0
         for n, off in halves:
             free &= ~np.all(q[k] @ n.T < off - TOUCH, axis=1)
         if free.any():
             best = k[int(np.argmax(free))]
-            return float(dist[best]), q[best] / dist[best]
-    raise AssertionError("exit_2d: no boundary point of the union found")   # (the union is bounded)
+            return float(dist[best]), normal[best].copy()
+    return None
 
 
 class Footprints:
