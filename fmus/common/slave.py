@@ -88,12 +88,16 @@ class _FmiLog(logging.Handler):
 
 
 #: the package a unit is packed with (``immersim_<digest>``): its loggers end at the FMI
-#: logger; the ``immersim`` package itself (the slave imported from it, as tests do) keeps its own
+#: logger; the ``immersim`` package itself (the slave imported from it, as tests do) keeps its own.
+#: A package imported again (a later run in this process) replaces its earlier handler.
 _PACKAGE = __name__.split(".")[0]
 _FMI_LOG = _FmiLog()
 if _PACKAGE != "immersim":
-    logging.getLogger(_PACKAGE).addHandler(_FMI_LOG)
-    logging.getLogger(_PACKAGE).propagate = False
+    _logger = logging.getLogger(_PACKAGE)
+    for _old in [h for h in _logger.handlers if type(h).__name__ == "_FmiLog"]:
+        _logger.removeHandler(_old)
+    _logger.addHandler(_FMI_LOG)
+    _logger.propagate = False
 
 
 class FmuInputError(ValueError):
