@@ -155,7 +155,10 @@ network + collision + platform in the closed loop, full logging). Per-run MCAPs 
 
 Plots: {", ".join(f"`backends/{p}`" for p in pngs["backends"])}.
 
-`contact_p`: share of the steps in which pair p (`avatar_p vs tank_X (horizontal)`) reports contact; `missile_hit`:
+`contact_p`: share of the steps in which pair p (`avatar_p vs tank_X (horizontal)`) reports contact; `depth_p`:
+its deepest reported penetration (m, the horizontal move out of the tank the network's response applies; basis_point
+defines no depth, so its contacts are only reflected, and honeycomb's depth is the overlap along its ray axis, not the
+shortest way out, so its correction can move an avatar much further than fcl's); `missile_hit`:
 the missile reached a field tank; `jolt_max`: player 1's largest bounce |dv| (m/s) = the jolt sent to
 the platform; `stroke_max`: largest actuator stroke (m); `coll_s`: wall time in the collision unit.
 
@@ -183,6 +186,9 @@ over the steps, `incons_rms`: RMS of the per-frame RMS over copies, `bytes_per_s
         > f(pred[(0, lats[-1])], "incons_max") else "") + """: it comes
   from the bounces, which dead reckoning extrapolates straight through the obstacle until the next
   state record arrives; it grows with the latency.
+* Order 0 predicts nothing, the entities no avatar owns included (every node otherwise runs the
+  scene's entity law for them): a node shows such an entity where its last record left it, so
+  order 0's error grows for as long as an entity stays unowned.
 
 ## Missile vs N tanks (`tank_field_n/`, scenario tank_field, 4 s, collision unit alone)
 
