@@ -355,6 +355,37 @@ def bench_frame_phase(quick: bool):
     return sweep, seeds
 
 
+def bench_handover(quick: bool):
+    """Hand-overs and their reverts (an entity back with its previous owner within 2 frames),
+    contacts and entity speeds over seeds 0-7 of the flapping scene (3 groups x 2 render nodes,
+    15 entities, 30 m, avatars uniform, 280 steps, contacts on), with the default hand-over hold
+    and without one (``handover_hold_s`` 0)."""
+    rows = []
+    for hold in (None, 0.0):
+        n = rev = contacts = 0
+        excess = -np.inf
+        for seed in range(2 if quick else 8):
+            kw = {} if hold is None else {"handover_hold_s": hold}
+            m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=2, entities=15, seed=seed,
+                                                     scene_size=30.0, avatar_start="uniform", **kw))
+            hist, ev, av = [m.owner[3:].copy()], [], []
+            for _ in range(280):
+                m.step(T)
+                hist.append(m.owner[3:].copy())
+                ev.append(np.hypot(*m.world.evel.T).max())
+                av.append(np.abs(m.world.speed).max())
+            for col in np.array(hist).T:
+                for k in np.flatnonzero(col[1:] != col[:-1]) + 1:
+                    n += 1
+                    rev += any(col[k + j] == col[k - 1] for j in (1, 2) if k + j < len(col))
+            contacts += m.totals.contacts
+            excess = max(excess, max(ev) - (m.cfg.world.entity_speed + max(av)))
+        rows.append(dict(handover_hold_s=m.cfg.consistency.handover_hold_s, seeds=seed + 1, handovers=n,
+                         reverted_within_2_frames=rev, share=f"{100 * rev / max(n, 1):.1f} %", contacts=contacts,
+                         speed_excess=f"{excess:.3f}"))
+    return rows
+
+
 #: the campus scenes' network parameters, and the driven case's constant driver inputs
 CAMPUS = (("campus_drive (driving)", 8, True), ("campus_idle (at rest)", 0, False))
 CAMPUS_DRIVE = ((0.8, 0.0), (0.7, 0.1), (0.6, -0.2))
@@ -689,6 +720,15 @@ def only(parts, quick: bool, baseline: str = "", log: str = "") -> None:
                 + "\n`jitter_ms` 5: the default WAN jitter (exponential, mean 5 ms), the same draws at every latency.\n")
         (OUT / "latency_phase.md").write_text(text)
         print(text)
+    if "handover" in parts:
+        text = (head + "Hand-overs of the flapping scene (3 groups x 2 render nodes, 15 entities, 30 m scene, avatars "
+                "uniform, contacts on, 280 steps, seeds 0-7): how many return to their previous owner within 2 frames, "
+                "with the default hand-over hold and without one; `speed_excess`: the largest entity speed minus "
+                "(the entities' start speed + the fastest avatar's speed), <= 0 when no collision adds speed.\n\n"
+                + table(bench_handover(quick), ["handover_hold_s", "seeds", "handovers", "reverted_within_2_frames",
+                                                "share", "contacts", "speed_excess"]))
+        (OUT / "handover.md").write_text(text)
+        print(text)
     if "scale" in parts:
         (OUT / "scale.md").write_text(head + table(bench_scale(quick), *SCALE_COLS))
         print((OUT / "scale.md").read_text())
@@ -773,7 +813,7 @@ def table(rows, cols, fmt=None):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer points and steps (about a minute)")
-    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths, ownerless, state_traffic, frame_phase")
+    ap.add_argument("--only", default="", help="comma-separated parts to run alone: scale, campus, paths, ownerless, state_traffic, frame_phase, handover")
     ap.add_argument("--baseline", default="", help="campus: directory with another commit's immersim/models and "
                     "immersim/fmus (git archive COMMIT models fmus | tar -x -C DIR/immersim; touch DIR/immersim/__init__.py), "
                     "alternated with this tree")
