@@ -490,20 +490,6 @@ def free_motion(pos: np.ndarray, vel: np.ndarray, turn: np.ndarray, drag: float,
                 b[lo | hi] *= -1.0
         x[a], y[a], vx[a], vy[a] = px, py, bx, by
     return np.stack([x, y], axis=1), np.stack([vx, vy], axis=1)
-    h = dt / np.maximum(n, 1)
-    decay = np.exp(-drag * h)
-    ct, st = np.cos(turn * h) * decay, np.sin(turn * h) * decay
-    hh = 0.5 * h
-    for i in range(int(n.max())):
-        a = np.flatnonzero(n > i)
-        vx, vy = v[a, 0], v[a, 1]
-        nv = np.c_[ct[a] * vx - st[a] * vy, st[a] * vx + ct[a] * vy]
-        q = p[a] + hh[a, None] * (v[a] + nv)
-        lo, hi = q < 0.0, q > size
-        q = np.where(lo, -q, np.where(hi, 2 * size - q, q))
-        nv[lo | hi] *= -1.0
-        p[a], v[a] = q, nv
-    return p, v
 
 
 #: up to this many rows :func:`free_motion` steps in Python floats (the same operations)
