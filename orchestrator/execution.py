@@ -287,6 +287,7 @@ class Execution:
                     supervisor.note(log=str(self.output), start_ns=sc.start_ns, step_ns=sc.step_ns)
                     self._open_log(master)
                 self._observe(master, 0, sc.start_ns)
+                self._observe_ns = 0   # (step 0's log, the meshes with it, is set-up: not the loop's)
                 phases.mark("master and log set-up")
                 if self.progress:
                     from tqdm import tqdm

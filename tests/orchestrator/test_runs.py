@@ -167,3 +167,26 @@ def test_linear_is_the_default_and_a_connection_may_hold(tmp_path, test_fmus):
     assert np.ptp(x) > 0.1  # m1 swings: the two feeds differ
     np.testing.assert_array_equal(zoh[1:], x[1:])
     np.testing.assert_allclose(lin[2:], 0.5 * (x[1:-1] + x[2:]), rtol=0, atol=1e-15)
+
+
+def test_the_loop_time_holds_the_logging_and_the_units_not_step_0s_log(tmp_path, test_fmus):
+    """The summary splits the step loop's wall time into units, logging and the master, each
+    measured inside the loop, so their sum is within it: step 0's log (written with the set-up,
+    the units' meshes with it) is not the loop's logging. Here an observer that takes 50 ms at
+    step 0 and a loop of 3 short steps."""
+    scn = tmp_path / "osc.toml"
+    scn.write_text(f'[simulation]\nstop = 0.099\nstep = 0.033\n[[units]]\nname = "m"\n'
+                   f'fmu = "{test_fmus["oscillator"]}"\n[log]\ninclude = ["m.x"]\n')
+    ex = Execution(load_scenario(scn), tmp_path / "osc.mcap")
+
+    def slow_first(k, t_ns):
+        if k == 0:
+            end = time.perf_counter() + 0.05
+            while time.perf_counter() < end:
+                pass
+    ex.observers.append(slow_first)
+    res = ex.run()
+    assert res.steps_done == 3
+    inside = res.timing["logging"] + sum(v for k, v in res.timing.items() if k.startswith("unit:"))
+    assert 0 < inside <= res.timing["loop"]
+    assert " master -" not in res.timing_summary()
