@@ -57,17 +57,19 @@ def test_report_renders_in_headless_chromium(report, campus_sweep, tmp_path):
     assert run.values["heads"][:3] == ["id", "simulation.stop", "coll.backend"]
     assert "jolt_max [m/s]" in run.values["heads"]
     metrics = [c for c in read_summary(campus_sweep / "summary.csv")[0]
-               if c.split(" ")[0] in {"contact_1", "contact_2", "contact_3", "missile_hit", "jolt_max",
-                                      "stroke_max", "incons_max", "coll_s", "loop_s"}]
+               if c.split(" ")[0] in {"contact_1", "contact_2", "contact_3", "depth_1", "depth_2", "depth_3",
+                                      "missile_hit", "jolt_max", "stroke_max", "incons_max", "coll_s", "loop_s"}]
     assert run.values["plots"] == 2 and run.values["svgs"] >= 4  # metrics and traces, drawn
     assert run.values["metric_titles"] == metrics
     units = dict(zip(run.values["metric_titles"], run.values["metric_units"]))
     assert units["jolt_max"] == "[m/s]" and units["coll_s"] == "[s]" and units["stroke_max"] == "[m]"
-    assert units["contact_1"] == "[1]" and len(metrics) == 9
-    # the metrics' signals overlaid: pair[1..4].in_contact, avatar[1].jolt, 6 strokes, inconsistency_max
-    assert run.values["traces"] == 12 * 3
-    # in log order: net.avatar[1].jolt, net.inconsistency_max, 4 Booleans (no unit), plat.stroke[1..6]
-    assert run.values["yaxes"] == ["[m/s]", "[m]", "", "", "", ""] + ["[m]"] * 6
+    assert units["contact_1"] == "[1]" and units["depth_1"] == "[m]" and len(metrics) == 12
+    # the metrics' signals overlaid: pair[1..4].in_contact, pair[1..3].depth, avatar[1].jolt, 6 strokes,
+    # inconsistency_max
+    assert run.values["traces"] == 15 * 3
+    # in log order: net.avatar[1].jolt, net.inconsistency_max, pair[1..3].in_contact (a Boolean, no unit) and
+    # depth in turn, pair[4].in_contact, plat.stroke[1..6]
+    assert run.values["yaxes"] == ["[m/s]", "[m]", "", "[m]", "", "[m]", "", "[m]", ""] + ["[m]"] * 6
     jolts = dict(run.values["sorted"])
     assert [k for k, _ in run.values["sorted"]] == sorted(jolts, key=jolts.get)  # one click: ascending
     assert run.values["external"] == 0
