@@ -3,8 +3,9 @@
 A mesh of at least ``CHUNK_MIN_FACES`` triangles, queried against a body of at most
 ``CHUNK_OTHER_MAX_FACES``, is split once into chunks of at most ``max_faces`` triangles
 (median cuts of the centroids along the longest extent), each its own ``fcl.BVHModel`` in the
-mesh's frame. A query visits the chunks by increasing lower bound and stops at the first
-whose bound reaches the best distance so far less ``CHUNK_TIE``.
+mesh's frame, built when a query first visits the chunk. A query visits the chunks by
+increasing lower bound and stops at the first whose bound reaches the best distance so far
+less ``CHUNK_TIE``.
 
 The bound of a chunk (local AABB centre ``c``, half extents ``h``) and the other body (local
 AABB ``c_o``, ``e``; ``M = R_b^T R_o``, ``p = R_b^T (t_o - t_b)`` in the chunked body's frame)
@@ -86,25 +87,40 @@ class ChunkedMesh:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, max_faces: int,
                  split_by: Optional[np.ndarray] = None) -> None:
-        from .fcl_backend import bvh_model
-
         V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
-        self.geoms = []
+        #: per chunk its vertices and faces (local indices); its BVH is built when first visited
+        self.parts: List[tuple] = []
         lo, hi = [], []
         for idx in split_faces(V, F if split_by is None else np.asarray(split_by, np.int64), max_faces):
             used, local = np.unique(F[idx], return_inverse=True)
-            self.geoms.append(bvh_model(V[used], local.reshape(-1, 3)))
-            lo.append(V[used].min(0))
-            hi.append(V[used].max(0))
+            Vc = V[used]
+            self.parts.append((Vc, local.reshape(-1, 3)))
+            lo.append(Vc.min(0))
+            hi.append(Vc.max(0))
         lo, hi = np.array(lo), np.array(hi)
         self.centre = (lo + hi) / 2
         self.half = (hi - lo) / 2
-        self.objs: List[fcl.CollisionObject] = [fcl.CollisionObject(g, fcl.Transform()) for g in self.geoms]
+        self._objs: List[Optional[fcl.CollisionObject]] = [None] * len(self.parts)
         #: per chunk object: the (body, transform version) whose transform it holds
-        self.tag: List[Optional[tuple]] = [None] * len(self.geoms)
+        self.tag: List[Optional[tuple]] = [None] * len(self.parts)
+
+    def obj(self, i: int) -> "fcl.CollisionObject":
+        """Chunk ``i``'s collision object (identity transform when new): its BVH is built here
+        the first time (a run visits few of a mesh's chunks)."""
+        o = self._objs[i]
+        if o is None:
+            from .fcl_backend import bvh_model
+
+            o = self._objs[i] = fcl.CollisionObject(bvh_model(*self.parts[i]), fcl.Transform())
+        return o
+
+    @property
+    def objs(self) -> List["fcl.CollisionObject"]:
+        """Every chunk's collision object (each built if not yet)."""
+        return [self.obj(i) for i in range(len(self.parts))]
 
     def __len__(self) -> int:
-        return len(self.geoms)
+        return len(self.parts)
 
 
 def chunk_lower_bounds(chunks: ChunkedMesh, T_big: np.ndarray, T_other: np.ndarray, other_hull: np.ndarray,
@@ -189,7 +205,7 @@ def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", T_big: n
     listed = bounds.tolist()
     ids = idx.tolist() if idx is not None else None
     own = math.inf
-    objs, tags = chunks.objs, chunks.tag
+    objs, tags, make = chunks._objs, chunks.tag, chunks.obj
     for j in order:
         bound = listed[j]
         if ids is not None and bound >= within:
@@ -198,6 +214,8 @@ def chunked_distance(chunks: ChunkedMesh, tag, tf_big: "fcl.Transform", T_big: n
             return min(own, bound)
         i = j if ids is None else ids[j]
         obj = objs[i]
+        if obj is None:
+            obj = make(i)
         if tags[i] != tag:
             obj.setTransform(tf_big)
             tags[i] = tag

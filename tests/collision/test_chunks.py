@@ -207,3 +207,20 @@ def test_chunk_transform_cache_and_state_roll_back_change_no_output():
     for k in range(20, 40):
         assert _same(cached.query(poses(k)).pairs[0], out[k])
 
+
+
+def test_chunk_bvhs_built_when_first_visited_give_the_outputs_of_all_built_up_front():
+    """A chunk's BVH is built when a query first visits it: a new backend has built none, a
+    walk past the tank builds only the chunks it visits, and every output is the same bit for
+    bit as a backend whose chunks were all built before the first query."""
+    lazy = make_backend("fcl", parse_scene(SPEC), "box vs t", BackendConfig(max_distance=2.0))
+    eager = make_backend("fcl", parse_scene(SPEC), "box vs t", BackendConfig(max_distance=2.0))
+    chunks = lazy.shapes.chunks[0]
+    assert chunks._objs.count(None) == len(chunks) > 100
+    assert all(o is not None for o in eager.shapes.chunks[0].objs)
+    rest = [[-30.0, 0, 0, 0, 0, 0], [0, 30.0, 0, 0, 0, 0]]
+    for k in range(40):
+        pose = [[9.0 - 0.3 * k, 0.3 + 0.02 * k, 2.5 - 0.03 * k, 0, 0, 0.6 + 0.03 * k]] + rest
+        assert _same(lazy.query(pose).pairs[0], eager.query(pose).pairs[0]), k
+    built = len(chunks) - chunks._objs.count(None)
+    assert 0 < built < len(chunks) // 2
