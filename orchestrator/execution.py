@@ -7,6 +7,7 @@ properly and holds every completed step, and a :class:`RunFailed` says where and
 from __future__ import annotations
 
 import functools
+import gc
 import logging
 import os
 import sys
@@ -130,6 +131,8 @@ class Execution:
         self._log_step: Optional[Callable[[int, int], None]] = None   # logs step k at t_ns
         self.observers: List[Callable[[int, int], None]] = []
         self._observe_ns = 0
+        #: the collector was paused for the set-up: :meth:`run` resumes it at the first step
+        self.resume_collector = False
 
     def _add_unit_view(self) -> None:
         """Add the bodies the loaded units describe to the 3D view (:mod:`.views`)."""
@@ -289,6 +292,9 @@ class Execution:
                 self._observe(master, 0, sc.start_ns)
                 self._observe_ns = 0   # (step 0's log, the meshes with it, is set-up: not the loop's)
                 phases.mark("master and log set-up")
+                if self.resume_collector:   # (paused by run_scenario for the set-up)
+                    gc.freeze()
+                    gc.enable()
                 if self.progress:
                     from tqdm import tqdm
                     # on a terminal only (disable=None), and only for a run still going after 2 s
@@ -421,9 +427,24 @@ def _lazy_capable(inst, scenario: Scenario) -> bool:
 def run_scenario(scenario: Scenario | Path | str, output: Optional[Path | str] = None,
                  progress: bool = False, overrides: Optional[Dict[str, Any]] = None,
                  **options: Any) -> RunResult:
-    """Load, check and run a scenario; see :class:`Execution` (``options``: realtime, live, replay)."""
-    ex = Execution(scenario, output, progress, overrides, **options)
-    result = ex.run()
+    """Load, check and run a scenario; see :class:`Execution` (``options``: realtime, live, replay).
+
+    The cyclic garbage collector is paused for the set-up, which allocates tens of thousands
+    of objects that live as long as the run (validated scenario, model descriptions, the
+    units' modules and models) and no garbage worth a collection pass; at the first step
+    :meth:`Execution.run` freezes what the set-up made (the collector skips it from then on)
+    and resumes collecting; the run's end unfreezes it.
+    """
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        ex = Execution(scenario, output, progress, overrides, **options)
+        ex.resume_collector = collecting
+        result = ex.run()
+    finally:
+        if collecting:
+            gc.unfreeze()
+            gc.enable()
     if ex.pacer is not None:
         result.pacing = ex.pacer.line()
     return result
