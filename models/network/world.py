@@ -524,7 +524,7 @@ class World:
             dy = self.epos[:, 1] - self.apos[:, 1, None]
             if not ((dx * dx + dy * dy) <= r * r * (1.0 + 1e-9)).any():
                 return _NO_CONTACTS
-        if G < 8:
+        if G < 8 or G * E <= 4096:   # every pair in numpy (no scipy.spatial to import), by avatar then entity
             ai, ei = ball_pairs(self.apos, self.epos, r)
         else:   # (the pair order of the k-d tree's sparse distance matrix)
             from scipy.spatial import cKDTree   # (here: a frame without a contact candidate needs no import)

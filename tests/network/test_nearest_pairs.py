@@ -52,15 +52,17 @@ def test_initial_owners_by_every_pair_equal_the_k_d_trees():
     assert len(set(brute.owner[6:].tolist())) == 6
 
 
-def test_a_small_scene_with_contacts_imports_no_scipy_spatial():
-    code = """
+@pytest.mark.parametrize("groups", [3, 10])
+def test_a_small_scene_with_contacts_imports_no_scipy_spatial(groups):
+    """3 avatars, and 10 (campus_drive8's kind of scene: at most 4096 avatar-entity pairs)."""
+    code = f"""
 import sys
 import numpy as np
 from immersim.models.network import NetworkConfig, NetworkModel
-m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=2, entities=16, driven_groups=3, seed=0))
+m = NetworkModel(NetworkConfig.from_flat(groups={groups}, render_nodes=2, entities=16, driven_groups={groups}, seed=0))
 w = m.world
 for k in range(60):
-    w.epos[k % 16] = w.apos[k % 3] + [2.5, 0.0]     # an entity inside an avatar's reach every frame
+    w.epos[k % 16] = w.apos[k % {groups}] + [2.5, 0.0]     # an entity inside an avatar's reach every frame
     m.step(0.033)
 assert m.metrics.contacts + m.world.separated > 0
 print("scipy.spatial" in sys.modules)
