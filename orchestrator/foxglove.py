@@ -45,10 +45,6 @@ FRAME_TRANSFORMS_SCHEMA = {
         "translation": {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}},
         "rotation": {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}}}}},
 }
-SCENE_UPDATE_SCHEMA = {
-    "title": "foxglove.SceneUpdate", "type": "object",
-    "properties": {"deletions": {"type": "array"}, "entities": {"type": "array", "items": {"type": "object"}}},
-}
 
 
 
@@ -63,9 +59,11 @@ def _array(items: Dict[str, Any]) -> Dict[str, Any]:
 _NUM, _INT, _STR, _BOOL = ({"type": t} for t in ("number", "integer", "string", "boolean"))
 _VEC3, _COLOR = _obj(x=_NUM, y=_NUM, z=_NUM), _obj(r=_NUM, g=_NUM, b=_NUM, a=_NUM)
 _POSE, _TIME = _obj(position=_VEC3, orientation=_obj(x=_NUM, y=_NUM, z=_NUM, w=_NUM)), _obj(sec=_INT, nsec=_INT)
-#: the fields of each primitive ``/scene/meshes`` may hold
+#: the fields of each primitive a SceneUpdate of this view may hold (``/scene``, ``/scene/meshes``
+#: and the parts redrawn every step)
+_SHAPE = _obj(pose=_POSE, size=_VEC3, color=_COLOR)
 _PRIMITIVES = {
-    "cubes": _obj(pose=_POSE, size=_VEC3, color=_COLOR),
+    "cubes": _SHAPE, "spheres": _SHAPE, "cylinders": _SHAPE,
     "lines": _obj(type=_INT, pose=_POSE, thickness=_NUM, scale_invariant=_BOOL, points=_array(_VEC3),
                   color=_COLOR, colors=_array(_COLOR), indices=_array(_INT)),
     "models": _obj(pose=_POSE, scale=_VEC3, color=_COLOR, override_color=_BOOL, url=_STR, media_type=_STR,
@@ -73,11 +71,12 @@ _PRIMITIVES = {
 }
 
 
-def meshes_schema(kinds: Sequence[str]) -> bytes:
-    """The JSON schema (compact text) of a ``/scene/meshes`` SceneUpdate whose entities hold
-    the primitives ``kinds`` (``cubes``, ``lines``, ``models``). Every field is declared:
-    Foxglove's JSON reader needs each object's properties, and a model's ``data`` as base64
-    text (``contentEncoding``) to hand the GLB bytes to its model loader."""
+def scene_schema(kinds: Sequence[str]) -> bytes:
+    """The JSON schema (compact text) of a SceneUpdate whose entities hold the primitives
+    ``kinds`` (``cubes``, ``spheres``, ``cylinders``, ``lines``, ``models``). Every field is
+    declared: Foxglove's JSON reader needs each object's properties and each array's items, and
+    a model's ``data`` as base64 text (``contentEncoding``) to hand the GLB bytes to its model
+    loader."""
     entity = _obj(timestamp=_TIME, frame_id=_STR, id=_STR, lifetime=_TIME, frame_locked=_BOOL,
                   **{k: _array(_PRIMITIVES[k]) for k in sorted(set(kinds))})
     schema = {"title": "foxglove.SceneUpdate", **_obj(deletions=_array(_obj()), entities=_array(entity))}
@@ -295,22 +294,23 @@ class FoxgloveObserver:
             sid = w.register_schema(name="foxglove.FrameTransforms", encoding="jsonschema",
                                     data=json.dumps(FRAME_TRANSFORMS_SCHEMA).encode())
             self._tf = w.register_channel(topic="/tf", message_encoding="json", schema_id=sid)
-        # /scene only when a body is a primitive of it (the units' bodies are drawn by /scene/meshes)
-        drawn = any(b.shape != "mesh" for b in bodies)
-        sid = self._scene = self._meshes = None
-        if drawn or self._steps:
-            sid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
-                                    data=json.dumps(SCENE_UPDATE_SCHEMA).encode())
-        if drawn:
-            self._scene = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid)
-        if self.meshes:
-            mid = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
-                                    data=meshes_schema([m.kind for m in self.meshes]))
-            self._meshes = w.register_channel(topic="/scene/meshes", message_encoding="json", schema_id=mid)
-            if getattr(w, "tee", None) is not None:   # the live view: a viewer joining late gets them too
-                w.tee.latch(self._meshes)
-        self._step_channels = [w.register_channel(topic=part.topic, message_encoding="json", schema_id=sid)
-                               for part, _ in self._steps]
+        # each SceneUpdate channel with the schema of the primitives it draws; /scene only when a
+        # body is a primitive of it (the units' bodies are drawn by /scene/meshes)
+        schemas: Dict[Tuple[str, ...], int] = {}
+
+        def channel(topic: str, kinds) -> int:
+            kinds = tuple(sorted(set(kinds)))
+            if kinds not in schemas:
+                schemas[kinds] = w.register_schema(name="foxglove.SceneUpdate", encoding="jsonschema",
+                                                   data=scene_schema(kinds))
+            return w.register_channel(topic=topic, message_encoding="json", schema_id=schemas[kinds])
+
+        drawn = [SHAPES[b.shape] for b in bodies if b.shape != "mesh"]
+        self._scene = channel("/scene", drawn) if drawn else None
+        self._meshes = channel("/scene/meshes", [m.kind for m in self.meshes]) if self.meshes else None
+        if self._meshes is not None and getattr(w, "tee", None) is not None:
+            w.tee.latch(self._meshes)   # the live view: a viewer joining late gets them too
+        self._step_channels = [channel(part.topic, part.kinds) for part, _ in self._steps]
 
     @staticmethod
     def _pose(body: Body, v: Sequence[float]) -> Tuple[Dict[str, float], Dict[str, float]]:

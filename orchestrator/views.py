@@ -142,7 +142,7 @@ class PlatformRods:
     """The per-step part of a platform's view: its six rods B_i -> C_i from the pose (eq. 6-14..6-19).
 
     ``refs`` are the pose signals it reads, ``entities(values, stamp)`` the SceneUpdate entities
-    of one step (``values`` in the order of ``refs``).
+    of one step (``values`` in the order of ``refs``), ``kinds`` the primitives they hold.
     """
 
     def __init__(self, unit: str, params: Any) -> None:
@@ -150,6 +150,7 @@ class PlatformRods:
 
         self.unit, self.params, self._ik = unit, params, ik_full
         self.topic = f"/scene/{unit}"
+        self.kinds = ("lines",)   # the primitives of its entities
         self.refs = [f"{unit}.pose.{ax}" for ax in ("x", "y", "z", "gamma", "beta", "alpha")]
 
     def points(self, pose: Sequence[float]) -> np.ndarray:

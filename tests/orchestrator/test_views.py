@@ -136,7 +136,8 @@ def _foxglove(key, value):
     import foxglove.messages as fm
 
     classes = {"entities": fm.SceneEntity, "deletions": fm.SceneEntityDeletion, "timestamp": fm.Timestamp,
-               "lifetime": fm.Duration, "cubes": fm.CubePrimitive, "lines": fm.LinePrimitive,
+               "lifetime": fm.Duration, "cubes": fm.CubePrimitive, "spheres": fm.SpherePrimitive,
+               "cylinders": fm.CylinderPrimitive, "lines": fm.LinePrimitive,
                "models": fm.ModelPrimitive, "pose": fm.Pose, "position": fm.Vector3, "orientation": fm.Quaternion,
                "size": fm.Vector3, "scale": fm.Vector3, "color": fm.Color, "colors": fm.Color, "points": fm.Point3}
     if isinstance(value, list):
@@ -291,3 +292,27 @@ units = true
     (meshes,) = [m for topic, _, m in msgs if topic == "/scene/meshes"]   # the plate's cube, the rails' lines
     assert {k for e in meshes["entities"] for k in ("cubes", "lines") if k in e} == {"cubes", "lines"}
     assert fm.SceneUpdate(**{k: _foxglove(k, v) for k, v in meshes.items()}).encode()
+
+
+@pytest.mark.parametrize("name, topics", [("demo", {"/scene"}), ("teleop", {"/scene/meshes", "/scene/plat"})])
+def test_every_scene_channel_declares_what_its_messages_hold(tmp_path, name, topics):
+    """Hand-written bodies (demo's ``/scene``) and the platform's rods redrawn each step
+    (teleop's ``/scene/plat``) get a schema that declares every field, as ``/scene/meshes``
+    does: Foxglove's JSON reader reads nothing from an object schema without its properties."""
+    from immersim.orchestrator.cli import main
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[2]
+    out = tmp_path / f"{name}.mcap"
+    assert main(["run", str(root / "scenarios" / f"{name}.toml"), "-q", "-o", str(out),
+                 "--set", "simulation.stop=0.099"]) == 0
+    import foxglove.messages as fm
+
+    seen = set()
+    with open(out, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if channel.topic.startswith("/scene"):
+                seen.add(channel.topic)
+                value = json.loads(message.data)
+                _conforms(json.loads(schema.data), value, channel.topic)
+                assert fm.SceneUpdate(**{k: _foxglove(k, v) for k, v in value.items()}).encode()
+    assert seen == topics
