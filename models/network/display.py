@@ -94,6 +94,47 @@ class FreePrediction:
         self.key, self.t, self.p, self.v = uk, np.full(len(uk), t), p, v
         return p[inv.ravel()]
 
+    def positions_floats(self, net, rows: list, t: float) -> list:
+        """:meth:`positions` of a few cache rows given as lists of Python floats: the same record
+        states (first row of each record id, the kept state where it is not newer than ``t``),
+        the same :func:`consistency.free_motion` call and the same state kept, so the same
+        positions bit for bit; returns ``[x, y]`` (m) per row."""
+        rid_col = net.records.rid_col
+        rids = [int(r[rid_col]) for r in rows]
+        first = {}
+        for j, u in enumerate(rids):
+            first.setdefault(u, j)
+        uk = sorted(first)
+        kept = {k: i for i, k in enumerate(self.key.tolist())} if len(self.key) else {}
+        t_kept = self.t.tolist() if kept else ()
+        t0, p0, v0, at = [], [], [], []
+        for u in uk:
+            i = kept.get(u)
+            if i is not None and t_kept[i] <= t:   # predicted at an earlier frame: on from there
+                at.append(i)
+                t0.append(t_kept[i])
+                p0.append(None)
+                v0.append(None)
+            else:
+                r = rows[first[u]]
+                at.append(-1)
+                t0.append(r[0])
+                p0.append(r[1:3])
+                v0.append(r[3:5])
+        if kept:
+            for j, i in enumerate(at):
+                if i >= 0:
+                    p0[j], v0[j] = self.p[i].tolist(), self.v[i].tolist()
+        cfg = net.cfg
+        G = cfg.groups
+        turn = net.world.eturn[[(u >> 32) - G for u in uk]]
+        p, v = free_motion(np.array(p0, float), np.array(v0, float), turn, cfg.world.entity_drag,
+                           t - np.array(t0, float), cfg.scene.scene_size, cfg.scene.frame_s / cfg.world.substeps)
+        self.key, self.t, self.p, self.v = np.array(uk, np.int64), np.full(len(uk), t), p, v
+        where = {u: j for j, u in enumerate(uk)}
+        shown = p.tolist()
+        return [shown[where[u]] for u in rids]
+
     def errors(self, net, rows: np.ndarray, obj: np.ndarray, t: float, P: np.ndarray) -> np.ndarray:
         """Squared display errors (k,) m^2 of the ownerless copies ``rows`` of objects ``obj``
         at frame time ``t`` against the truth ``P`` (n_obj, 2)."""

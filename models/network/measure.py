@@ -172,18 +172,18 @@ class DisplayError:
         remote = (og != vg) & (ct >= c[:, rc.enter_col] - 1e-12)
         return squared_dr_error(c, ct, np.take(px, vo), np.take(py, vo), t, net.cfg.consistency.prediction_order), remote
 
-    def _free_scalar(self, net, t, memo) -> dict:
-        """For :meth:`measure_scalar`: the counted remote copies (their position in ``memo``'s
-        list) shown by the entity law, and their positions ``[x, y]`` (m) at ``t``, as
-        :meth:`measure` selects and predicts them."""
-        rc = net.records
-        rows = rc.cache.take(memo[5], axis=0)
-        ct = rows[:, T_COL]
-        sel = np.flatnonzero((ct >= rows[:, rc.enter_col] - 1e-12)
-                             & self.free_copies(net, np.array(memo[4], np.int64), ct))
-        if not len(sel):
+    def _free_scalar(self, net, t, objs: list, rows: list) -> dict:
+        """For :meth:`measure_scalar`: the counted remote copies (their position in the lists
+        ``objs``, ``rows``: objects and cache rows as Python floats) shown by the entity law, and
+        their positions ``[x, y]`` (m) at ``t``, as :meth:`measure` selects (:meth:`free_copies`)
+        and predicts them."""
+        enter, own = net.records.enter_col, net.own
+        owner, claimed = own.owner.tolist(), own.claimed_t.tolist()
+        sel = [j for j, (o, c) in enumerate(zip(objs, rows))
+               if c[T_COL] >= c[enter] - 1e-12 and (owner[o] < 0 or c[T_COL] < claimed[o])]
+        if not sel:
             return {}
-        return dict(zip(sel.tolist(), self.free.positions(net, rows[sel], t).tolist()))
+        return dict(zip(sel, self.free.positions_floats(net, [rows[j] for j in sel], t)))
 
     def measure_scalar(self, net, t, P, vo, vg, fi, og) -> None:
         """:meth:`measure` of a view of a few copies in Python floats (the operations of
@@ -202,7 +202,7 @@ class DisplayError:
         per_max, s2, cnt = [0.0] * n_obj, [0.0] * n_obj, [0] * n_obj
         err2 = [0.0] * len(fi)    # the own copies (and remote ones without a record) count as 0
         first_order, second_order = order >= 1, order >= 2
-        law = self._free_scalar(net, t, memo) if memo[3] and self.ownerless(net) else {}
+        law = self._free_scalar(net, t, memo[4], rows) if memo[3] and self.ownerless(net) else {}
         for j, (i, o, c) in enumerate(zip(memo[3], memo[4], rows)):
             ct = c[0]
             if not ct >= c[enter] - 1e-12:   # no record since it subscribed

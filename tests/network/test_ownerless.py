@@ -244,3 +244,30 @@ def test_a_node_shows_an_ownerless_entity_where_the_world_has_it():
     dr = c[1:3] + c[3:5] * (m.t - c[0])
     assert m.owner[2] == -1 and np.allclose(m.shown_position(1, 2), m.world.epos[0], atol=1e-6)
     assert np.hypot(*(dr - m.world.epos[0])) > 1.0
+
+
+def test_ownerless_positions_of_a_few_rows_in_python_floats_equal_the_array_code():
+    """``FreePrediction.positions_floats`` (the few copies of a small view, as lists) against
+    ``positions`` (arrays): frame after frame of a run with entities leaving and entering the
+    regions, the same shown positions and the same kept record states, bit for bit."""
+    from immersim.models.network.display import FreePrediction
+    from immersim.models.network.records import T_COL
+
+    m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=2, entities=16, driven_groups=3, seed=2,
+                                             scene_size=60.0))
+    a, b = FreePrediction(), FreePrediction()
+    shown = 0
+    for k in range(400):
+        m.step(T)
+        rc = m.records
+        rows = rc.cache[np.isfinite(rc.cache[:, T_COL])]
+        obj = (rows[:, rc.rid_col].astype(np.int64) >> 32)
+        rows = rows[np.take(m.own.owner, obj) < 0]       # copies of entities that have no owner
+        rows = rows[np.random.default_rng(k).permutation(len(rows))][: 12]   # a view's few, any order
+        if not len(rows):
+            continue
+        t = m.t + 0.5 * T * (k % 3)
+        assert a.positions(m, rows, t).tolist() == b.positions_floats(m, rows.tolist(), t)
+        assert all(np.array_equal(getattr(a, f), getattr(b, f)) for f in ("key", "t", "p", "v"))
+        shown += len(rows)
+    assert shown > 500
