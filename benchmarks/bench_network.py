@@ -511,19 +511,20 @@ def campus_fmpy(steps: int):
     return res
 
 
-def bench_campus(quick: bool, baseline: str = ""):
+def bench_campus(quick: bool, baseline: str = "", rounds: int = 3):
     """Campus-size cost: in process (model + wrapper) and through FMPy. With ``baseline`` (a
     directory holding another commit's ``immersim/models`` and ``immersim/fmus``), the in-process
-    runs of that tree and of this one alternate in fresh processes, three rounds each."""
+    runs of that tree and of this one alternate in fresh processes, ``rounds`` rounds (the
+    order reversed every other round)."""
     steps = 200 if quick else 600
     if not baseline:
         return campus_inprocess(steps), campus_fmpy(steps), []
     rows = []
     trees = [(Path(b).name, b) for b in baseline.split(",")] + [("current", None)]   # (several: comma-separated)
-    for rnd in range(3):
-        for code, tree in trees:
+    for rnd in range(rounds):
+        for code, tree in (trees if rnd % 2 == 0 else trees[::-1]):
             rows += [dict(r, code=code, round=rnd + 1) for r in in_tree(tree, "campus_inprocess", steps)]
-    current = [r for r in rows if r["code"] == "current" and r["round"] == 3]
+    current = [r for r in rows if r["code"] == "current" and r["round"] == rounds]
     return current, campus_fmpy(steps), rows
 
 
@@ -657,17 +658,21 @@ AB_COLS = (["scene", "code", "round", "median_ms", "cpu_median_ms", "load", "unc
            {"median_ms": "{:.3f}", "cpu_median_ms": "{:.3f}", "load": "{:.1f}"})
 
 
-def only(parts, quick: bool, baseline: str = "", log: str = "") -> None:
+def only(parts, quick: bool, baseline: str = "", log: str = "", rounds: int = 3) -> None:
     """Run some parts only and write their tables (the README is then edited by hand)."""
     head = f"<!-- {' '.join(sys.argv)} at {commit()} on {machine()} -->\n"
     if "campus" in parts:
-        cur, fm, ab = bench_campus(quick, baseline)
+        cur, fm, ab = bench_campus(quick, baseline, rounds)
         text = (head + "In process (FMU class `do_step`: model + wrapper):\n\n" + table(cur, *CAMPUS_COLS)
                 + "\nThrough FMPy (built network.fmu, `FMU2Slave.doStep`; `get`: reading every output):\n\n"
                 + table(fm, *FMPY_COLS))
         if ab:
             text += (f"\nAlternated with the baseline tree `{baseline}` (fresh process per run):\n\n"
-                     + table(ab, *AB_COLS))
+                     + table(ab, *AB_COLS) + "\nMedian over the rounds of the CPU median per step (ms): "
+                     + "; ".join(f"{scene}: " + ", ".join(
+                         f"{code} {np.median([r['cpu_median_ms'] for r in ab if r['scene'] == scene and r['code'] == code]):.3f}"
+                         for code in dict.fromkeys(r["code"] for r in ab))
+                                 for scene in dict.fromkeys(r["scene"] for r in ab)) + "\n")
         (OUT / "campus.md").write_text(text)
         print(text)
     if "paths" in parts:
@@ -821,7 +826,7 @@ def main() -> None:
                     "run scenarios/campus_drive.toml -o LOG --set log.encoding='\"json\"' --set net:process=0) "
                     "through the FMU class, this tree and --baseline alternated, outputs compared bit for bit; "
                     "writes campus_replay.md")
-    ap.add_argument("--rounds", type=int, default=3, help="--campus-log, --loop-ab: rounds of alternated runs")
+    ap.add_argument("--rounds", type=int, default=3, help="--campus-log, --loop-ab, --only campus with --baseline: rounds of alternated runs")
     ap.add_argument("--loop-ab", default="", help="directory with another commit's whole immersim package: "
                     "campus_drive's loop alternated with this checkout's; writes loop_ab.md")
     ap.add_argument("--loop-this", default="", help="--loop-ab: a package directory made the same way for this "
@@ -832,7 +837,7 @@ def main() -> None:
         loop_ab(args.loop_ab, args.rounds, args.loop_this)
         return
     if args.only:   # (--campus-log: the replayed inputs of the paths part)
-        only(set(args.only.split(",")), args.quick, args.baseline, args.campus_log)
+        only(set(args.only.split(",")), args.quick, args.baseline, args.campus_log, args.rounds)
         return
     if args.campus_log:
         campus_log_report(args.campus_log, args.baseline, args.rounds)
