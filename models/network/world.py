@@ -517,20 +517,19 @@ class World:
             a, b = (self.apos.tolist(), self.epos.tolist()) if pos_list is None else (pos_list[:G], pos_list[G:])
             if not _any_within(a, b, r * r * (1.0 + 1e-9)):
                 return _NO_CONTACTS
-        elif etree is None and G * E <= 4096:
-            # small scenes: a brute-force distance check finds the (rare) frames with a contact;
-            # the exact k-d tree path below (its pair order) only runs then
+        elif etree is None:
+            # small scenes (no entity index: :class:`.contacts.Contacts` decides): a brute-force
+            # distance check finds the (rare) frames with a contact
             dx = self.epos[:, 0] - self.apos[:, 0, None]
             dy = self.epos[:, 1] - self.apos[:, 1, None]
             if not ((dx * dx + dy * dy) <= r * r * (1.0 + 1e-9)).any():
                 return _NO_CONTACTS
-        if G < 8 or G * E <= 4096:   # every pair in numpy (no scipy.spatial to import), by avatar then entity
+        if G < 8 or etree is None:   # every pair in numpy (no scipy.spatial to import), by avatar then entity
             ai, ei = ball_pairs(self.apos, self.epos, r)
         else:   # (the pair order of the k-d tree's sparse distance matrix)
             from scipy.spatial import cKDTree   # (here: a frame without a contact candidate needs no import)
 
             etree = etree.tree if isinstance(etree, PointIndex) else etree
-            etree = etree if etree is not None else cKDTree(self.epos)
             sd = cKDTree(self.apos).sparse_distance_matrix(etree, r, output_type="ndarray")
             ai, ei = sd["i"].astype(int), sd["j"].astype(int)
         if online is not None:
