@@ -114,11 +114,6 @@ class ChunkedMesh:
             o = self._objs[i] = fcl.CollisionObject(bvh_model(*self.parts[i]), fcl.Transform())
         return o
 
-    @property
-    def objs(self) -> List["fcl.CollisionObject"]:
-        """Every chunk's collision object (each built if not yet)."""
-        return [self.obj(i) for i in range(len(self.parts))]
-
     def __len__(self) -> int:
         return len(self.parts)
 

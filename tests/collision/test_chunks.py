@@ -44,8 +44,8 @@ def test_chunk_bounds_are_lower_bounds_of_each_chunk_distance():
         obj.setTransform(fcl_transform(T))
         lb, _, _ = chunk_lower_bounds(chunks, T_big, T, hull, centre, half)
         for i in np.argsort(lb)[:15]:
-            chunks.objs[i].setTransform(fcl_transform(T_big))
-            d = fcl.distance(chunks.objs[i], obj, req, fcl.DistanceResult())
+            chunks.obj(i).setTransform(fcl_transform(T_big))
+            d = fcl.distance(chunks.obj(i), obj, req, fcl.DistanceResult())
             if d > 0:
                 assert lb[i] <= d + 1e-12
                 checked += 1
@@ -217,7 +217,9 @@ def test_chunk_bvhs_built_when_first_visited_give_the_outputs_of_all_built_up_fr
     eager = make_backend("fcl", parse_scene(SPEC), "box vs t", BackendConfig(max_distance=2.0))
     chunks = lazy.shapes.chunks[0]
     assert chunks._objs.count(None) == len(chunks) > 100
-    assert all(o is not None for o in eager.shapes.chunks[0].objs)
+    built_up_front = eager.shapes.chunks[0]
+    assert all(built_up_front.obj(i) is not None for i in range(len(built_up_front)))
+    assert built_up_front._objs.count(None) == 0
     rest = [[-30.0, 0, 0, 0, 0, 0], [0, 30.0, 0, 0, 0, 0]]
     for k in range(40):
         pose = [[9.0 - 0.3 * k, 0.3 + 0.02 * k, 2.5 - 0.03 * k, 0, 0, 0.6 + 0.03 * k]] + rest
