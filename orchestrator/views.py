@@ -145,12 +145,13 @@ class PlatformRods:
     of one step (``values`` in the order of ``refs``), ``kinds`` the primitives they hold.
     """
 
+    kinds = ("lines",)
+
     def __init__(self, unit: str, params: Any) -> None:
         from ..models.platform.kinematics import ik_full
 
         self.unit, self.params, self._ik = unit, params, ik_full
         self.topic = f"/scene/{unit}"
-        self.kinds = ("lines",)   # the primitives of its entities
         self.refs = [f"{unit}.pose.{ax}" for ax in ("x", "y", "z", "gamma", "beta", "alpha")]
 
     def points(self, pose: Sequence[float]) -> np.ndarray:
