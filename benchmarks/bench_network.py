@@ -355,31 +355,44 @@ def bench_frame_phase(quick: bool):
     return sweep, seeds
 
 
+def flapping_run(seed: int, steps: int = 280, **kw):
+    """The flapping scene (3 groups x 2 render nodes, 15 entities, 30 m, avatars uniform, contacts
+    on; ``kw``: more config fields) run ``steps`` frames: the entities' owners per frame
+    (steps + 1, 15), the largest entity and avatar speeds per frame (m/s), and the model."""
+    m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=2, entities=15, seed=seed, scene_size=30.0,
+                                             avatar_start="uniform", **kw))
+    hist, ev, av = [m.owner[3:].copy()], [], []
+    for _ in range(steps):
+        m.step(T)
+        hist.append(m.owner[3:].copy())
+        ev.append(np.hypot(*m.world.evel.T).max())
+        av.append(np.abs(m.world.speed).max())
+    return np.array(hist), np.array(ev), np.array(av), m
+
+
+def reverted(H: np.ndarray) -> tuple:
+    """Hand-overs in the owners per frame ``H`` (frames, entities), and those whose entity is
+    back with its previous owner within 2 frames."""
+    n = rev = 0
+    for col in H.T:
+        for k in np.flatnonzero(col[1:] != col[:-1]) + 1:
+            n += 1
+            rev += any(col[k + j] == col[k - 1] for j in (1, 2) if k + j < len(col))
+    return n, rev
+
+
 def bench_handover(quick: bool):
-    """Hand-overs and their reverts (an entity back with its previous owner within 2 frames),
-    contacts and entity speeds over seeds 0-7 of the flapping scene (3 groups x 2 render nodes,
-    15 entities, 30 m, avatars uniform, 280 steps, contacts on), with the default hand-over hold
-    and without one (``handover_hold_s`` 0)."""
+    """Hand-overs and their reverts (:func:`reverted`), contacts and entity speeds over seeds 0-7
+    of :func:`flapping_run`, with the default hand-over hold and without one."""
     rows = []
-    for hold in (None, 0.0):
+    for kw in ({}, {"handover_hold_s": 0.0}):
         n = rev = contacts = 0
         excess = -np.inf
         for seed in range(2 if quick else 8):
-            kw = {} if hold is None else {"handover_hold_s": hold}
-            m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=2, entities=15, seed=seed,
-                                                     scene_size=30.0, avatar_start="uniform", **kw))
-            hist, ev, av = [m.owner[3:].copy()], [], []
-            for _ in range(280):
-                m.step(T)
-                hist.append(m.owner[3:].copy())
-                ev.append(np.hypot(*m.world.evel.T).max())
-                av.append(np.abs(m.world.speed).max())
-            for col in np.array(hist).T:
-                for k in np.flatnonzero(col[1:] != col[:-1]) + 1:
-                    n += 1
-                    rev += any(col[k + j] == col[k - 1] for j in (1, 2) if k + j < len(col))
-            contacts += m.totals.contacts
-            excess = max(excess, max(ev) - (m.cfg.world.entity_speed + max(av)))
+            H, ev, av, m = flapping_run(seed, **kw)
+            a, b = reverted(H)
+            n, rev, contacts = n + a, rev + b, contacts + m.totals.contacts
+            excess = max(excess, ev.max() - (m.cfg.world.entity_speed + av.max()))
         rows.append(dict(handover_hold_s=m.cfg.consistency.handover_hold_s, seeds=seed + 1, handovers=n,
                          reverted_within_2_frames=rev, share=f"{100 * rev / max(n, 1):.1f} %", contacts=contacts,
                          speed_excess=f"{excess:.3f}"))

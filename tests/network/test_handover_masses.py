@@ -1,48 +1,30 @@
 """Hand-over hysteresis and mass-respecting avatar-entity collisions (§3.6.2 ownership with
 collision reports, §3.5.1 rule 3)."""
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from immersim.models.network import NetworkConfig, NetworkModel
 
-T = 0.033
-
-
-def _owners_and_speeds(seed, steps=280, **kw):
-    """The issue's scene: 3 groups x 2 render nodes, 15 entities in a 30 m scene (contacts on)."""
-    m = NetworkModel(NetworkConfig.from_flat(groups=3, render_nodes=2, entities=15, seed=seed, scene_size=30.0,
-                                             avatar_start="uniform", **kw))
-    hist, ev, av = [m.owner[3:].copy()], [], []
-    for _ in range(steps):
-        m.step(T)
-        hist.append(m.owner[3:].copy())
-        ev.append(np.hypot(*m.world.evel.T).max())
-        av.append(np.abs(m.world.speed).max())
-    return np.array(hist), np.array(ev), np.array(av), m
-
-
-def _reverts(H):
-    """Hand-overs, and those whose entity returns to its previous owner within 2 frames."""
-    n = rev = 0
-    for col in H.T:
-        for k in np.flatnonzero(col[1:] != col[:-1]) + 1:
-            n += 1
-            rev += any(col[k + j] == col[k - 1] for j in (1, 2) if k + j < len(col))
-    return n, rev
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+# the scene and the count that results/network/handover.md reports
+from bench_network import T, flapping_run, reverted  # noqa: E402
 
 
 def test_hand_overs_do_not_flap_over_eight_seeds():
     n = rev = contacts = 0
     for seed in range(8):
-        H, _, _, m = _owners_and_speeds(seed)
-        a, b = _reverts(H)
+        H, _, _, m = flapping_run(seed)
+        a, b = reverted(H)
         n, rev, contacts = n + a, rev + b, contacts + m.totals.contacts
     assert contacts > 50 and n > 40          # collisions and hand-overs do happen
     assert rev < 0.01 * n
 
 
 def test_a_hand_over_holds_for_the_hold_time():
-    H, _, _, m = _owners_and_speeds(5, handover_hold_s=0.2)
+    H, _, _, m = flapping_run(5, handover_hold_s=0.2)
     hold = int(np.ceil(0.2 / T))
     for col in H.T:
         ch = np.flatnonzero(col[1:] != col[:-1]) + 1
@@ -73,5 +55,5 @@ def test_the_pinned_entities_of_the_issue_scene_keep_bounded_speeds():
     """Over 8 seeds no entity gets faster than its start speed (2 m/s) plus the fastest avatar
     (infinitely heavy avatars took one from 2 to 22 m/s)."""
     for seed in range(8):
-        _, ev, av, _ = _owners_and_speeds(seed)
+        _, ev, av, _ = flapping_run(seed)
         assert ev.max() <= 2.0 + av.max() + 1e-9
