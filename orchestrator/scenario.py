@@ -40,7 +40,9 @@ A file may use the shorthand of :mod:`~immersim.orchestrator.expand` (signal gro
 ``include = ["common.toml"]`` (:mod:`~immersim.orchestrator.include`); both expand into the
 one-signal-per-entry form before it is checked. Every key, its type and range are declared once
 in :mod:`~immersim.orchestrator.schema`; every problem is reported as a :class:`ScenarioError`
-``<file>: <key path>: <reason>``, naming the file and key where it was written.
+``<file>: <key path>: <reason>``, naming the file and key where it was written. A file checked
+before, with the same texts and overrides, is read from the checked-scenario cache
+(:mod:`~immersim.orchestrator.scenariocache`) without importing the schema.
 """
 from __future__ import annotations
 
@@ -49,9 +51,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-from . import schema
 from .errors import ScenarioError
-from .schema import tomllib  # noqa: F401  (the TOML reader the loaders share)
+from .tomlfiles import did_you_mean, key_path, read_toml, tomllib  # noqa: F401  (tomllib: the loaders share it)
 
 DEFAULT_STEP_NS = 33_000_000
 
@@ -217,8 +218,14 @@ def load_scenario(path: Path | str, overrides: Optional[Dict[str, Any]] = None) 
         from .ssp import load_ssp
 
         return load_ssp(path, overrides)
-    data, text = schema.read_toml(path, "scenario file")
-    return parse_scenario(data, path, text, overrides)
+    from . import scenariocache
+
+    data, text = read_toml(path, "scenario file")
+    sc = scenariocache.load(path, text, overrides)
+    if sc is None:
+        sc = parse_scenario(data, path, text, overrides)
+        scenariocache.store(sc, overrides)
+    return sc
 
 
 OVERRIDE_FORMS = "'unit.param', 'unit:fmu', 'unit:process', 'simulation.<key>' or 'log.<key>'"
@@ -257,7 +264,7 @@ def apply_overrides(data: Dict[str, Any], path: Path, overrides: Dict[str, Any])
             continue
         if unit not in index:
             raise ScenarioError(f"override {key!r}: no unit {unit!r} in {path}"
-                                f"{schema.did_you_mean(unit, [n for n in index if isinstance(n, str)])}")
+                                f"{did_you_mean(unit, [n for n in index if isinstance(n, str)])}")
         i = index[unit]
         if table == "parameters":
             params = units[i].setdefault("parameters", {})
@@ -297,28 +304,39 @@ def _reader(texts: Optional[Dict[str, str]]):
             return tomllib.loads(texts[str(file)]), texts[str(file)]
         if texts is not None or not file.is_file():
             return None
-        return schema.read_toml(file, "scenario file")
+        return read_toml(file, "scenario file")
     return read
+
+
+class _Sources:
+    """Where each key path of the expanded data was written: ``sources`` maps a key path (or
+    its start) to ``(file, key path there)``, any other path is ``path``'s own. A plain
+    object, so that a :class:`Scenario` holding its :meth:`place` can be pickled."""
+
+    def __init__(self, path: Path, sources: Dict[tuple, Tuple[Path, tuple]]) -> None:
+        self.path, self.sources = path, sources
+
+    def written(self, loc: tuple) -> Tuple[Path, tuple]:
+        for n in range(len(loc), 0, -1):
+            if loc[:n] in self.sources:
+                file, at = self.sources[loc[:n]]
+                return file, at + tuple(loc[n:])
+        return self.path, tuple(loc)
+
+    def place(self, loc: tuple) -> str:
+        file, at = self.written(loc)
+        return f"{file}: {key_path(at)}" if at else str(file)
+
+    def ref(self, loc: tuple) -> str:
+        file, at = self.written(loc)
+        return key_path(at) if file == self.path else f"{file}: {key_path(at)}"
 
 
 def _placer(path: Path, sources: Dict[tuple, Tuple[Path, tuple]]):
     """``place(loc)``, ``ref(loc)``: a key path of the expanded data named where it was
     written (``<file>: <key path>``; the reference without the file when it is ``path``)."""
-    def written(loc: tuple) -> Tuple[Path, tuple]:
-        for n in range(len(loc), 0, -1):
-            if loc[:n] in sources:
-                file, at = sources[loc[:n]]
-                return file, at + tuple(loc[n:])
-        return path, tuple(loc)
-
-    def place(loc: tuple) -> str:
-        file, at = written(loc)
-        return f"{file}: {schema.key_path(at)}" if at else str(file)
-
-    def ref(loc: tuple) -> str:
-        file, at = written(loc)
-        return schema.key_path(at) if file == path else f"{file}: {schema.key_path(at)}"
-    return place, ref
+    named = _Sources(path, sources)
+    return named.place, named.ref
 
 
 def expanded_data(data: Dict[str, Any], path: Path, overrides: Optional[Dict[str, Any]] = None,
@@ -344,6 +362,8 @@ def parse_scenario(data: Dict[str, Any], path: Path, text: str = "",
     """Validate raw TOML data against :class:`~immersim.orchestrator.schema.ScenarioFile` and
     convert it into a :class:`Scenario` (``texts``: the included files' texts by path, for a
     scenario shipped without its folder; default: read from the disk)."""
+    from . import schema
+
     data, origins, place, ref, included = expanded_data(data, path, overrides, texts)
     model: schema.ScenarioFile = schema.validate(schema.ScenarioFile, data, path, origins, place, ref)
     sim = model.simulation

@@ -13,10 +13,8 @@ model descriptions are read.
 """
 from __future__ import annotations
 
-import difflib
 import math
 import re
-import sys
 from pathlib import Path
 from typing import Annotated, Any, Dict, List, Literal, Optional, Tuple, Union
 
@@ -25,11 +23,8 @@ from pydantic import (AfterValidator, BaseModel, ConfigDict, Discriminator, Fiel
 from pydantic_core import PydanticCustomError
 
 from .errors import ScenarioError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from .tomlfiles import did_you_mean, key_path, read_toml, tomllib  # noqa: F401  (shared with the loaders)
+from .tomlfiles import show as _show
 
 #: the largest time a scenario may name (s): times are int64 nanoseconds
 MAX_TIME_S = 9.2e9
@@ -170,14 +165,6 @@ class Table(BaseModel):
                 if key not in known:
                     raise _fail("unknown_key", "unknown key {key}{hint}", key=_show(key), hint=did_you_mean(key, known))
         return data
-
-
-def did_you_mean(word: Any, known: List[str]) -> str:
-    """``" (did you mean 'x'?)"`` for the closest known word, else the list of known words."""
-    close = difflib.get_close_matches(str(word), known, n=1, cutoff=0.6)
-    if close:
-        return f" (did you mean {close[0]!r}?)"
-    return f" (expected one of {', '.join(sorted(known))})" if known else ""
 
 
 # -- scenario files ------------------------------------------------------------------------
@@ -460,48 +447,7 @@ class SweepFile(Table):
     title: str = ""
 
 
-# -- reading and reporting -----------------------------------------------------------------
-def read_toml(path: Path, what: str) -> Tuple[Dict[str, Any], str]:
-    """Read a TOML file (data, text): every way it can be unreadable is one :class:`ScenarioError`."""
-    if not path.exists():
-        raise ScenarioError(f"{what} {path} does not exist")
-    if path.is_dir():
-        raise ScenarioError(f"{path}: is a folder, not a {what}")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(f"{path}: not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at offset "
-                            f"{exc.start})") from None
-    try:
-        return tomllib.loads(text), text
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: invalid TOML: {exc}") from None
-
-
-def key_path(loc: Tuple[Any, ...]) -> str:
-    """``('units', 2, 'parameters', 'M')`` -> ``units[2].parameters.M`` (union tags dropped)."""
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif isinstance(part, str) and part.startswith("<") and part.endswith(">"):
-            continue
-        elif re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", str(part)):
-            out += f".{part}" if out else str(part)
-        else:
-            out += f"[{str(part)!r}]"
-    return out
-
-
-def _show(x: Any) -> str:
-    text = repr(x)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
+# -- reporting -------------------------------------------------------------------------------
 def _message(err: Dict[str, Any]) -> str:
     kind, msg = err["type"], err["msg"]
     if kind == "value_error":

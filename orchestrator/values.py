@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Dict, Optional, Tuple
 
 from .errors import ScenarioError
-from .schema import _show
+from .tomlfiles import show as _show
 
 #: range of each FMI integer type (FMI 2.0 ``Integer`` and ``Enumeration`` are 32-bit)
 INT_RANGES: Dict[str, Tuple[int, int]] = {
