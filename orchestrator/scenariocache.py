@@ -13,7 +13,7 @@ check itself, and a large share of a short run's start. :func:`store` keeps the 
 * Only a scenario that passed its check is stored, so errors are always reported by the
   check itself. An entry is written to a temporary file and renamed into place; an entry that
   cannot be read is ignored (and replaced by the next store). The cache keeps the
-  :data:`KEEP` newest entries.
+  :data:`KEEP` entries used last (a hit touches its entry).
 * ``IMMERSIM_SCENARIO_CACHE=0`` turns the cache off; ``IMMERSIM_SCENARIO_CACHE=<folder>``
   moves it.
 """
@@ -26,6 +26,7 @@ import logging
 import os
 import pickle
 import sys
+import time
 from pathlib import Path
 from typing import Any, Dict, Optional
 
@@ -35,8 +36,8 @@ log = logging.getLogger(__name__)
 
 __all__ = ["KEEP", "cache_root", "code_version", "load", "store"]
 
-#: entries kept in the cache (the newest stored)
-KEEP = 64
+#: entries kept in the cache (the ones used last)
+KEEP = 256
 #: the modules whose code shapes a checked Scenario (this package's)
 _SOURCES = ("scenario", "schema", "expand", "include", "tomlfiles", "errors", "foxglove", "live",
             "scenariocache")
@@ -86,6 +87,7 @@ def load(path: Path, text: str, overrides: Optional[Dict[str, Any]] = None):
         for file, was in sc.included.items():
             if Path(file).read_bytes().decode("utf-8") != was:
                 return None
+        _touch(entry)
         return sc
     except Exception as exc:   # (a damaged entry, an included file gone: check the file again)
         log.debug("scenario cache: %s not used: %s", path, exc)
@@ -95,7 +97,7 @@ def load(path: Path, text: str, overrides: Optional[Dict[str, Any]] = None):
 def store(sc, overrides: Optional[Dict[str, Any]] = None) -> None:
     """Keep the checked Scenario ``sc`` (as :func:`.scenario.parse_scenario` returned it for
     its file ``sc.file``, text ``sc.text`` and ``overrides``) for :func:`load`; removes the
-    oldest entries beyond :data:`KEEP`. A cache that cannot be written is skipped."""
+    entries used longest ago beyond :data:`KEEP`. A cache that cannot be written is skipped."""
     try:
         entry = _entry(sc.file, sc.text, overrides)
         if entry is None:
@@ -103,9 +105,16 @@ def store(sc, overrides: Optional[Dict[str, Any]] = None) -> None:
         data = pickle.dumps(sc, protocol=pickle.HIGHEST_PROTOCOL)
         entry.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(entry, lambda f: f.write(data))
+        _touch(entry)
         _prune(entry.parent)
     except Exception as exc:
         log.debug("scenario cache: %s not stored: %s", sc.file, exc)
+
+
+def _touch(entry: Path) -> None:
+    """Mark ``entry`` used now (the clock's own resolution: file systems keep coarser times)."""
+    now = time.time_ns()
+    os.utime(entry, ns=(now, now))
 
 
 def _prune(root: Path) -> None:

@@ -88,3 +88,14 @@ def test_a_hit_imports_no_schema(cache, campus):
     env = dict(os.environ, IMMERSIM_SCENARIO_CACHE=str(cache))
     seen = [subprocess.check_output([sys.executable, "-c", code], env=env, text=True).strip() for _ in range(2)]
     assert seen == ["True", "False"]
+
+
+def test_the_entries_used_last_are_kept(cache, campus, tmp_path, monkeypatch):
+    monkeypatch.setattr(scenariocache, "KEEP", 3)
+    load_scenario(campus)
+    for k in range(4):
+        load_scenario(campus, {"net.entities": k})   # stored
+        load_scenario(campus)                          # used: kept
+    assert len(list(cache.glob("*.pickle"))) == 3
+    assert scenariocache.load(campus, campus.read_text()) is not None
+    assert scenariocache.load(campus, campus.read_text(), {"net.entities": 0}) is None
