@@ -3,7 +3,7 @@
 A mesh of at least ``CHUNK_MIN_FACES`` triangles, queried against a body of at most
 ``CHUNK_OTHER_MAX_FACES``, is split once into chunks of at most ``max_faces`` triangles
 (median cuts of the centroids along the longest extent), each its own ``fcl.BVHModel`` in the
-mesh's frame, built when a query first visits the chunk. A query visits the chunks by
+mesh's frame, built (with the chunk's own vertex list) when a query first visits the chunk. A query visits the chunks by
 increasing lower bound and stops at the first whose bound reaches the best distance so far
 less ``CHUNK_TIE``.
 
@@ -88,21 +88,30 @@ class ChunkedMesh:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, max_faces: int,
                  split_by: Optional[np.ndarray] = None) -> None:
         V, F = np.asarray(vertices, float), np.asarray(faces, np.int64)
-        #: per chunk its vertices and faces (local indices); its BVH is built when first visited
-        self.parts: List[tuple] = []
-        lo, hi = [], []
-        for idx in split_faces(V, F if split_by is None else np.asarray(split_by, np.int64), max_faces):
-            used, local = np.unique(F[idx], return_inverse=True)
-            Vc = V[used]
-            self.parts.append((Vc, local.reshape(-1, 3)))
-            lo.append(Vc.min(0))
-            hi.append(Vc.max(0))
-        lo, hi = np.array(lo), np.array(hi)
+        self._V, self._F = V, F
+        #: per chunk the indices of its faces
+        self.faces = split_faces(V, F if split_by is None else np.asarray(split_by, np.int64), max_faces)
+        #: per chunk its vertices and faces (local indices), made when first visited (:meth:`part`)
+        self.parts: List[Optional[tuple]] = [None] * len(self.faces)
+        # each chunk's box: the smallest and largest coordinates of its faces' vertices
+        tri = V[F[np.concatenate(self.faces)]]            # (m, 3, 3), chunk after chunk
+        starts = np.cumsum([0] + [len(idx) for idx in self.faces[:-1]])
+        lo = np.minimum.reduceat(tri.min(axis=1), starts)
+        hi = np.maximum.reduceat(tri.max(axis=1), starts)
         self.centre = (lo + hi) / 2
         self.half = (hi - lo) / 2
         self._objs: List[Optional[fcl.CollisionObject]] = [None] * len(self.parts)
         #: per chunk object: the (body, transform version) whose transform it holds
         self.tag: List[Optional[tuple]] = [None] * len(self.parts)
+
+    def part(self, i: int) -> tuple:
+        """Chunk ``i``'s vertices (k, 3) and faces (local indices, (f, 3)): the vertices its
+        faces use, in the mesh's order (made the first time)."""
+        p = self.parts[i]
+        if p is None:
+            used, local = np.unique(self._F[self.faces[i]], return_inverse=True)
+            p = self.parts[i] = (self._V[used], local.reshape(-1, 3))
+        return p
 
     def obj(self, i: int) -> "fcl.CollisionObject":
         """Chunk ``i``'s collision object (identity transform when new): its BVH is built here
@@ -111,7 +120,7 @@ class ChunkedMesh:
         if o is None:
             from .fcl_backend import bvh_model
 
-            o = self._objs[i] = fcl.CollisionObject(bvh_model(*self.parts[i]), fcl.Transform())
+            o = self._objs[i] = fcl.CollisionObject(bvh_model(*self.part(i)), fcl.Transform())
         return o
 
     def __len__(self) -> int:

@@ -28,6 +28,21 @@ def test_split_faces_partitions_every_triangle_once():
     assert np.median(2 * chunks.half.max(1)) < 0.25 * tank.extents.max()
 
 
+def test_chunk_parts_and_boxes_are_those_of_the_faces_they_hold():
+    tank = make_tank(5442)
+    chunks = ChunkedMesh(tank.vertices, tank.faces, 32)
+    V, F = np.asarray(tank.vertices, float), np.asarray(tank.faces, np.int64)
+    assert chunks.parts == [None] * len(chunks)   # made when first visited
+    for i, idx in enumerate(chunks.faces):
+        Vc, Fc = chunks.part(i)
+        np.testing.assert_array_equal(Vc[Fc], V[F[idx]])     # the same triangles, local indices
+        assert len(Vc) == len(np.unique(F[idx]))              # only the vertices they use
+        lo, hi = Vc.min(0), Vc.max(0)
+        assert chunks.centre[i].tobytes() == ((lo + hi) / 2).tobytes()
+        assert chunks.half[i].tobytes() == ((hi - lo) / 2).tobytes()
+    assert chunks.part(3) is chunks.part(3)
+
+
 def test_chunk_bounds_are_lower_bounds_of_each_chunk_distance():
     rng = np.random.default_rng(7)
     tank = make_tank(5442)
