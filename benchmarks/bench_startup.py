@@ -16,9 +16,11 @@ scenario. Each copy gets its Python bytecode compiled once, as an installed pack
   and initialisation, the set-up to step 0, the first step, the other steps, the log's close,
   the exit).
 
-Sides of this checkout: ``cache`` (the extraction and mesh caches warm, as every run after the
-first), ``no mesh cache`` (``IMMERSIM_MESH_CACHE=0``: each run builds the scene's meshes with
-trimesh), ``no cache`` (both caches off: each run extracts and compiles anew as well).
+Sides of this checkout: ``cache`` (the extraction, mesh and checked-scenario caches warm, as
+every run after the first), ``no scenario cache`` (``IMMERSIM_SCENARIO_CACHE=0``: each run checks
+the scenario with the schema, as the first run of a new or edited scenario does), ``no mesh
+cache`` (``IMMERSIM_MESH_CACHE=0``: each run builds the scene's meshes with trimesh), ``no
+cache`` (all three off: each run extracts and compiles anew as well).
 
     python benchmarks/bench_startup.py [--base REV ...] [--repeats N] [--quick] [--source] [--no-ablation] [--no-checkout]
 """
@@ -205,7 +207,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="immersim_bench_startup_"))
     try:
         sides: List[Side] = []
-        cache, meshes = work / "fmu_cache", work / "mesh_cache"
+        cache, meshes, checked = work / "fmu_cache", work / "mesh_cache", work / "scenario_cache"
         for k, rev in enumerate(args.base):
             name = subprocess.run(["git", "rev-parse", "--short", rev], cwd=ROOT, check=True, capture_output=True,
                                   text=True).stdout.strip()
@@ -213,11 +215,17 @@ def main() -> None:
         tree = None if args.no_checkout else copy_tree(None, work / "checkout", not args.source)
         if tree is not None:
             sides.append(Side("cache", tree, work, {"IMMERSIM_FMU_CACHE": str(cache),
-                                                    "IMMERSIM_MESH_CACHE": str(meshes)}))
+                                                    "IMMERSIM_MESH_CACHE": str(meshes),
+                                                    "IMMERSIM_SCENARIO_CACHE": str(checked)}))
         if tree is not None and not args.no_ablation:
+            sides.append(Side("no scenario cache", tree, work, {"IMMERSIM_FMU_CACHE": str(cache),
+                                                                "IMMERSIM_MESH_CACHE": str(meshes),
+                                                                "IMMERSIM_SCENARIO_CACHE": "0"}))
             sides.append(Side("no mesh cache", tree, work, {"IMMERSIM_FMU_CACHE": str(cache),
-                                                            "IMMERSIM_MESH_CACHE": "0"}))
-            sides.append(Side("no cache", tree, work, {"IMMERSIM_FMU_CACHE": "0", "IMMERSIM_MESH_CACHE": "0"}))
+                                                            "IMMERSIM_MESH_CACHE": "0",
+                                                            "IMMERSIM_SCENARIO_CACHE": str(checked)}))
+            sides.append(Side("no cache", tree, work, {"IMMERSIM_FMU_CACHE": "0", "IMMERSIM_MESH_CACHE": "0",
+                                                       "IMMERSIM_SCENARIO_CACHE": "0"}))
         for s in sides:
             s.check()
         whole: Dict[str, List[tuple]] = {s.name: [] for s in sides}
