@@ -47,7 +47,7 @@ def _included(path: Path) -> List[Path]:
     """The files a shipped scenario includes (``include = [...]``), and theirs, as
     :func:`~immersim.orchestrator.include.compose` follows them."""
     from .include import compose
-    from .schema import read_toml
+    from .tomlfiles import read_toml
 
     data, _ = read_toml(path, "scenario file")
     texts = compose(data, path, lambda f: read_toml(f, "scenario file") if f.is_file() else None)[2]

@@ -52,7 +52,7 @@ from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from .errors import ScenarioError
-from .tomlfiles import did_you_mean, key_path, read_toml, tomllib  # noqa: F401  (tomllib: the loaders share it)
+from .tomlfiles import did_you_mean, key_path, read_toml, tomllib
 
 DEFAULT_STEP_NS = 33_000_000
 
@@ -166,7 +166,7 @@ class Scenario:
 
     def where(self, *loc: Any) -> str:
         """``<file>: <key path>`` of a key path of the expanded scenario, as written."""
-        place = self.place or _placer(self.file, {})[0]   # (a scenario built directly: its own file)
+        place = self.place or _Sources(self.file, {}).place   # (a scenario built directly: its own file)
         return place(tuple(loc))
 
     @property
@@ -332,27 +332,21 @@ class _Sources:
         return key_path(at) if file == self.path else f"{file}: {key_path(at)}"
 
 
-def _placer(path: Path, sources: Dict[tuple, Tuple[Path, tuple]]):
-    """``place(loc)``, ``ref(loc)``: a key path of the expanded data named where it was
-    written (``<file>: <key path>``; the reference without the file when it is ``path``)."""
-    named = _Sources(path, sources)
-    return named.place, named.ref
-
-
 def expanded_data(data: Dict[str, Any], path: Path, overrides: Optional[Dict[str, Any]] = None,
                   texts: Optional[Dict[str, str]] = None):
     """The raw tables of a scenario with its includes merged, the overrides applied and every
     group expanded (one signal per entry: :mod:`~immersim.orchestrator.expand`).
 
     Returns ``(data, origins, place, ref, included)``: the override origins, the namers of
-    key paths (:func:`_placer`) and the included files' texts by path."""
+    key paths (:class:`_Sources`) and the included files' texts by path."""
     from .expand import expand
     from .include import compose
 
     data, origin, included = compose(copy.deepcopy(data), path, _reader(texts))
-    place, _ = _placer(path, origin)
+    place = _Sources(path, origin).place
     sources = expand(data, origin, place)
-    place, ref = _placer(path, sources)
+    named = _Sources(path, sources)
+    place, ref = named.place, named.ref
     origins = apply_overrides(data, path, overrides) if overrides else {}   # onto the expanded names
     return data, origins, place, ref, included
 

@@ -23,7 +23,7 @@ from pydantic import (AfterValidator, BaseModel, ConfigDict, Discriminator, Fiel
 from pydantic_core import PydanticCustomError
 
 from .errors import ScenarioError
-from .tomlfiles import did_you_mean, key_path, read_toml, tomllib  # noqa: F401  (shared with the loaders)
+from .tomlfiles import did_you_mean, key_path
 from .tomlfiles import show as _show
 
 #: the largest time a scenario may name (s): times are int64 nanoseconds

@@ -95,7 +95,7 @@ def shipped_scenario(task, local: Dict[str, Path]):
     """The task's scenario, parsed from its text under the client's file name, each unit
     given its local FMU copy (``UnitSpec.path``) and the client's path as its name (``fmu``)."""
     from ..scenario import parse_scenario
-    from ..schema import tomllib
+    from ..tomlfiles import tomllib
 
     sc = parse_scenario(tomllib.loads(task.text), Path(task.scenario), task.text, task.overrides,
                         texts=task.included)

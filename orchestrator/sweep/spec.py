@@ -10,6 +10,7 @@ from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
 from .. import schema
 from ..errors import ScenarioError
+from ..tomlfiles import read_toml
 
 from .common import BUILTIN_METRICS, FIXED_COLUMNS, TAIL_COLUMNS, _EDGE, _UNSAFE
 
@@ -129,7 +130,7 @@ def load_sweep(path: Path | str) -> SweepSpec:
         Naming the sweep file and the offending key (or variant).
     """
     path = Path(path)
-    data, _ = schema.read_toml(path, "sweep file")
+    data, _ = read_toml(path, "sweep file")
     schema.validate(schema.SweepFile, data, path)   # keys, types and ranges: the parsers below rely on it
     scenario = _parse_scenario_path(data.get("scenario"), path)
     grid = _parse_grid(data.get("grid", {}), path)
